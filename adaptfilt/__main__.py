@@ -1,0 +1,3 @@
+from adaptfilt.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,157 @@
+"""Batched small-matrix linear algebra with the Monte-Carlo run axis *last*.
+
+Inside the filters a mean is stored as ``(n, M)`` and a covariance as
+``(n, n, M)``: every entry ``P[i, j]`` is then a contiguous vector over the
+``M`` runs, and a Cholesky factorisation of ten thousand 4x4 matrices is a
+handful of vector operations instead of ten thousand LAPACK calls (about 10x
+faster than ``np.linalg.cholesky`` on an ``(M, n, n)`` stack here). The public
+API shows the same memory as ``(M, n)`` / ``(M, n, n)`` views.
+
+Every function accepts any number of trailing batch axes (``...``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "NotPositiveDefinite",
+    "sym",
+    "chol",
+    "mm",
+    "mv",
+    "solve_spd",
+    "logdet_chol",
+    "clip_to_pd",
+    "wrap_angle",
+]
+
+# Above this dimension a Python loop over matrix entries stops paying off.
+_LOOP_MAX_N = 12
+
+
+class NotPositiveDefinite(np.linalg.LinAlgError):
+    """A batch of matrices had members that are not positive definite.
+
+    ``runs`` holds the flat indices (over the trailing batch axes) of the
+    offending members so that callers can name them in their own error.
+    """
+
+    def __init__(self, runs: np.ndarray, what: str = "matrix"):
+        self.runs = np.asarray(runs)
+        self.what = what
+        shown = ", ".join(str(int(r)) for r in self.runs[:10])
+        more = "" if self.runs.size <= 10 else f" (+{self.runs.size - 10} more)"
+        super().__init__(f"{what} is not positive definite in run(s) {shown}{more}")
+
+
+def sym(P: np.ndarray) -> np.ndarray:
+    """Symmetric part ``(P + P^T) / 2`` over the two leading axes."""
+    return 0.5 * (P + P.swapaxes(0, 1))
+
+
+def _bad_runs(bad: np.ndarray) -> np.ndarray:
+    return np.flatnonzero(np.broadcast_to(bad, bad.shape))
+
+
+def chol(P: np.ndarray, what: str = "matrix") -> np.ndarray:
+    """Lower Cholesky factor ``L`` with ``L L^T = P`` for ``P`` of shape ``(n, n, ...)``.
+
+    Raises :class:`NotPositiveDefinite` naming the batch members whose pivot is
+    not strictly positive (or not finite): never returns NaN.
+    """
+    n = P.shape[0]
+    if P.shape[1] != n:
+        raise ValueError(f"{what} must be square over its two leading axes, got shape {P.shape}")
+    if n > _LOOP_MAX_N:
+        Pm = np.moveaxis(P, (0, 1), (-2, -1))
+        bad = ~np.isfinite(Pm).all(axis=(-2, -1))
+        ok = ~bad
+        L = np.zeros_like(Pm)
+        try:
+            L[ok] = np.linalg.cholesky(Pm[ok])
+        except np.linalg.LinAlgError:
+            ev = np.linalg.eigvalsh(Pm[ok])
+            bad[ok] = ev[..., 0] <= 0
+        if bad.any():
+            raise NotPositiveDefinite(np.flatnonzero(bad.ravel()), what)
+        return np.moveaxis(L, (-2, -1), (0, 1))
+    L = np.zeros_like(P)
+    bad = np.zeros(P.shape[2:], dtype=bool)
+    for j in range(n):
+        d = P[j, j] - np.einsum("k...,k...->...", L[j, :j], L[j, :j]) if j else P[j, j].copy()
+        bad |= ~(d > 0)  # also catches NaN
+        d = np.sqrt(np.where(bad, 1.0, d))
+        L[j, j] = d
+        if j + 1 < n:
+            s = P[j + 1 :, j] - np.einsum("ik...,k...->i...", L[j + 1 :, :j], L[j, :j]) if j else P[j + 1 :, j]
+            L[j + 1 :, j] = s / d
+    if bad.any():
+        raise NotPositiveDefinite(_bad_runs(bad), what)
+    return L
+
+
+def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Batched matrix product ``(n, k, ...) x (k, m, ...) -> (n, m, ...)``."""
+    return np.einsum("ik...,kj...->ij...", A, B)
+
+
+def mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Batched matrix-vector product ``(n, k, ...) x (k, ...) -> (n, ...)``."""
+    return np.einsum("ik...,k...->i...", A, x)
+
+
+def _forward(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Solve ``L Y = B`` for lower-triangular ``L (m, m, ...)`` and ``B (m, k, ...)``."""
+    m = L.shape[0]
+    Y = np.empty(np.broadcast_shapes(B.shape, (m,) + B.shape[1:2] + L.shape[2:]), dtype=float)
+    for i in range(m):
+        s = B[i] - np.einsum("j...,jk...->k...", L[i, :i], Y[:i]) if i else B[i]
+        Y[i] = s / L[i, i]
+    return Y
+
+
+def _backward(L: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Solve ``L^T X = Y`` for lower-triangular ``L``."""
+    m = L.shape[0]
+    X = np.empty_like(Y)
+    for i in reversed(range(m)):
+        s = Y[i] - np.einsum("j...,jk...->k...", L[i + 1 :, i], X[i + 1 :]) if i + 1 < m else Y[i]
+        X[i] = s / L[i, i]
+    return X
+
+
+def solve_spd(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A^{-1} B`` given the Cholesky factor ``L`` of ``A (m, m, ...)`` and ``B (m, k, ...)``."""
+    if L.shape[0] == 1:
+        return B / (L[0, 0] ** 2)
+    return _backward(L, _forward(L, B))
+
+
+def logdet_chol(L: np.ndarray) -> np.ndarray:
+    """``log det A`` from the Cholesky factor of ``A``."""
+    return 2.0 * np.log(np.diagonal(L, axis1=0, axis2=1)).sum(axis=-1)
+
+
+def clip_to_pd(P: np.ndarray, runs: np.ndarray, floor: float = 1e-9) -> np.ndarray:
+    """Copy of ``P (n, n, M)`` whose listed runs are replaced by their nearest
+    positive-definite matrix: eigenvalues clipped below at
+    ``floor * max(1, largest |eigenvalue|)``.
+
+    The explicit, opt-in repair for covariances that lost definiteness through
+    negative weights (``on_indefinite="clip"`` in the filters).
+    """
+    P = P.copy()
+    Pm = np.moveaxis(P[:, :, runs], -1, 0)
+    w, V = np.linalg.eigh(sym(np.moveaxis(Pm, 0, -1)).transpose(2, 0, 1))
+    lo = floor * np.maximum(1.0, np.abs(w).max(axis=-1, keepdims=True))
+    w = np.maximum(w, lo)
+    fixed = np.einsum("mik,mk,mjk->mij", V, w, V)
+    P[:, :, runs] = np.moveaxis(fixed, 0, -1)
+    return P
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles to ``(-pi, pi]``."""
+    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    # mod maps +pi to -pi; the convention here is the half-open (-pi, pi].
+    return np.where(w == -np.pi, np.pi, w)
