@@ -199,8 +199,12 @@ class GaussianAssumedFilter:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(model={self.model.name!r}, {self.rule.param_name}={self.param:g})"
 
-    def _rng(self, stage: int, t: int) -> np.random.Generator | None:
-        return np.random.default_rng([self.seed, stage, t]) if self.rule.stochastic else None
+    def rng(self, stage: int, t: int, stream: int | None = None) -> np.random.Generator | None:
+        """The random numbers of a stochastic rule at ``(stage, t)`` (stage 0 =
+        predict, 1 = update); ``stream`` separates e.g. training episodes."""
+        if not self.rule.stochastic:
+            return None
+        return np.random.default_rng([self.seed, stage, t] + ([] if stream is None else [int(stream)]))
 
     def _wrap(self, fn: Callable, k: int) -> Callable[[np.ndarray], np.ndarray]:
         # model functions take (..., n); the filter holds (n, ..., M)
@@ -228,7 +232,9 @@ class GaussianAssumedFilter:
         return (np.repeat(self._m0, n_runs, axis=1), np.repeat(self._P0, n_runs, axis=2))
 
     # ------------------------------------------------------------- run-last core
-    def predict_rl(self, m: np.ndarray, P: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
+    def predict_rl(
+        self, m: np.ndarray, P: np.ndarray, t: int, rng: np.random.Generator | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Predict from step ``t`` to ``t + 1``; ``m (nx, M)``, ``P (nx, nx, M)``."""
         model = self.model
         if model.F is not None:
@@ -237,7 +243,7 @@ class GaussianAssumedFilter:
             P_pred = mm(mm(F, P), F.swapaxes(0, 1)) + self._Q
         else:
             L, P = self._chol(sym(P), "P_filt", t)
-            mo = self.rule.moments(self._wrap(model.f, t + 1), m, P, self.param, rng=self._rng(_PREDICT, t), L=L, cross=False)
+            mo = self.rule.moments(self._wrap(model.f, t + 1), m, P, self.param, rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False)
             m_pred, P_pred = mo.mean, mo.cov + self._Q
         if not np.isfinite(m_pred).all():
             raise FilterError("non-finite predicted mean x_pred", t + 1, np.flatnonzero(~np.isfinite(m_pred).all(0)))
@@ -263,7 +269,7 @@ class GaussianAssumedFilter:
             S = mm(H, Pxz)
         else:
             if rng is None:
-                rng = self._rng(_UPDATE, t)
+                rng = self.rng(_UPDATE, t)
             mo = self.rule.moments(self._wrap(model.h, t + 1), m, P, param, residual=self._residual_rl(), rng=rng, L=L)
             z_pred, S, Pxz = mo.mean, mo.cov, mo.cross
         Pzz = sym(S + self._R)
