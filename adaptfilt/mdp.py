@@ -1,0 +1,364 @@
+r"""Parameter adaptation as a Markov decision problem (Section IV of the paper).
+
+At step ``t`` the filter has predicted ``N(x_pred, P_pred)`` and received ``z``.
+A policy picks the update parameter ``theta_t`` from a discrete grid, the
+update runs with it, a cost ``L(s_t, z_t, theta_t)`` is paid, and the filter
+predicts to the next step. :class:`FilterEnv` wraps exactly that loop, batched
+over Monte-Carlo runs; training and evaluation drive the same environment.
+
+**Information state** (Section V-E)
+
+.. math::
+    \bar s_t = [\hat x_{t|t-1}^T,\ \mathrm{tr} P_{t|t-1},\ \log\det P_{t|t-1},\ z_t^T,\
+    \tilde z_{t|t-1}^T]^T,
+
+``nx + 2 + 2 nz`` numbers. The innovation ``z~`` at decision time is computed
+with the *default* parameter: the chosen parameter is not known yet when the
+state is formed. Networks see the features through a :class:`FeatureScaler`
+that is stored with a trained policy.
+
+**Costs** (Section V-E), all functions of the update under the chosen parameter:
+``L_NIS = (NIS - nz)^2``, ``L_logmaxNIS = log(1 + max(0, NIS - nz))``,
+``L_stateInnov = ||K z~||``, plus an optional computational term
+``weight * n_iter`` (the paper uses ``1/50``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from adaptfilt.gaf import FilterRun, GaussianAssumedFilter, _UpdateRL
+from adaptfilt.linalg import chol, logdet_chol, sym
+from adaptfilt.models import Trajectory
+
+__all__ = ["Cost", "FeatureScaler", "Decision", "FilterEnv", "feature_names", "run_policy"]
+
+_PREDICT, _UPDATE = 0, 1
+
+
+# ------------------------------------------------------------------- costs
+@dataclass(frozen=True)
+class Cost:
+    """One-step cost ``L(s, z, theta)`` of Section V-E.
+
+    ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
+    (``log(1 + max(0, NIS - nz))``) or ``"stateinnov"`` (``||K z~||``);
+    ``compute_weight`` adds ``weight * theta`` (the iteration count of the SIF).
+
+    >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name
+    ('nis', 'stateinnov+n_iter/50')
+    """
+
+    kind: Literal["nis", "logmaxnis", "stateinnov"] = "nis"
+    compute_weight: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in ("nis", "logmaxnis", "stateinnov"):
+            raise ValueError(f"unknown cost {self.kind!r}: choose 'nis', 'logmaxnis' or 'stateinnov'")
+        if not (np.isfinite(self.compute_weight) and self.compute_weight >= 0):
+            raise ValueError(f"compute_weight must be finite and >= 0, got {self.compute_weight}")
+
+    @property
+    def name(self) -> str:
+        if self.compute_weight == 0:
+            return self.kind
+        inv = 1.0 / self.compute_weight
+        w = f"n_iter/{inv:g}" if abs(inv - round(inv)) < 1e-9 else f"{self.compute_weight:g}*n_iter"
+        return f"{self.kind}+{w}"
+
+    def estimation_cost(self, nis: np.ndarray, K: np.ndarray | None, innovation: np.ndarray | None, nz: int) -> np.ndarray:
+        """The estimation part of the cost, per run; ``K (nx, nz, M)``, ``innovation (nz, M)`` run-last."""
+        if self.kind == "nis":
+            return (nis - nz) ** 2
+        if self.kind == "logmaxnis":
+            return np.log1p(np.maximum(0.0, nis - nz))
+        dx = np.einsum("ijM,jM->iM", K, innovation)
+        return np.sqrt((dx * dx).sum(axis=0))
+
+    def __call__(self, u: _UpdateRL, theta: np.ndarray, nz: int) -> np.ndarray:
+        """Cost per run of update ``u`` made with parameter(s) ``theta``."""
+        c = self.estimation_cost(u.nis, u.K, u.innovation, nz)
+        return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
+
+
+# -------------------------------------------------------- information state
+def feature_names(nx: int, nz: int) -> list[str]:
+    """Names of the information-state features, in order."""
+    return ([f"x_pred[{i}]" for i in range(nx)] + ["tr P_pred", "logdet P_pred"]
+            + [f"z[{i}]" for i in range(nz)] + [f"innov_default[{i}]" for i in range(nz)])
+
+
+@dataclass
+class FeatureScaler:
+    """Affine feature scaling ``clip((s - center) / scale, -clip, clip)``.
+
+    Fitted robustly (median and inter-quartile range / 1.349) on information
+    states visited by the default filter: the states are heavy-tailed (UNGM's
+    log-determinant and innovation) and a mean/std fit would be dominated by a
+    few runs. Travels with a trained policy.
+    """
+
+    center: np.ndarray
+    scale: np.ndarray
+    clip: float = 10.0
+    names: tuple[str, ...] = ()
+
+    @classmethod
+    def fit(cls, features: np.ndarray, names: Sequence[str] = (), clip: float = 10.0) -> "FeatureScaler":
+        f = np.asarray(features, dtype=float).reshape(-1, np.shape(features)[-1])
+        q25, med, q75 = np.quantile(f, [0.25, 0.5, 0.75], axis=0)
+        scale = (q75 - q25) / 1.349
+        fallback = f.std(axis=0)
+        scale = np.where(scale > 1e-12, scale, np.where(fallback > 1e-12, fallback, 1.0))
+        return cls(center=med, scale=scale, clip=float(clip), names=tuple(names))
+
+    def __call__(self, features: np.ndarray) -> np.ndarray:
+        f = np.asarray(features, dtype=float)
+        if f.shape[-1] != self.center.shape[0]:
+            raise ValueError(f"features have {f.shape[-1]} columns, the scaler was fitted on {self.center.shape[0]}")
+        return np.clip((f - self.center) / self.scale, -self.clip, self.clip)
+
+    def to_dict(self) -> dict:
+        return {"center": self.center.tolist(), "scale": self.scale.tolist(), "clip": self.clip, "names": list(self.names)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FeatureScaler":
+        return cls(np.asarray(d["center"], float), np.asarray(d["scale"], float), float(d["clip"]), tuple(d.get("names", ())))
+
+
+# ------------------------------------------------------------------ decision
+@dataclass
+class Decision:
+    """What a policy sees at step ``t``, batched over ``M`` runs.
+
+    ``features (M, d)``: the information state (unscaled, see
+    :func:`feature_names`); ``x_pred (M, nx)``, ``P_pred (M, nx, nx)``,
+    ``z (M, nz)``; ``grid``: the parameter values an action indexes.
+    :meth:`candidates` runs the update for every grid value (what the
+    maximum-likelihood and greedy baselines need); it is computed once and,
+    when a policy used it, the step reuses it so that the chosen candidate is
+    exactly the update that happens.
+    """
+
+    t: int
+    features: np.ndarray
+    grid: np.ndarray
+    default_index: int
+    _env: "FilterEnv" = field(repr=False)
+    _cand: dict | None = field(default=None, repr=False)
+
+    @property
+    def n_runs(self) -> int:
+        return self.features.shape[0]
+
+    @property
+    def x_pred(self) -> np.ndarray:
+        return self._env._m.T
+
+    @property
+    def P_pred(self) -> np.ndarray:
+        return np.moveaxis(self._env._P, -1, 0)
+
+    @property
+    def z(self) -> np.ndarray:
+        return self._env._z_t.T
+
+    def candidates(self) -> dict:
+        """Update results for every grid value: ``nis``, ``loglik``, ``cost``
+        as ``(G, M)`` arrays (``cost`` is None when the env has no cost)."""
+        if self._cand is None:
+            self._cand = self._env._candidates()
+        return self._cand
+
+
+# ----------------------------------------------------------------- the env
+class FilterEnv:
+    """The filter loop as a batched MDP environment.
+
+    Parameters
+    ----------
+    filt : GaussianAssumedFilter
+        Its own parameter is used in the predict step and is the *default*.
+    grid : sequence of float
+        The discrete parameter set ``Theta`` (update step).
+    cost : Cost or None
+        The one-step cost; None (e.g. to filter real data) returns no cost.
+    n_steps : int, optional
+        Horizon; defaults to the model's.
+
+    ``reset(n_runs, rng)`` simulates fresh trajectories (or takes ``traj``),
+    initialises the filter and returns the first :class:`Decision`;
+    ``step(actions)`` takes grid indices ``(M,)`` and returns
+    ``(next_decision or None, cost (M,), done, info)``.
+
+    Common random numbers: ``reset(traj=...)`` replays given trajectories, and
+    a stochastic rule draws the same numbers for the same ``(stream, t)``
+    whatever the policy, so policies compared on one env are paired.
+
+    Example
+    -------
+    >>> import numpy as np, adaptfilt as af
+    >>> from adaptfilt.mdp import FilterEnv, Cost
+    >>> model = af.models.ungm()
+    >>> env = FilterEnv(af.UKF(model), grid=[0.0, 2.0, 10.0], cost=Cost("nis"), n_steps=20)
+    >>> d = env.reset(n_runs=4, rng=np.random.default_rng(0))
+    >>> d.features.shape
+    (4, 5)
+    >>> d, cost, done, info = env.step(np.full(4, d.default_index))
+    """
+
+    def __init__(self, filt: GaussianAssumedFilter, grid: Sequence[float], cost: Cost | None = None, n_steps: int | None = None):
+        self.filt = filt
+        self.model = filt.model
+        grid = np.asarray(grid, dtype=float)
+        if grid.ndim != 1 or grid.size < 1:
+            raise ValueError(f"grid must be a non-empty 1-D sequence of parameter values, got shape {grid.shape}")
+        filt.rule.check_param(grid, self.model.nx)  # e.g. kappa <= -n is a ValueError naming it
+        self.grid = grid
+        matches = np.flatnonzero(np.isclose(grid, filt.param))
+        if matches.size == 0:
+            raise ValueError(f"the grid {grid.tolist()} must contain the filter's default {filt.rule.param_name} = {filt.param:g}")
+        self.default_index = int(matches[0])
+        self.cost = cost
+        self.n_steps = self.model.n_steps if n_steps is None else int(n_steps)
+        if self.n_steps is None or self.n_steps < 1:
+            raise ValueError("n_steps must be given (the model has no default horizon)")
+        self.nx, self.nz = self.model.nx, self.model.nz
+        self.n_features = self.nx + 2 + 2 * self.nz
+        self.stream: int | None = None
+        self.traj: Trajectory | None = None
+        self._decision: Decision | None = None
+
+    # ----------------------------------------------------------- helpers
+    def _features(self) -> np.ndarray:
+        m, P, z, t = self._m, self._P, self._z_t, self._t
+        L = chol(sym(P), "P_pred")
+        tr = np.trace(P, axis1=0, axis2=1)
+        logdet = logdet_chol(L)
+        u = self.filt.update_rl(m, P, z, t, self.filt.param, rng=self.filt.rng(_UPDATE, t, self.stream))
+        return np.concatenate([m, tr[None], logdet[None], z, u.innovation], axis=0).T
+
+    def _candidates(self) -> dict:
+        G, M = self.grid.size, self._m.shape[1]
+        tile = lambda a: np.concatenate([a] * G, axis=-1)
+        theta = np.repeat(self.grid, M)
+        u = self.filt.update_rl(tile(self._m), tile(self._P), tile(self._z_t), self._t, theta,
+                                rng=self.filt.rng(_UPDATE, self._t, self.stream))
+        out = {"update": u, "theta": theta,
+               "nis": u.nis.reshape(G, M), "loglik": u.loglik.reshape(G, M), "cost": None}
+        if self.cost is not None:
+            out["cost"] = self.cost(u, theta, self.nz).reshape(G, M)
+        return out
+
+    def _new_decision(self) -> Decision:
+        self._decision = Decision(self._t, self._features(), self.grid, self.default_index, self)
+        return self._decision
+
+    # --------------------------------------------------------------- API
+    def reset(self, n_runs: int | None = None, rng: np.random.Generator | int | None = None,
+              traj: Trajectory | None = None, stream: int | None = None) -> Decision:
+        """Start an episode: simulate ``n_runs`` trajectories with ``rng`` (or
+        replay ``traj``), set the prior, return the first decision.
+        ``stream`` keys a stochastic rule's random numbers (e.g. the episode)."""
+        if traj is None:
+            if n_runs is None:
+                raise ValueError("reset needs n_runs (to simulate) or traj (to replay)")
+            traj = self.model.simulate(n_runs, self.n_steps, rng=rng)
+        if traj.z.shape[1] < self.n_steps or traj.z.shape[2] != self.nz:
+            raise ValueError(f"traj.z must have shape (M, >= {self.n_steps}, {self.nz}), got {traj.z.shape}")
+        self.traj, self.stream = traj, stream
+        self._zs = np.ascontiguousarray(np.moveaxis(traj.z, 0, -1))  # (T, nz, M)
+        self._t = 0
+        self._m, self._P = self.filt.initial(traj.z.shape[0])
+        self._z_t = self._zs[0]
+        return self._new_decision()
+
+    def check_actions(self, actions) -> np.ndarray:
+        """Grid indices as an int array ``(M,)``; ValueError naming what is wrong."""
+        a = np.asarray(actions)
+        M = self._m.shape[1]
+        if a.shape != (M,):
+            raise ValueError(f"actions must be one grid index per run, shape ({M},); got shape {a.shape}")
+        if not np.issubdtype(a.dtype, np.integer):
+            if not (np.isfinite(a).all() and (a == np.round(a)).all()):
+                raise ValueError("actions must be integer grid indices")
+            a = a.astype(np.int64)
+        if (a < 0).any() or (a >= self.grid.size).any():
+            bad = a[(a < 0) | (a >= self.grid.size)]
+            raise ValueError(f"action index {int(bad[0])} out of range: the grid has {self.grid.size} values (0..{self.grid.size - 1})")
+        return a
+
+    def step(self, actions) -> tuple[Decision | None, np.ndarray | None, bool, dict]:
+        """Update with ``grid[actions]``, pay the cost, predict to the next step.
+
+        Returns ``(decision, cost, done, info)``; ``info`` holds the update's
+        ``x_filt (M, nx)``, ``P_filt (M, nx, nx)``, ``nis``, ``loglik``,
+        ``theta`` and ``t``. After the last step ``decision`` is None and ``done`` True.
+        """
+        if self._decision is None:
+            raise RuntimeError("call reset() before step()")
+        a = self.check_actions(actions)
+        theta = self.grid[a]
+        d, t, M = self._decision, self._t, self._m.shape[1]
+        if d._cand is not None:
+            idx = a * M + np.arange(M)  # the chosen candidate of each run
+            cu = d._cand["update"]
+            u = _UpdateRL(*(getattr(cu, f)[..., idx] for f in _UpdateRL.__dataclass_fields__))
+            cost = None if d._cand["cost"] is None else d._cand["cost"][a, np.arange(M)]
+        else:
+            u = self.filt.update_rl(self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(_UPDATE, t, self.stream))
+            cost = None if self.cost is None else self.cost(u, theta, self.nz)
+        info = {"t": t, "theta": theta, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
+                "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0)}
+        done = t + 1 >= self.n_steps
+        if done:
+            self._decision = None
+            return None, cost, True, info
+        self._m, self._P = self.filt.predict_rl(u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream))
+        self._t = t + 1
+        self._z_t = self._zs[self._t]
+        return self._new_decision(), cost, False, info
+
+
+def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int | None = None,
+            rng=None, stream: int | None = None, keep_pred: bool = False, progress: bool = False) -> tuple[FilterRun, np.ndarray | None]:
+    """Run ``policy`` through ``env`` for a whole episode.
+
+    Returns the filter run (moments, NIS, log-likelihood, parameters chosen)
+    and the cost ``(M, T)`` (None when the env has no cost).
+    """
+    d = env.reset(n_runs=n_runs, rng=rng, traj=traj, stream=stream)
+    M, T, nx = d.n_runs, env.n_steps, env.nx
+    mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
+    nis, ll, params = np.empty((M, T)), np.empty((M, T)), np.empty((M, T))
+    costs = np.empty((M, T)) if env.cost is not None else None
+    xp = np.empty((M, T, nx)) if keep_pred else None
+    Pp = np.empty((M, T, nx, nx)) if keep_pred else None
+    steps = range(T)
+    if progress:
+        from tqdm.auto import tqdm
+
+        steps = tqdm(steps, desc=getattr(policy, "name", "policy"), leave=False)
+    for t in steps:
+        d, c, done, info = env.step(policy.act(d))
+        mean[:, t], cov[:, t], nis[:, t], ll[:, t], params[:, t] = (
+            info["x_filt"], info["P_filt"], info["nis"], info["loglik"], info["theta"])
+        if costs is not None:
+            costs[:, t] = c
+        if keep_pred:
+            xp[:, t], Pp[:, t] = info["x_pred"], info["P_pred"]
+    return FilterRun(mean=mean, cov=cov, nis=nis, loglik=ll, params=params, x_pred=xp, P_pred=Pp), costs
+
+
+def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:
+    """Filter measurements ``z (M, T, nz)`` with the update parameter chosen
+    by ``policy`` (which carries its ``grid``); used by ``filt.run(z, policy=...)``."""
+    grid = getattr(policy, "grid", None)
+    if grid is None:
+        raise ValueError("the policy has no parameter grid (policy.grid)")
+    env = FilterEnv(filt, grid, cost=None, n_steps=z.shape[1])
+    traj = Trajectory(x=np.full(z.shape[:2] + (filt.model.nx,), np.nan), z=z)
+    run, _ = rollout(env, policy, traj=traj, keep_pred=keep_pred, progress=progress)
+    return run

@@ -1,0 +1,102 @@
+r"""Policies: information state (and measurement) -> index into the parameter grid.
+
+Every policy has a ``name`` (used in results: ``default``, ``fixed-kappa=2``,
+``ml``, ``greedy``, ...) and ``act(decision) -> (M,)`` grid indices, where
+``decision`` is an :class:`adaptfilt.mdp.Decision`. A policy that carries a
+``grid`` can also drive ``filter.run(z, policy=...)``.
+
+Baselines (Section V-E and DESIGN.md):
+
+* :class:`FixedPolicy` / :func:`default_policy`: one value for all steps;
+* :class:`MaxLikelihoodPolicy`: ``argmax_theta N(z; z_pred(theta), Pzz(theta))``
+  per step (Dunik, Simandl and Straka);
+* :class:`GreedyPolicy`: ``argmin_theta L(s, z, theta)``, the exact one-step
+  (myopic) optimum of the cost, found by trying every grid value;
+* learned policies (the actor network) live in :mod:`adaptfilt.learned`.
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Policy", "FixedPolicy", "default_policy", "MaxLikelihoodPolicy", "GreedyPolicy", "RandomPolicy"]
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What the environment and ``evaluate`` need from a policy."""
+
+    name: str
+
+    def act(self, decision) -> np.ndarray:  # pragma: no cover - protocol
+        """Grid indices ``(M,)`` for the runs of ``decision``."""
+        ...
+
+
+class FixedPolicy:
+    """Always the grid value ``value`` (named ``fixed-<param>=<value>``).
+
+    >>> FixedPolicy(2.0, param_name="kappa").name
+    'fixed-kappa=2'
+    """
+
+    def __init__(self, value: float, param_name: str = "param", name: str | None = None, grid=None):
+        self.value = float(value)
+        self.name = name or f"fixed-{param_name}={self.value:g}"
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def act(self, decision) -> np.ndarray:
+        hit = np.flatnonzero(np.isclose(decision.grid, self.value))
+        if hit.size == 0:
+            raise ValueError(f"policy {self.name!r}: value {self.value:g} is not on the grid {decision.grid.tolist()}")
+        return np.full(decision.n_runs, hit[0], dtype=np.int64)
+
+
+def default_policy(default_value: float, grid=None) -> FixedPolicy:
+    """The practitioner's default (``kappa = max(0, 3 - n)``, SIF ``n_iter = 10``), named ``default``."""
+    return FixedPolicy(default_value, name="default", grid=grid)
+
+
+class MaxLikelihoodPolicy:
+    """``argmax_theta log N(z; z_pred(theta), Pzz(theta))`` at every step."""
+
+    name = "ml"
+
+    def __init__(self, grid=None):
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def act(self, decision) -> np.ndarray:
+        return np.argmax(decision.candidates()["loglik"], axis=0)
+
+
+class GreedyPolicy:
+    """``argmin_theta L(s, z, theta)``: the exact myopic optimum over the grid.
+
+    It is what a perfectly trained ``gamma = 0`` policy would do, so it is the
+    honest bar for "non-myopic helps".
+    """
+
+    name = "greedy"
+
+    def __init__(self, grid=None):
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def act(self, decision) -> np.ndarray:
+        cost = decision.candidates()["cost"]
+        if cost is None:
+            raise ValueError("the greedy policy needs an environment with a cost")
+        return np.argmin(cost, axis=0)
+
+
+class RandomPolicy:
+    """Uniformly random grid indices (a sanity baseline), seeded."""
+
+    name = "random"
+
+    def __init__(self, rng: np.random.Generator | int | None = 0, grid=None):
+        self.rng = np.random.default_rng(rng)
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def act(self, decision) -> np.ndarray:
+        return self.rng.integers(0, decision.grid.size, size=decision.n_runs)
