@@ -346,8 +346,9 @@ def _html_block(html: str) -> str:
 
 def _render_data(data: Mapping[str, Any], stem: str, files: dict[str, bytes]) -> str:
     """Markdown for an execute_result / display_data bundle."""
-    # Widgets (tqdm bars, ipywidgets) need a live kernel: their text fallback is kept.
-    mimes = [m for m in _MIME_ORDER if m in data and m != _WIDGET_MIME]
+    # Widgets (tqdm bars, ipywidgets) need a live kernel: _WIDGET_MIME is not in
+    # _MIME_ORDER, so a widget view is dropped and its text fallback kept.
+    mimes = [m for m in _MIME_ORDER if m in data]
     if not mimes:
         return ""
     mime = mimes[0]
@@ -607,6 +608,14 @@ def write_sources(chapters: Sequence[Chapter], src: Path) -> None:
     (src / "mathjax-config.js").write_text(_MATHJAX_CONFIG, encoding="utf-8")
 
 
+def _check_out_dir(out_dir: Path, root: Path) -> None:
+    """Refuse an output directory that is not a (previous) book: mdBook empties it first."""
+    if out_dir == root.resolve() or out_dir in root.resolve().parents:
+        raise BookBuildError(f"--out {out_dir} contains the repository; mdbook would delete it")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not (out_dir / "index.html").is_file():
+        raise BookBuildError(f"--out {out_dir} is a non-empty directory that is not a built book; mdbook empties it")
+
+
 def build_book(out_dir: Path, *, root: Path | None = None, notebooks: Sequence[Path] | None = None) -> Path:
     """Build the course book into ``out_dir``; return ``out_dir/index.html``.
 
@@ -617,6 +626,7 @@ def build_book(out_dir: Path, *, root: Path | None = None, notebooks: Sequence[P
     """
     root = find_root() if root is None else Path(root)
     out_dir = Path(out_dir).resolve()
+    _check_out_dir(out_dir, root)
     src = out_dir.with_name(out_dir.name + "-src")
     theme = out_dir.with_name(out_dir.name + "-theme")
     write_sources(collect_chapters(root, notebooks), src)
