@@ -1,0 +1,131 @@
+r"""Tiny MDPs with the :class:`~adaptfilt.mdp.FilterEnv` interface, whose optimal
+policies are known: they test (and teach) the actor-critic without a filter.
+
+* :class:`BanditEnv` -- state ``s ~ N(0, 1)`` (plus a noise feature); the cost
+  of action ``a`` is ``COSTS_POS[a] = (1, 0, 2)[a]`` when ``s > 0`` and
+  ``COSTS_NEG[a] = (0, 1, 2)[a]`` otherwise, plus small noise: the best action
+  is 1 for ``s > 0`` and 0 otherwise, action 2 is always the worst. Actions
+  do not change the state: every gamma has the same optimum.
+* :class:`TrapEnv` -- two states, *good* and *bad*. In *good*, action 0 costs 0
+  now but moves to *bad*, where every later step costs 1 whatever is done;
+  action 1 costs ``c1 = 0.25`` and stays *good*. Myopically (gamma = 0) action
+  0 is better; with gamma = 0.5, ``Q(good, 0) = 0 + 0.5 * 1/(1 - 0.5) = 1``
+  against ``Q(good, 1) = 0.25 / (1 - 0.5) = 0.5``: action 1 is better.
+
+Both are batched over ``n_runs`` like the filter environment:
+``reset(n_runs, rng, traj=None, stream=None) -> ToyDecision``,
+``step(actions) -> (decision | None, cost (M,), done, info)``.
+
+>>> import numpy as np
+>>> env = TrapEnv(n_steps=3)
+>>> d = env.reset(n_runs=2, rng=np.random.default_rng(0))
+>>> d, c, done, _ = env.step(np.array([0, 1])); c.tolist()
+[0.0, 0.25]
+>>> d, c, done, _ = env.step(np.array([1, 1])); c.tolist()
+[1.0, 0.25]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ToyDecision", "ToyCost", "BanditEnv", "TrapEnv"]
+
+
+@dataclass
+class ToyDecision:
+    t: int
+    features: np.ndarray
+    grid: np.ndarray
+    default_index: int = 0
+
+    @property
+    def n_runs(self) -> int:
+        return self.features.shape[0]
+
+
+@dataclass(frozen=True)
+class ToyCost:
+    name: str
+
+
+class _ToyEnv:
+    name = "toy"
+    param_name = "action"
+    n_actions = 3
+
+    def __init__(self, n_steps: int = 10):
+        self.n_steps = int(n_steps)
+        self.grid = np.arange(self.n_actions, dtype=float)
+        self.default_index = 0
+        self.cost = ToyCost(self.name)
+        self.model = None
+        self._rng = None
+
+    def _decision(self) -> ToyDecision:
+        return ToyDecision(self._t, self._features(), self.grid, self.default_index)
+
+    def reset(self, n_runs=None, rng=None, traj=None, stream=None) -> ToyDecision:
+        self._rng = np.random.default_rng(rng)
+        self._M = int(n_runs)
+        self._t = 0
+        self._reset_state()
+        return self._decision()
+
+    def step(self, actions):
+        a = np.asarray(actions, dtype=np.int64)
+        if a.shape != (self._M,) or (a < 0).any() or (a >= self.n_actions).any():
+            raise ValueError(f"actions must be {self._M} indices in 0..{self.n_actions - 1}")
+        cost = self._transition(a)
+        info = {"t": self._t, "theta": self.grid[a]}
+        self._t += 1
+        done = self._t >= self.n_steps
+        return (None if done else self._decision()), cost, done, info
+
+
+class BanditEnv(_ToyEnv):
+    """Contextual bandit with a known best action (see the module docstring)."""
+
+    name = "toy-bandit"
+    feature_names = ("s", "noise")
+    COSTS_POS = (1.0, 0.0, 2.0)
+    COSTS_NEG = (0.0, 1.0, 2.0)
+
+    def _reset_state(self):
+        self._s = self._rng.standard_normal(self._M)
+
+    def _features(self):
+        return np.stack([self._s, self._rng.standard_normal(self._M)], axis=1)
+
+    def best_action(self, s: np.ndarray) -> np.ndarray:
+        return np.where(np.asarray(s) > 0, int(np.argmin(self.COSTS_POS)), int(np.argmin(self.COSTS_NEG)))
+
+    def _transition(self, a):
+        cost = (np.where(self._s > 0, np.asarray(self.COSTS_POS)[a], np.asarray(self.COSTS_NEG)[a])
+                + 0.1 * self._rng.standard_normal(self._M))
+        self._s = self._rng.standard_normal(self._M)
+        return cost
+
+
+class TrapEnv(_ToyEnv):
+    """Greedy is worse in the long run (see the module docstring)."""
+
+    name = "toy-trap"
+    n_actions = 2
+    feature_names = ("bad", "noise")
+
+    def __init__(self, n_steps: int = 10, c1: float = 0.25):
+        super().__init__(n_steps)
+        self.c1 = float(c1)
+
+    def _reset_state(self):
+        self._bad = np.zeros(self._M, dtype=bool)
+
+    def _features(self):
+        return np.stack([self._bad.astype(float), self._rng.standard_normal(self._M)], axis=1)
+
+    def _transition(self, a):
+        cost = np.where(self._bad, 1.0, np.where(a == 0, 0.0, self.c1))
+        self._bad = self._bad | (a == 0)
+        return cost
