@@ -151,7 +151,17 @@ def clip_to_pd(P: np.ndarray, runs: np.ndarray, floor: float = 1e-9) -> np.ndarr
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to ``(-pi, pi]``."""
-    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    """Wrap angles to ``(-pi, pi]``.
+
+    Angles already inside are returned unchanged (exactly); only the others
+    go through the (slow) floating-point modulo.
+    """
+    a = np.asarray(a, dtype=float)
+    outside = (a > np.pi) | (a <= -np.pi)
+    if not outside.any():
+        return a.copy()
+    out = a.copy()
+    w = np.mod(a[outside] + np.pi, 2.0 * np.pi) - np.pi
     # mod maps +pi to -pi; the convention here is the half-open (-pi, pi].
-    return np.where(w == -np.pi, np.pi, w)
+    out[outside] = np.where(w == -np.pi, np.pi, w)
+    return out
