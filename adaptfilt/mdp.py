@@ -29,8 +29,8 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from adaptfilt.gaf import FilterRun, GaussianAssumedFilter, _UpdateRL
-from adaptfilt.linalg import chol, logdet_chol, sym
+from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter, _UpdateRL
+from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
 
 __all__ = ["Cost", "FeatureScaler", "Decision", "FilterEnv", "feature_names", "run_policy"]
@@ -140,36 +140,53 @@ class Decision:
     maximum-likelihood and greedy baselines need); it is computed once and,
     when a policy used it, the step reuses it so that the chosen candidate is
     exactly the update that happens.
+
+    ``features`` is computed on first access and cached: it costs an extra
+    update with the default parameter (the innovation feature), which fixed,
+    ML and greedy policies never need. A decision keeps its own predicted
+    moments, so its features and candidates stay correct even when read
+    after the environment has stepped on.
     """
 
     t: int
-    features: np.ndarray
     grid: np.ndarray
     default_index: int
     _env: "FilterEnv" = field(repr=False)
+    _m: np.ndarray = field(repr=False)  # (nx, M) run-last predicted mean
+    _P: np.ndarray = field(repr=False)  # (nx, nx, M)
+    _z: np.ndarray = field(repr=False)  # (nz, M)
+    _stream: int | None = field(default=None, repr=False)
     _cand: dict | None = field(default=None, repr=False)
+    _feat: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def features(self) -> np.ndarray:
+        """The information state ``(M, nx + 2 + 2 nz)`` (computed once, on first access)."""
+        if self._feat is None:
+            self._feat = self._env._features(self._m, self._P, self._z, self.t, self._stream)
+        return self._feat
 
     @property
     def n_runs(self) -> int:
-        return self.features.shape[0]
+        return self._m.shape[1]
 
     @property
     def x_pred(self) -> np.ndarray:
-        return self._env._m.T
+        return self._m.T
 
     @property
     def P_pred(self) -> np.ndarray:
-        return np.moveaxis(self._env._P, -1, 0)
+        return np.moveaxis(self._P, -1, 0)
 
     @property
     def z(self) -> np.ndarray:
-        return self._env._z_t.T
+        return self._z.T
 
     def candidates(self) -> dict:
         """Update results for every grid value: ``nis``, ``loglik``, ``cost``
         as ``(G, M)`` arrays (``cost`` is None when the env has no cost)."""
         if self._cand is None:
-            self._cand = self._env._candidates()
+            self._cand = self._env._candidates(self._m, self._P, self._z, self.t, self._stream)
         return self._cand
 
 
@@ -232,20 +249,29 @@ class FilterEnv:
         self._decision: Decision | None = None
 
     # ----------------------------------------------------------- helpers
-    def _features(self) -> np.ndarray:
-        m, P, z, t = self._m, self._P, self._z_t, self._t
-        L = chol(sym(P), "P_pred")
+    def _features(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> np.ndarray:
+        P = sym(P)
+        try:
+            L = chol(P, "P_pred")
+        except NotPositiveDefinite as e:
+            # The update of this step repairs (and counts) the same runs; the
+            # features see the same repaired matrix without counting twice.
+            if self.filt.on_indefinite == "raise":
+                raise FilterError("P_pred is not positive definite", t, e.runs) from None
+            P = clip_to_pd(P, e.runs)
+            L = chol(sym(P), "P_pred")
         tr = np.trace(P, axis1=0, axis2=1)
         logdet = logdet_chol(L)
-        u = self.filt.update_rl(m, P, z, t, self.filt.param, rng=self.filt.rng(_UPDATE, t, self.stream))
+        u = self.filt.update_rl(m, P, z, t, self.filt.param, rng=self.filt.rng(_UPDATE, t, stream))
         return np.concatenate([m, tr[None], logdet[None], z, u.innovation], axis=0).T
 
-    def _candidates(self) -> dict:
-        G, M = self.grid.size, self._m.shape[1]
+    def _candidates(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> dict:
+        G, M = self.grid.size, m.shape[1]
+        # Repair (and count) an indefinite P_pred once here, not once per grid value.
+        _, P = self.filt._chol(sym(P), "P_pred", t)
         tile = lambda a: np.concatenate([a] * G, axis=-1)
         theta = np.repeat(self.grid, M)
-        u = self.filt.update_rl(tile(self._m), tile(self._P), tile(self._z_t), self._t, theta,
-                                rng=self.filt.rng(_UPDATE, self._t, self.stream))
+        u = self.filt.update_rl(tile(m), tile(P), tile(z), t, theta, rng=self.filt.rng(_UPDATE, t, stream))
         out = {"update": u, "theta": theta,
                "nis": u.nis.reshape(G, M), "loglik": u.loglik.reshape(G, M), "cost": None}
         if self.cost is not None:
@@ -253,7 +279,8 @@ class FilterEnv:
         return out
 
     def _new_decision(self) -> Decision:
-        self._decision = Decision(self._t, self._features(), self.grid, self.default_index, self)
+        self._decision = Decision(self._t, self.grid, self.default_index, self,
+                                  self._m, self._P, self._z_t, self.stream)
         return self._decision
 
     # --------------------------------------------------------------- API
@@ -331,11 +358,13 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     """
     d = env.reset(n_runs=n_runs, rng=rng, traj=traj, stream=stream)
     M, T, nx = d.n_runs, env.n_steps, env.nx
-    mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
-    nis, ll, params = np.empty((M, T)), np.empty((M, T)), np.empty((M, T))
-    costs = np.empty((M, T)) if env.cost is not None else None
-    xp = np.empty((M, T, nx)) if keep_pred else None
-    Pp = np.empty((M, T, nx, nx)) if keep_pred else None
+    # Time-major buffers: each step writes one contiguous block (a run-major
+    # (M, T, ...) buffer would be written with a stride of T elements).
+    mean, cov = np.empty((T, M, nx)), np.empty((T, M, nx, nx))
+    nis, ll, params = np.empty((T, M)), np.empty((T, M)), np.empty((T, M))
+    costs = np.empty((T, M)) if env.cost is not None else None
+    xp = np.empty((T, M, nx)) if keep_pred else None
+    Pp = np.empty((T, M, nx, nx)) if keep_pred else None
     steps = range(T)
     if progress:
         from tqdm.auto import tqdm
@@ -343,13 +372,15 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
         steps = tqdm(steps, desc=getattr(policy, "name", "policy"), leave=False)
     for t in steps:
         d, c, done, info = env.step(policy.act(d))
-        mean[:, t], cov[:, t], nis[:, t], ll[:, t], params[:, t] = (
+        mean[t], cov[t], nis[t], ll[t], params[t] = (
             info["x_filt"], info["P_filt"], info["nis"], info["loglik"], info["theta"])
         if costs is not None:
-            costs[:, t] = c
+            costs[t] = c
         if keep_pred:
-            xp[:, t], Pp[:, t] = info["x_pred"], info["P_pred"]
-    return FilterRun(mean=mean, cov=cov, nis=nis, loglik=ll, params=params, x_pred=xp, P_pred=Pp), costs
+            xp[t], Pp[t] = info["x_pred"], info["P_pred"]
+    tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
+    return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
+                     x_pred=tr(xp), P_pred=tr(Pp)), tr(costs)
 
 
 def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:
