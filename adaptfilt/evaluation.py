@@ -1,0 +1,461 @@
+r"""Monte-Carlo evaluation of parameter policies (Section V-D of the paper).
+
+:func:`evaluate` simulates ``M`` trajectories **once** and runs every policy
+on the same trajectories, through the same :class:`~adaptfilt.mdp.FilterEnv`
+(so a stochastic rule draws the same random numbers for every policy): the
+comparison is *paired* (common random numbers). The uncertainty of every
+summary is a bootstrap over Monte-Carlo runs with **one** set of multinomial
+resampling counts shared by all policies, so a difference between two
+policies gets its own confidence interval
+(:meth:`Results.paired_difference`), much narrower than the two separate
+intervals suggest.
+
+What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
+
+========================  ==================================================================
+``rmse_t (T,)``           ``RMSE_k = sqrt(mean_l e^T e)``
+``anees_t (T,)``          ``ANEES_k = mean_l e^T P^{-1} e`` (ideal ``nx``)
+``nis_t (T,)``            mean NIS over runs at step ``k`` (ideal ``nz``)
+``rmse``                  time average of ``RMSE_k`` (the paper's "time-averaged RMSE")
+``anees`` / ``nis``       time averages of ``ANEES_k`` / mean NIS
+``cost``                  mean one-step cost over runs and steps (Table I's "time avg. cost")
+``cost_median`` ...       median, 99 % and 99.9 % quantiles and max of the one-step cost over
+                          all ``M T`` (run, step) pairs: the NIS cost is extremely heavy-tailed
+``rmse_run_median``       median over runs of the run's own RMS error ``sqrt(mean_k e^T e)``
+``*_ci``                  95 % percentile bootstrap interval (runs resampled)
+``usage (G,)``            how many (run, step) pairs used each grid value
+``choices (T, G)``        fraction of runs using each grid value at each step
+``n_repairs``             covariances repaired by the filter (``on_indefinite="clip"``)
+``wall_time_s``           seconds spent on the policy (filtering + metrics)
+========================  ==================================================================
+
+Memory: a policy's full filtering covariances are reduced to per-run,
+per-step squared errors and NEES right after its rollout and dropped; only
+``(T,)``, ``(M,)`` and bootstrap ``(n_boot,)`` summaries are kept.
+
+:func:`evaluate_experiment` is what ``adaptfilt evaluate`` runs: every
+baseline of a named experiment (plus learned policy files) -> ``results.json``
++ ``results.npz`` (:meth:`Results.save`), ``summary.json``, ``summary.md`` and
+the figures of :mod:`adaptfilt.plots`.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Iterable, Literal, Sequence
+
+import numpy as np
+from scipy import stats
+
+from adaptfilt import metrics
+from adaptfilt.linalg import NotPositiveDefinite, chol, solve_spd
+from adaptfilt.mdp import FilterEnv, rollout
+from adaptfilt.models import Trajectory
+
+__all__ = ["PolicyResult", "Results", "evaluate", "evaluate_experiment", "RESULTS_FORMAT", "TRAJ_SEED_KEY"]
+
+RESULTS_FORMAT = "adaptfilt-results/1"
+#: Trajectories of an evaluation with seed ``s`` come from ``default_rng([TRAJ_SEED_KEY, s])``, so
+#: that they are not the trajectories a training run with the same seed simulates.
+TRAJ_SEED_KEY = 0xE7A1
+#: Quantiles of the one-step cost that are reported besides its mean.
+COST_QUANTILES = (0.5, 0.99, 0.999)
+
+_SCALARS = ("rmse", "anees", "nis", "cost", "cost_median", "cost_q99", "cost_q999", "cost_max",
+            "rmse_run_median", "n_repairs", "wall_time_s")
+_CIS = ("rmse_ci", "anees_ci", "cost_ci")
+_ARRAYS = ("rmse_t", "rmse_t_band", "anees_t", "anees_t_band", "nis_t", "choices", "usage",
+           "boot_rmse", "boot_anees", "boot_cost", "run_rmse", "run_anees", "run_cost")
+
+
+@dataclass
+class PolicyResult:
+    """The evaluation of one policy; see the module docstring for what each number means.
+
+    ``*_band (2, T)`` are pointwise 95 % bands of ``RMSE_k`` (bootstrap) and
+    ``ANEES_k`` (mean +- 1.96 standard errors);
+    ``boot_* (n_boot,)`` the bootstrap replicates of the time averages (shared
+    resamples across policies); ``run_* (M,)`` per-run time averages (RMS
+    error, mean NEES, mean cost).
+    """
+
+    name: str
+    rmse: float
+    rmse_ci: tuple[float, float]
+    anees: float
+    anees_ci: tuple[float, float]
+    nis: float
+    cost: float
+    cost_ci: tuple[float, float]
+    cost_median: float
+    cost_q99: float
+    cost_q999: float
+    cost_max: float
+    rmse_run_median: float
+    n_repairs: int
+    wall_time_s: float
+    rmse_t: np.ndarray
+    rmse_t_band: np.ndarray
+    anees_t: np.ndarray
+    anees_t_band: np.ndarray
+    nis_t: np.ndarray
+    choices: np.ndarray
+    usage: np.ndarray
+    boot_rmse: np.ndarray
+    boot_anees: np.ndarray
+    boot_cost: np.ndarray
+    run_rmse: np.ndarray
+    run_anees: np.ndarray
+    run_cost: np.ndarray
+
+    def scalars(self) -> dict:
+        """The JSON-able scalar summaries (CIs as ``[lo, hi]``, usage as counts)."""
+        d = {k: getattr(self, k) for k in _SCALARS}
+        d.update({k: list(getattr(self, k)) for k in _CIS})
+        d["usage"] = self.usage.tolist()
+        return d
+
+
+@dataclass
+class Results:
+    """The outcome of :func:`evaluate`: the configuration and one :class:`PolicyResult` per policy.
+
+    >>> res["greedy"].rmse, res["greedy"].rmse_ci        # doctest: +SKIP
+    >>> res.paired_difference("greedy", "default", "rmse")  # (diff, lo, hi)  # doctest: +SKIP
+    """
+
+    config: dict
+    policies: dict[str, PolicyResult] = field(default_factory=dict)
+
+    # ------------------------------------------------------------ access
+    def __getitem__(self, name: str) -> PolicyResult:
+        try:
+            return self.policies[name]
+        except KeyError:
+            raise KeyError(f"no policy {name!r} in these results; have: {', '.join(self.policies)}") from None
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.policies
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.policies)
+
+    @property
+    def grid(self) -> np.ndarray:
+        return np.asarray(self.config["grid"], dtype=float)
+
+    def paired_difference(self, a: str, b: str, metric: Literal["rmse", "anees", "cost"] = "rmse",
+                          level: float = 0.95) -> tuple[float, float, float]:
+        """``metric(a) - metric(b)`` and its paired bootstrap interval ``(diff, lo, hi)``.
+
+        Both policies ran on the same trajectories and are resampled with the
+        same counts, so the interval is that of the difference itself: it
+        excludes 0 when the difference is significant at ``level``.
+        """
+        if metric not in ("rmse", "anees", "cost"):
+            raise ValueError(f"metric must be 'rmse', 'anees' or 'cost', got {metric!r}")
+        pa, pb = self[a], self[b]
+        diff = float(getattr(pa, metric) - getattr(pb, metric))
+        lo, hi = metrics.percentile_ci(getattr(pa, "boot_" + metric) - getattr(pb, "boot_" + metric), level)
+        return diff, lo, hi
+
+    def best_fixed(self, metric: Literal["rmse", "anees", "cost"] = "rmse") -> str:
+        """Name of the fixed-value policy with the lowest ``metric`` (ANEES: closest to ``nx``)."""
+        fixed = [n for n in self.policies if n.startswith("fixed-")]
+        if not fixed:
+            raise ValueError("these results have no fixed-value policies")
+        if metric == "anees":
+            return min(fixed, key=lambda n: abs(np.log(self[n].anees / self.config["nx"])))
+        return min(fixed, key=lambda n: getattr(self[n], metric))
+
+    # ----------------------------------------------------------- tables
+    def summary(self) -> dict:
+        """``{name: {"rmse", "anees", "cost", "rmse_ci", "anees_ci", ...}}`` (what ``summary.json`` holds)."""
+        out = {}
+        for n, p in self.policies.items():
+            out[n] = {"rmse": p.rmse, "anees": p.anees, "cost": p.cost,
+                      "rmse_ci": list(p.rmse_ci), "anees_ci": list(p.anees_ci),
+                      "cost_ci": list(p.cost_ci), "cost_median": p.cost_median,
+                      "rmse_run_median": p.rmse_run_median, "nis": p.nis}
+        return out
+
+    def table(self) -> str:
+        """A Markdown table of the time-averaged summaries with 95 % CIs."""
+        c = self.config
+        head = (f"**{c.get('experiment') or c.get('model')}**: M = {c['n_runs']} runs, T = {c['n_steps']} steps, "
+                f"seed {c['seed']}, cost `{c['cost']}`; 95 % bootstrap CIs over runs "
+                f"(ideal ANEES = nx = {c['nx']}, ideal NIS = nz = {c['nz']}).\n\n")
+        rows = ["| policy | RMSE [95% CI] | ANEES [95% CI] | NIS | cost mean [95% CI] | cost median | "
+                "cost q99.9 | median run RMSE | repairs | time (s) |",
+                "|---|---|---|---|---|---|---|---|---|---|"]
+        for n, p in self.policies.items():
+            rows.append(
+                f"| {n} | {p.rmse:.4g} [{p.rmse_ci[0]:.4g}, {p.rmse_ci[1]:.4g}] "
+                f"| {p.anees:.4g} [{p.anees_ci[0]:.4g}, {p.anees_ci[1]:.4g}] | {p.nis:.4g} "
+                f"| {p.cost:.4g} [{p.cost_ci[0]:.4g}, {p.cost_ci[1]:.4g}] | {p.cost_median:.4g} "
+                f"| {p.cost_q999:.4g} | {p.rmse_run_median:.4g} | {p.n_repairs} | {p.wall_time_s:.1f} |")
+        return head + "\n".join(rows) + "\n"
+
+    # ------------------------------------------------------------- files
+    def save(self, out_dir: str | Path) -> Path:
+        """Write ``results.json`` (config and scalar summaries) and ``results.npz``
+        (arrays) into ``out_dir``; :meth:`load` reads them back bit-identically."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        doc = {"format": RESULTS_FORMAT, "config": self.config,
+               "policies": {n: p.scalars() for n, p in self.policies.items()},
+               "order": list(self.policies)}
+        # json writes floats with repr(): they read back exactly.
+        (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+        arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values()) for k in _ARRAYS}
+        np.savez_compressed(out / "results.npz", **arrays)
+        return out
+
+    @classmethod
+    def load(cls, out_dir: str | Path) -> "Results":
+        """Read what :meth:`save` wrote."""
+        out = Path(out_dir)
+        doc = json.loads((out / "results.json").read_text())
+        if doc.get("format") != RESULTS_FORMAT:
+            raise ValueError(f"{out / 'results.json'} is not an adaptfilt results file (format {doc.get('format')!r})")
+        pols = {}
+        with np.load(out / "results.npz", allow_pickle=False) as z:
+            for i, n in enumerate(doc["order"]):
+                s = doc["policies"][n]
+                kw = {k: s[k] for k in _SCALARS}
+                kw.update({k: (s[k][0], s[k][1]) for k in _CIS})
+                kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS})
+                pols[n] = PolicyResult(name=n, **kw)
+        return cls(config=doc["config"], policies=pols)
+
+
+# ------------------------------------------------------------------ evaluate
+def _nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """NEES ``e^T P^{-1} e`` per run and step ``(M, T)``.
+
+    Through the run-last batched Cholesky of :mod:`adaptfilt.linalg` (about
+    10x faster than ``np.linalg.solve`` on 1.5 million 4x4 matrices); the
+    rare covariance that is not positive definite falls back to a plain solve.
+    """
+    e = x - mean
+    M, T, nx = e.shape
+    if nx == 1:
+        return e[..., 0] ** 2 / cov[..., 0, 0]
+    er = e.reshape(-1, nx).T  # (nx, N) run-last
+    P = np.moveaxis(cov.reshape(-1, nx, nx), 0, -1)  # (nx, nx, N)
+    bad = np.empty(0, dtype=np.int64)
+    try:
+        L = chol(P)
+    except NotPositiveDefinite as ex:
+        bad = ex.runs
+        P = P.copy()
+        P[:, :, bad] = np.eye(nx)[:, :, None]
+        L = chol(P)
+    out = (er * solve_spd(L, er[:, None, :])[:, 0, :]).sum(axis=0)
+    if bad.size:
+        eb = er[:, bad].T
+        out[bad] = (eb * np.linalg.solve(cov.reshape(-1, nx, nx)[bad], eb[..., None])[..., 0]).sum(-1)
+    return out.reshape(M, T)
+
+
+def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
+               counts: np.ndarray, n_repairs: int, level: float) -> dict:
+    """Reduce one rollout to the :class:`PolicyResult` fields (wall time excluded)."""
+    M, T = run.nis.shape
+    se = metrics.squared_error(x, run.mean)  # (M, T)
+    ne = _nees(x, run.mean, run.cov)
+    a = (1.0 - level) / 2.0
+    # RMSE: bootstrap the per-step mean squared error, then sqrt and time-average
+    # (RMSE is not a mean over runs, so it is resampled through se, not per run).
+    boot_mse_t = counts @ se / M  # (B, T)
+    boot_rmse_t = np.sqrt(boot_mse_t)
+    rmse_t = np.sqrt(se.mean(axis=0))
+    run_anees = ne.mean(axis=1)
+    anees_t = ne.mean(axis=0)
+    # ANEES_k is a mean over runs: its pointwise band is the normal one from the
+    # standard error (a second (B, M) x (M, T) bootstrap product would double the cost).
+    half = stats.norm.ppf(1 - a) * ne.std(axis=0, ddof=1) / np.sqrt(M)
+    out = dict(
+        rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0),
+        anees_t=anees_t, anees_t_band=np.stack([anees_t - half, anees_t + half]),
+        nis_t=run.nis.mean(axis=0),
+        boot_rmse=boot_rmse_t.mean(axis=1), boot_anees=metrics.bootstrap_mean(run_anees, counts),
+        run_rmse=np.sqrt(se.mean(axis=1)), run_anees=run_anees,
+    )
+    out["rmse"] = float(rmse_t.mean())
+    out["anees"] = float(out["anees_t"].mean())
+    out["nis"] = float(out["nis_t"].mean())
+    out["rmse_ci"] = metrics.percentile_ci(out["boot_rmse"], level)
+    out["anees_ci"] = metrics.percentile_ci(out["boot_anees"], level)
+    out["rmse_run_median"] = float(np.median(out["run_rmse"]))
+    if cost is None:
+        nan = float("nan")
+        out.update(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
+                   boot_cost=np.full(counts.shape[0], nan), run_cost=np.full(M, nan))
+    else:
+        run_cost = cost.mean(axis=1)
+        q = np.quantile(cost, COST_QUANTILES)
+        out.update(cost=float(cost.mean()), run_cost=run_cost, boot_cost=metrics.bootstrap_mean(run_cost, counts),
+                   cost_median=float(q[0]), cost_q99=float(q[1]), cost_q999=float(q[2]), cost_max=float(cost.max()))
+        out["cost_ci"] = metrics.percentile_ci(out["boot_cost"], level)
+    # Which grid value each (run, step) used: params hold grid values exactly.
+    choices = np.stack([(run.params == g).mean(axis=0) for g in grid], axis=1)  # (T, G)
+    out["choices"] = choices
+    out["usage"] = np.stack([(run.params == g).sum() for g in grid]).astype(np.int64)
+    out["n_repairs"] = int(n_repairs)
+    return out
+
+
+def _check_policy(policy, grid: np.ndarray) -> None:
+    if not hasattr(policy, "act") or not hasattr(policy, "name"):
+        raise TypeError(f"a policy needs .name and .act(decision); got {type(policy).__name__}")
+    g = getattr(policy, "grid", None)
+    if g is not None and (np.shape(g) != grid.shape or not np.allclose(g, grid)):
+        raise ValueError(f"policy {policy.name!r} was made for the grid {np.asarray(g).tolist()}, "
+                         f"the environment's grid is {grid.tolist()}")
+
+
+def evaluate(
+    experiment_or_env,
+    policies: Sequence | None = None,
+    n_runs: int = 10_000,
+    seed: int = 0,
+    progress: bool | Literal["steps"] = True,
+    n_boot: int = 1000,
+    traj: Trajectory | None = None,
+    level: float = 0.95,
+    command: str | None = None,
+) -> Results:
+    """Evaluate ``policies`` on the same ``n_runs`` simulated trajectories.
+
+    Parameters
+    ----------
+    experiment_or_env : Experiment, str or FilterEnv
+        A registered experiment (or its name), or an environment built by hand
+        (its filter, grid, cost and horizon are used as they are).
+    policies : sequence of policies, optional
+        Objects with ``.name`` and ``.act(decision)``; default: the
+        experiment's baselines (``Experiment.baselines()``).
+    n_runs, seed : int
+        Monte-Carlo runs; the seed fixes the trajectories
+        (``default_rng([TRAJ_SEED_KEY, seed])``), a stochastic rule's random
+        numbers (the filter's seed) and the bootstrap resamples.
+    progress : bool or "steps"
+        A tqdm bar over policies; ``"steps"`` adds a nested bar over time steps.
+    n_boot : int
+        Bootstrap resamples (shared by all policies: paired intervals).
+    traj : Trajectory, optional
+        Replay these trajectories instead of simulating.
+
+    Returns
+    -------
+    Results
+    """
+    from adaptfilt import __version__
+    from adaptfilt.experiments import Experiment, get_experiment
+
+    exp = get_experiment(experiment_or_env) if isinstance(experiment_or_env, str) else experiment_or_env
+    if isinstance(exp, Experiment):
+        env = exp.make_env(seed=seed)
+        if policies is None:
+            policies = exp.baselines()
+    elif isinstance(exp, FilterEnv):
+        env, exp = exp, None
+        if policies is None:
+            raise ValueError("give the policies to evaluate (an environment has no baselines; an Experiment has)")
+    else:
+        raise TypeError(f"expected an Experiment, an experiment name or a FilterEnv, got {type(exp).__name__}")
+    policies = list(policies)
+    if not policies:
+        raise ValueError("no policies to evaluate")
+    names = [p.name for p in policies]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"policy names must be unique; repeated: {', '.join(dup)}")
+    for p in policies:
+        _check_policy(p, env.grid)
+    given = traj is not None
+    if not given:
+        if int(n_runs) < 2:
+            raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
+        traj = env.model.simulate(int(n_runs), env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
+    M = traj.n_runs
+    counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1]))
+    filt = env.filt
+    config = {
+        "experiment": None if exp is None else exp.name,
+        "description": "" if exp is None else exp.description,
+        "model": env.model.name, "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
+        "filter": repr(filt), "param_name": filt.rule.param_name, "default": filt.param,
+        "grid": env.grid.tolist(), "cost": None if env.cost is None else env.cost.name,
+        "n_runs": M, "seed": int(seed), "n_boot": int(n_boot), "level": float(level),
+        "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",
+        "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
+    }
+    bar = policies
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(policies, desc=f"evaluate {config['experiment'] or config['model']}", unit="policy")
+    res = Results(config=config)
+    for pol in bar:
+        if progress:
+            bar.set_postfix_str(pol.name)
+        t0 = time.perf_counter()
+        rep0 = filt.n_repairs
+        run, cost = rollout(env, pol, traj=traj, progress=progress == "steps")
+        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts,
+                          filt.n_repairs - rep0, level)
+        del run, cost  # the (M, T, nx, nx) covariances go here
+        res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
+    return res
+
+
+def evaluate_experiment(
+    name: str,
+    n_runs: int = 10_000,
+    seed: int = 0,
+    out_dir: str | Path = "results",
+    policy_files: Iterable[str | Path] = (),
+    progress: bool = True,
+    *,
+    floor: float | None = None,
+    figures: bool = True,
+    quiet: bool = False,
+) -> Results:
+    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...]`` runs.
+
+    Evaluates every baseline of experiment ``name`` (default, each fixed grid
+    value, ML where it applies, greedy) and the learned policies in
+    ``policy_files``, then writes into ``out_dir``: ``results.json`` +
+    ``results.npz``, ``summary.json``, ``summary.md`` and PNG figures; prints
+    the table (unless ``quiet``). ``floor`` draws a reference RMSE (e.g. the
+    point-mass Bayes floor on UNGM) in the RMSE figures.
+    """
+    from adaptfilt.experiments import get_experiment
+
+    exp = get_experiment(name)
+    policies = exp.baselines()
+    policy_files = [Path(p) for p in policy_files]
+    if policy_files:
+        from adaptfilt.learned import load_policy  # torch is imported only when needed
+
+        policies += [load_policy(p, experiment=exp) for p in policy_files]
+    out = Path(out_dir)
+    command = f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed} --out {out}" + "".join(
+        f" --policy {p}" for p in policy_files)
+    res = evaluate(exp, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
+    res.save(out)
+    (out / "summary.json").write_text(json.dumps(res.summary(), indent=1) + "\n")
+    table = res.table()
+    (out / "summary.md").write_text(table)
+    if figures:
+        from adaptfilt.plots import save_figures
+
+        save_figures(res, out, floor=floor)
+    if not quiet:
+        print(table)
+    return res

@@ -1,0 +1,346 @@
+"""Figures of an evaluation (:class:`adaptfilt.evaluation.Results`), as in the paper.
+
+=====================  ===================================================  ==============
+function               what                                                 paper
+=====================  ===================================================  ==============
+plot_rmse_time         ``RMSE_k`` over time (selected policies, 95 % band)
+plot_anees_time        ``ANEES_k`` over time with the chi2 acceptance band
+plot_rmse_bars         time-averaged RMSE per policy with 95 % CIs          Figs 1 and 4
+plot_anees_bars        time-averaged ANEES per policy with 95 % CIs         Figs 2 and 5
+plot_tradeoff          RMSE vs ANEES, one labelled point per policy          Figs 3 and 6
+plot_choices           fraction of runs choosing each grid value over time
+plot_usage             how often each grid value is used, per policy
+save_figures           all of the above as PNG files
+=====================  ===================================================  ==============
+
+Every function returns the :class:`~matplotlib.figure.Figure` (never calls
+``plt.show``) and accepts an ``ax`` to draw into. Colours are consistent per
+policy family: ``default`` black, fixed values along the viridis colormap in
+grid order, ``ml`` red, ``greedy`` orange, learned policies blue/green/purple.
+``floor`` draws a horizontal (or vertical) reference RMSE, e.g. the
+point-mass Bayes floor on UNGM.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+if not os.environ.get("DISPLAY") and not os.environ.get("MPLBACKEND") and "ipykernel" not in sys.modules:
+    matplotlib.use("Agg")  # headless: files only
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from adaptfilt.metrics import chi2_bounds  # noqa: E402
+
+__all__ = ["policy_style", "selected_policies", "plot_rmse_time", "plot_anees_time", "plot_rmse_bars",
+           "plot_anees_bars", "plot_tradeoff", "plot_choices", "plot_usage", "save_figures"]
+
+_LEARNED_COLORS = ("tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:cyan", "tab:olive")
+_FAMILY = {"default": ("black", "D"), "ml": ("tab:red", "s"), "greedy": ("tab:orange", "^")}
+# Where labels go in the trade-off plot, per family (ML and greedy often coincide).
+_LABEL_POS = {"default": ((-7, -7), "right", "top"), "ml": ((-7, 7), "right", "bottom"),
+              "greedy": ((7, -7), "left", "top"), "learned": ((7, 7), "left", "bottom")}
+# Beyond this max/min ratio an axis goes logarithmic.
+_LOG_RATIO = 20.0
+
+
+def _family(name: str) -> str:
+    if name in _FAMILY:
+        return name
+    return "fixed" if name.startswith("fixed-") else "learned"
+
+
+def _fixed_value(name: str) -> float:
+    return float(name.split("=", 1)[1])
+
+
+def policy_style(results, name: str) -> dict:
+    """``{"color", "marker", "family"}`` of policy ``name`` in ``results``."""
+    fam = _family(name)
+    if fam in _FAMILY:
+        c, m = _FAMILY[fam]
+    elif fam == "fixed":
+        grid = results.grid
+        i = int(np.argmin(np.abs(grid - _fixed_value(name))))
+        c, m = plt.get_cmap("viridis")(0.05 + 0.85 * i / max(1, grid.size - 1)), "o"
+    else:
+        learned = [n for n in results.names if _family(n) == "learned"]
+        c, m = _LEARNED_COLORS[learned.index(name) % len(_LEARNED_COLORS)], "*"
+    return {"color": c, "marker": m, "family": fam}
+
+
+def _label(results, name: str) -> str:
+    """Short label: fixed values as ``kappa=2``."""
+    return name[len("fixed-"):] if name.startswith("fixed-") else name
+
+
+def selected_policies(results) -> list[str]:
+    """Default, the fixed value with the lowest RMSE, and every adaptive policy (ML, greedy, learned)."""
+    names = ["default"] if "default" in results else []
+    fixed = [n for n in results.names if _family(n) == "fixed"]
+    if fixed:
+        best = min(fixed, key=lambda n: results[n].rmse)
+        if "default" not in results or not np.isclose(_fixed_value(best), results.config["default"]):
+            names.append(best)
+    return names + [n for n in results.names if _family(n) in ("ml", "greedy", "learned")]
+
+
+def _axes(ax, figsize) -> tuple[Figure, plt.Axes]:
+    if ax is not None:
+        return ax.figure, ax
+    fig, ax = plt.subplots(figsize=figsize, layout="constrained")
+    return fig, ax
+
+
+def _title(results, what: str) -> str:
+    c = results.config
+    return f"{what} — {c.get('experiment') or c.get('model')} (M = {c['n_runs']})"
+
+
+def _wide(values) -> bool:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    return v.size > 0 and v.max() / v.min() > _LOG_RATIO
+
+
+def _time_plot(results, key: str, policies, ax, band: bool, logy, ylabel: str, what: str) -> tuple[Figure, plt.Axes]:
+    fig, ax = _axes(ax, (8, 4.2))
+    names = selected_policies(results) if policies is None else list(policies)
+    k = np.arange(1, results.config["n_steps"] + 1)
+    for n in names:
+        p, st = results[n], policy_style(results, n)
+        y = getattr(p, key)
+        ax.plot(k, y, color=st["color"], lw=1.1, label=n)
+        if band:
+            lo, hi = getattr(p, key + "_band")
+            ax.fill_between(k, lo, hi, color=st["color"], alpha=0.15, lw=0)
+    if logy is None:
+        logy = _wide(np.concatenate([getattr(results[n], key) for n in names]))
+    if logy:
+        ax.set_yscale("log")
+    ax.set_xlabel("time step k")
+    ax.set_ylabel(ylabel)
+    ax.set_xlim(k[0], k[-1])
+    ax.set_title(_title(results, what))
+    ax.grid(alpha=0.3)
+    return fig, ax
+
+
+def plot_rmse_time(results, policies: Sequence[str] | None = None, ax=None, floor: float | np.ndarray | None = None,
+                   band: bool = True, logy: bool | None = None) -> Figure:
+    """``RMSE_k`` over time with pointwise 95 % bootstrap bands.
+
+    ``policies`` defaults to :func:`selected_policies`; ``floor`` is a
+    reference (a number, or a ``(T,)`` series such as a point-mass filter's RMSE_k).
+    """
+    fig, ax = _time_plot(results, "rmse_t", policies, ax, band, logy, "RMSE$_k$", "RMSE over time")
+    if floor is not None:
+        f = np.asarray(floor, dtype=float)
+        if f.ndim == 0:
+            ax.axhline(float(f), color="0.3", ls=":", lw=1.2, label=f"floor {float(f):.3g}")
+        else:
+            ax.plot(np.arange(1, f.size + 1), f, color="0.3", ls=":", lw=1.2, label="floor")
+    ax.legend(fontsize=8, ncol=2)
+    return fig
+
+
+def plot_anees_time(results, policies: Sequence[str] | None = None, ax=None, band: bool = True,
+                    logy: bool | None = None, level: float = 0.95) -> Figure:
+    """``ANEES_k`` over time; the grey band is where the average of ``M``
+    chi2(nx) values falls with probability ``level`` (a consistent filter's ANEES_k)."""
+    fig, ax = _time_plot(results, "anees_t", policies, ax, band, logy, "ANEES$_k$", "ANEES over time")
+    nx, M = results.config["nx"], results.config["n_runs"]
+    lo, hi = chi2_bounds(nx, M, level)
+    ax.axhspan(lo, hi, facecolor="none", edgecolor="0.35", hatch="////", lw=0.6,
+               label=f"consistent ({level:.0%} chi2 band, nx = {nx})")
+    ax.axhline(nx, color="0.4", lw=0.8, ls="--")
+    ax.legend(fontsize=8, ncol=2)
+    return fig
+
+
+def _bars(results, metric: str, policies, ax, xlabel: str, what: str, logx) -> tuple[Figure, plt.Axes]:
+    names = results.names if policies is None else list(policies)
+    fig, ax = _axes(ax, (7, 0.32 * len(names) + 1.4))
+    vals = np.array([getattr(results[n], metric) for n in names])
+    cis = np.array([getattr(results[n], metric + "_ci") for n in names])
+    y = np.arange(len(names))[::-1]  # first policy on top
+    for yi, n, v, (lo, hi) in zip(y, names, vals, cis):
+        st = policy_style(results, n)
+        ax.errorbar(v, yi, xerr=[[v - lo], [hi - v]], fmt=st["marker"], color=st["color"], ms=6, capsize=3,
+                    mec="black" if st["family"] != "fixed" else st["color"], mew=0.6)
+    ax.set_yticks(y, [_label(results, n) for n in names])
+    if logx is None:
+        logx = _wide(np.concatenate([vals, cis.ravel()]))
+    if logx:
+        ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_title(_title(results, what), fontsize=10)
+    ax.grid(axis="x", alpha=0.3, which="both")
+    ax.set_ylim(-0.7, len(names) - 0.3)
+    return fig, ax
+
+
+def plot_rmse_bars(results, policies: Sequence[str] | None = None, ax=None, floor: float | None = None,
+                   logx: bool | None = None) -> Figure:
+    """Time-averaged RMSE per policy with 95 % bootstrap CIs (paper Figs 1 and 4)."""
+    fig, ax = _bars(results, "rmse", policies, ax, "time-averaged RMSE", "Time-averaged RMSE", logx)
+    if floor is not None:
+        ax.axvline(floor, color="0.3", ls=":", lw=1.2, label=f"floor {floor:.3g}")
+        ax.legend(fontsize=8)
+    return fig
+
+
+def plot_anees_bars(results, policies: Sequence[str] | None = None, ax=None, logx: bool | None = None) -> Figure:
+    """Time-averaged ANEES per policy with 95 % bootstrap CIs and the ideal ``nx`` (paper Figs 2 and 5)."""
+    fig, ax = _bars(results, "anees", policies, ax, "time-averaged ANEES", "Time-averaged ANEES", logx)
+    ax.axvline(results.config["nx"], color="0.4", ls="--", lw=1, label=f"ideal nx = {results.config['nx']}")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) -> None:
+    fixed = sorted((n for n in names if _family(n) == "fixed"), key=_fixed_value)
+    if len(fixed) > 1:
+        ax.plot([results[n].rmse for n in fixed], [results[n].anees for n in fixed], color="0.6", lw=1, zorder=1)
+    for n in names:
+        p, st = results[n], policy_style(results, n)
+        big = st["family"] != "fixed"
+        ax.errorbar(p.rmse, p.anees, xerr=[[p.rmse - p.rmse_ci[0]], [p.rmse_ci[1] - p.rmse]],
+                    yerr=[[p.anees - p.anees_ci[0]], [p.anees_ci[1] - p.anees]], fmt=st["marker"], color=st["color"],
+                    ms=9 if big else 6, mec="black" if big else st["color"], mew=0.6, capsize=2, elinewidth=0.8,
+                    zorder=3 if big else 2, label=None if (zoom or not big) else n)
+        if annotate:
+            # fixed values above right; adaptive policies around their marker (they often coincide)
+            off, ha, va = _LABEL_POS.get(st["family"], ((5, 4), "left", "bottom"))
+            ax.annotate(_label(results, n), (p.rmse, p.anees), xytext=off, textcoords="offset points", ha=ha, va=va,
+                        fontsize=7 if not big else 8, color="0.25" if not big else st["color"])
+    xs = np.concatenate([[results[n].rmse, *results[n].rmse_ci] for n in names])
+    ys = np.concatenate([[results[n].anees, *results[n].anees_ci] for n in names])
+    nx = results.config["nx"]
+    if logx is None:
+        logx = _wide(xs)
+    if logy is None:
+        logy = _wide(ys if zoom else np.append(ys, nx))
+    if logx:
+        ax.set_xscale("log")
+    if logy:
+        ax.set_yscale("log")
+    if zoom:
+        pad = lambda lo, hi, log: ((lo / (hi / lo) ** 0.08, hi * (hi / lo) ** 0.08) if log
+                                   else (lo - 0.08 * (hi - lo), hi + 0.08 * (hi - lo)))
+        ax.set_xlim(*pad(xs.min(), xs.max(), logx))
+        ax.set_ylim(*pad(ys.min(), ys.max(), logy))
+    if not zoom or ax.get_ylim()[0] <= nx <= ax.get_ylim()[1]:
+        ax.axhline(nx, color="0.4", ls="--", lw=1, label=None if zoom else f"ideal ANEES = nx = {nx}")
+    if floor is not None:
+        ax.axvline(floor, color="0.3", ls=":", lw=1.2, label=None if zoom else f"RMSE floor {floor:.3g}")
+    ax.set_xlabel("time-averaged RMSE")
+    ax.set_ylabel("time-averaged ANEES")
+    ax.grid(alpha=0.3, which="both")
+
+
+def plot_tradeoff(results, policies: Sequence[str] | None = None, ax=None, floor: float | None = None,
+                  logx: bool | None = None, logy: bool | None = None, annotate: bool = True,
+                  zoom: bool | None = None) -> Figure:
+    """Time-averaged RMSE (x) vs ANEES (y) with 95 % CI bars, one labelled point
+    per policy; fixed values joined in grid order (paper Figs 3 and 6).
+
+    ``zoom`` (default: when the RMSEs spread over more than a factor 1.5 and no
+    ``ax`` is given) adds a right panel on the policies within 25 % of the best RMSE.
+    """
+    names = results.names if policies is None else list(policies)
+    rm = np.array([results[n].rmse for n in names])
+    near = [n for n, r in zip(names, rm) if r <= 1.25 * rm.min()]
+    if zoom is None:
+        zoom = ax is None and rm.max() > 1.5 * rm.min() and 2 <= len(near) < len(names)
+    if zoom and ax is None:
+        fig, (ax, axz) = plt.subplots(1, 2, figsize=(13, 5.8), layout="constrained", width_ratios=(1, 1))
+    else:
+        fig, ax = _axes(ax, (8, 6))
+        axz = None
+    _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom=False)
+    ax.legend(fontsize=8, loc="best")
+    if axz is not None:
+        _tradeoff_ax(results, near, axz, floor, None, None, annotate, zoom=True)
+        axz.set_title("zoom: RMSE within 25 % of the best", fontsize=10)
+        fig.suptitle(_title(results, "RMSE vs ANEES"))
+    else:
+        ax.set_title(_title(results, "RMSE vs ANEES"))
+    return fig
+
+
+def plot_choices(results, policy: str, ax=None) -> Figure:
+    """Stacked fractions of runs choosing each grid value at every step (``policy``'s ``choices``)."""
+    p = results[policy]
+    grid = results.grid
+    fig, ax = _axes(ax, (8, 4))
+    k = np.arange(1, p.choices.shape[0] + 1)
+    cmap = plt.get_cmap("viridis")
+    colors = [cmap(0.05 + 0.85 * i / max(1, grid.size - 1)) for i in range(grid.size)]
+    used = p.choices.sum(axis=0) > 0
+    pname = results.config.get("param_name", "param")
+    ax.stackplot(k, p.choices.T[used], colors=[c for c, u in zip(colors, used) if u],
+                 labels=[f"{pname}={g:g}" for g, u in zip(grid, used) if u], lw=0)
+    ax.set_xlim(k[0], k[-1])
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("time step k")
+    ax.set_ylabel("fraction of runs")
+    ax.set_title(_title(results, f"parameter chosen by {policy}"))
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), reverse=True)
+    return fig
+
+
+def plot_usage(results, policies: Sequence[str] | None = None, ax=None) -> Figure:
+    """How often each grid value is used (fraction of all run-steps), grouped bars per policy.
+
+    ``policies`` defaults to the adaptive ones (ML, greedy, learned).
+    """
+    names = [n for n in results.names if _family(n) in ("ml", "greedy", "learned")] if policies is None else list(policies)
+    grid = results.grid
+    fig, ax = _axes(ax, (8, 4))
+    width = 0.8 / max(1, len(names))
+    x = np.arange(grid.size)
+    for i, n in enumerate(names):
+        u = results[n].usage
+        ax.bar(x + (i - (len(names) - 1) / 2) * width, u / max(1, u.sum()), width, color=policy_style(results, n)["color"],
+               label=n, edgecolor="black", lw=0.4)
+    ax.set_xticks(x, [f"{g:g}" for g in grid])
+    ax.set_xlabel(results.config.get("param_name", "parameter"))
+    ax.set_ylabel("fraction of run-steps")
+    ax.set_title(_title(results, "parameter usage"))
+    ax.grid(axis="y", alpha=0.3)
+    if names:
+        ax.legend(fontsize=8)
+    return fig
+
+
+def save_figures(results, out_dir: str | Path, floor: float | None = None, dpi: int = 130) -> list[Path]:
+    """Write every figure as a PNG into ``out_dir``; returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = {
+        "rmse_time": plot_rmse_time(results, floor=floor),
+        "anees_time": plot_anees_time(results),
+        "rmse_bars": plot_rmse_bars(results, floor=floor),
+        "anees_bars": plot_anees_bars(results),
+        "tradeoff": plot_tradeoff(results, floor=floor),
+    }
+    adaptive = [n for n in results.names if _family(n) in ("ml", "greedy", "learned")]
+    if adaptive:
+        figs["usage"] = plot_usage(results)
+    for n in adaptive:
+        figs[f"choices_{n}"] = plot_choices(results, n)
+    paths = []
+    for stem, fig in figs.items():
+        safe = "".join(ch if ch.isalnum() or ch in "-_=." else "_" for ch in stem)
+        path = out / f"{safe}.png"
+        fig.savefig(path, dpi=dpi)
+        plt.close(fig)
+        paths.append(path)
+    return paths

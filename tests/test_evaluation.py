@@ -1,0 +1,112 @@
+"""Monte-Carlo evaluation (adaptfilt.evaluation), its files, figures and the CLI."""
+import json
+
+import numpy as np
+import pytest
+
+import adaptfilt as af
+from adaptfilt import metrics
+from adaptfilt.cli import main
+from adaptfilt.evaluation import Results, evaluate, evaluate_experiment
+from adaptfilt.experiments import get_experiment
+from adaptfilt.mdp import Cost, FilterEnv
+from adaptfilt.policies import FixedPolicy, GreedyPolicy
+
+
+@pytest.fixture(scope="module")
+def ctm_results():
+    """ctm-ukf on 60 runs x 40 steps: default, two fixed values, a twin of the default, greedy."""
+    exp = get_experiment("ctm-ukf")
+    env = exp.make_env(n_steps=40)
+    grid = exp.grid
+    pols = [FixedPolicy(0.0, name="default", grid=grid), FixedPolicy(0.0, name="twin", grid=grid),
+            FixedPolicy(-1.0, "kappa", grid=grid), FixedPolicy(20.0, "kappa", grid=grid), GreedyPolicy(grid=grid)]
+    traj = exp.make_model().simulate(60, 40, rng=np.random.default_rng(2))
+    return evaluate(env, pols, seed=3, progress=False, n_boot=200, traj=traj), traj
+
+
+def test_metrics_match_a_direct_filter_run(ctm_results):
+    res, traj = ctm_results
+    run = af.UKF(af.models.coordinated_turn(), kappa=20.0).run(traj.z)
+    p = res["fixed-kappa=20"]
+    np.testing.assert_allclose(p.rmse_t, metrics.rmse(traj.x, run.mean), rtol=1e-12)
+    np.testing.assert_allclose(p.anees_t, metrics.anees(traj.x, run.mean, run.cov), rtol=1e-9)
+    np.testing.assert_allclose(p.nis_t, run.nis.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(p.cost, ((run.nis - 1) ** 2).mean(), rtol=1e-12)
+    assert p.rmse == pytest.approx(metrics.rmse(traj.x, run.mean).mean(), rel=1e-12)
+    assert p.rmse_ci[0] < p.rmse < p.rmse_ci[1] and p.anees_ci[0] < p.anees < p.anees_ci[1]
+    assert p.cost_median <= p.cost_q99 <= p.cost_q999 <= p.cost_max
+    # choices and usage: the fixed policy always used kappa = 20, the greedy one a mix
+    g = res.grid.tolist().index(20.0)
+    np.testing.assert_array_equal(p.choices[:, g], 1.0)
+    assert p.usage[g] == 60 * 40 and p.usage.sum() == 60 * 40
+    gr = res["greedy"]
+    np.testing.assert_allclose(gr.choices.sum(axis=1), 1.0)
+    assert gr.usage.sum() == 60 * 40 and (gr.usage > 0).sum() > 1
+
+
+def test_identical_policies_have_zero_paired_difference(ctm_results):
+    res, _ = ctm_results
+    for m in ("rmse", "anees", "cost"):
+        assert res.paired_difference("twin", "default", m) == (0.0, 0.0, 0.0)
+    # and different ones do differ, with an interval that is narrower than the separate ones
+    d, lo, hi = res.paired_difference("fixed-kappa=20", "default", "rmse")
+    assert d == pytest.approx(res["fixed-kappa=20"].rmse - res["default"].rmse)
+    assert lo < d < hi and hi - lo > 0
+    with pytest.raises(KeyError, match="no policy 'nope'"):
+        res.paired_difference("nope", "default")
+    with pytest.raises(ValueError, match="metric must be"):
+        res.paired_difference("twin", "default", "nis")
+
+
+def test_results_round_trip_bit_identically(ctm_results, tmp_path):
+    res, _ = ctm_results
+    res.save(tmp_path)
+    back = Results.load(tmp_path)
+    assert back.config == res.config and back.names == res.names
+    for n, p in res.policies.items():
+        q = back[n]
+        assert q.scalars() == p.scalars()
+        for k in ("rmse_t", "anees_t_band", "choices", "usage", "boot_rmse", "run_cost"):
+            a, b = getattr(p, k), getattr(q, k)
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), (n, k)
+    back.save(tmp_path / "again")
+    assert (tmp_path / "again" / "results.json").read_bytes() == (tmp_path / "results.json").read_bytes()
+
+
+def test_evaluate_refuses_bad_input():
+    exp = get_experiment("ungm-ukf")
+    with pytest.raises(ValueError, match="policy names must be unique; repeated: default"):
+        evaluate(exp, [FixedPolicy(2.0, name="default"), FixedPolicy(0.0, name="default")], n_runs=3, progress=False)
+    with pytest.raises(ValueError, match=r"made for the grid \[0.0, 2.0\]"):
+        evaluate(exp, [FixedPolicy(2.0, grid=[0.0, 2.0])], n_runs=3, progress=False)
+    with pytest.raises(KeyError, match="unknown experiment 'nope'"):
+        evaluate("nope", n_runs=3, progress=False)
+    env = FilterEnv(af.UKF(af.models.ungm()), [0.0, 2.0], cost=Cost("nis"), n_steps=3)
+    with pytest.raises(ValueError, match="give the policies"):
+        evaluate(env, n_runs=3, progress=False)
+
+
+def test_cli_evaluate_writes_summary_and_figures_reproducibly(tmp_path, capsys):
+    args = ["evaluate", "ungm-ukf", "--runs", "50", "--seed", "1", "--no-progress"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    printed = capsys.readouterr().out
+    assert "| greedy |" in printed
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    names = [p.name for p in get_experiment("ungm-ukf").baselines()]
+    assert list(summary) == names and "ml" in names and "fixed-kappa=10000" in names
+    for n in names:
+        s = summary[n]
+        assert {"rmse", "anees", "cost", "rmse_ci", "anees_ci"} <= set(s)
+        assert s["rmse_ci"][0] <= s["rmse"] <= s["rmse_ci"][1]
+    for png in ("rmse_time", "anees_time", "rmse_bars", "anees_bars", "tradeoff", "usage", "choices_ml", "choices_greedy"):
+        f = tmp_path / "a" / f"{png}.png"
+        assert f.stat().st_size > 10_000 and f.read_bytes()[:4] == b"\x89PNG", png
+    assert (tmp_path / "a" / "summary.md").read_text().count("\n| ") == len(names) + 1
+    cfg = Results.load(tmp_path / "a").config
+    assert cfg["command"].startswith("adaptfilt evaluate ungm-ukf --runs 50 --seed 1") and cfg["version"] == af.__version__
+    # same seed again (figures skipped to save time): the same summary, byte for byte; another seed: a different one
+    evaluate_experiment("ungm-ukf", n_runs=50, seed=1, out_dir=tmp_path / "b", progress=False, figures=False, quiet=True)
+    assert (tmp_path / "b" / "summary.json").read_bytes() == (tmp_path / "a" / "summary.json").read_bytes()
+    res_c = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=50, seed=2, progress=False)
+    assert res_c["default"].rmse != summary["default"]["rmse"]
