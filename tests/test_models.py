@@ -41,6 +41,7 @@ def two_d(**kw):
         (dict(f=lambda x, k: np.sum(x)), r"f\(x, k\) must map"),
         (dict(h=lambda x, k: x), r"h\(x, k\) must map a batch x of shape \(\.\.\., 2\) to \(\.\.\., 1\)"),
         (dict(h=lambda x, k: x[0]), r"h\(x, k\) must map"),
+        (dict(R=np.eye(3)), r"h\(x, k\) must map a batch x of shape \(\.\.\., 2\) to \(\.\.\., 3\)"),  # R sets nz
         (dict(f="not callable"), r"f and h must be callables"),
         (dict(F=np.eye(3)), r"F must be 2x2"),
         (dict(H=np.eye(2)), r"H must be 1x2"),
