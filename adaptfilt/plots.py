@@ -44,7 +44,7 @@ __all__ = ["policy_style", "selected_policies", "plot_rmse_time", "plot_anees_ti
 _LEARNED_COLORS = ("tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:cyan", "tab:olive")
 _FAMILY = {"default": ("black", "D"), "ml": ("tab:red", "s"), "greedy": ("tab:orange", "^")}
 # Where labels go in the trade-off plot, per family (ML and greedy often coincide).
-_LABEL_POS = {"default": ((-7, -7), "right", "top"), "ml": ((-7, 7), "right", "bottom"),
+_LABEL_POS = {"default": ((-8, 6), "right", "bottom"), "ml": ((-7, 7), "right", "bottom"),
               "greedy": ((7, -7), "left", "top"), "learned": ((7, 7), "left", "bottom")}
 # Beyond this max/min ratio an axis goes logarithmic.
 _LOG_RATIO = 20.0
@@ -204,6 +204,43 @@ def plot_anees_bars(results, policies: Sequence[str] | None = None, ax=None, log
     return fig
 
 
+_OFFSETS = [((5, 4), "left", "bottom"), ((5, -4), "left", "top"), ((-5, 4), "right", "bottom"),
+            ((-5, -4), "right", "top"), ((0, 8), "center", "bottom"), ((0, -8), "center", "top"),
+            ((9, -1), "left", "center"), ((-9, -1), "right", "center")]
+
+
+def _place_labels(results, names, ax) -> None:
+    """Label every point, choosing for each the candidate offset whose text box
+    overlaps least with the markers and the labels placed so far (adaptive
+    policies first, at their family's preferred spot when it is free)."""
+    to_pt = 72.0 / ax.figure.dpi
+    pos = {n: ax.transData.transform((results[n].rmse, results[n].anees)) * to_pt for n in names}
+    boxes = [(x - 4, y - 4, x + 4, y + 4) for x, y in pos.values()]  # the markers
+
+    def box(n, off, ha, va, fs):
+        x, y = pos[n][0] + off[0], pos[n][1] + off[1]
+        w, h = 0.55 * fs * len(_label(results, n)), 1.1 * fs
+        x0 = {"left": x, "right": x - w, "center": x - w / 2}[ha]
+        y0 = {"bottom": y, "top": y - h, "center": y - h / 2}[va]
+        return x0, y0, x0 + w, y0 + h
+
+    def overlap(b):
+        return sum(max(0.0, min(b[2], o[2]) - max(b[0], o[0])) * max(0.0, min(b[3], o[3]) - max(b[1], o[1]))
+                   for o in boxes)
+
+    order = sorted(names, key=lambda n: _family(n) == "fixed")
+    for n in order:
+        st = policy_style(results, n)
+        big = st["family"] != "fixed"
+        fs = 8 if big else 7
+        cands = ([_LABEL_POS[st["family"]]] if st["family"] in _LABEL_POS else []) + _OFFSETS
+        best = min(cands, key=lambda c: overlap(box(n, *c, fs)) - 1e-9 * (c is cands[0]))
+        boxes.append(box(n, *best, fs))
+        off, ha, va = best
+        ax.annotate(_label(results, n), (results[n].rmse, results[n].anees), xytext=off, textcoords="offset points",
+                    ha=ha, va=va, fontsize=fs, color=st["color"] if big else "0.25", zorder=4)
+
+
 def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) -> None:
     fixed = sorted((n for n in names if _family(n) == "fixed"), key=_fixed_value)
     if len(fixed) > 1:
@@ -215,11 +252,6 @@ def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) ->
                     yerr=[[p.anees - p.anees_ci[0]], [p.anees_ci[1] - p.anees]], fmt=st["marker"], color=st["color"],
                     ms=9 if big else 6, mec="black" if big else st["color"], mew=0.6, capsize=2, elinewidth=0.8,
                     zorder=3 if big else 2, label=None if (zoom or not big) else n)
-        if annotate:
-            # fixed values above right; adaptive policies around their marker (they often coincide)
-            off, ha, va = _LABEL_POS.get(st["family"], ((5, 4), "left", "bottom"))
-            ax.annotate(_label(results, n), (p.rmse, p.anees), xytext=off, textcoords="offset points", ha=ha, va=va,
-                        fontsize=7 if not big else 8, color="0.25" if not big else st["color"])
     xs = np.concatenate([[results[n].rmse, *results[n].rmse_ci] for n in names])
     ys = np.concatenate([[results[n].anees, *results[n].anees_ci] for n in names])
     nx = results.config["nx"]
@@ -236,6 +268,8 @@ def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) ->
                                    else (lo - 0.08 * (hi - lo), hi + 0.08 * (hi - lo)))
         ax.set_xlim(*pad(xs.min(), xs.max(), logx))
         ax.set_ylim(*pad(ys.min(), ys.max(), logy))
+    if annotate:
+        _place_labels(results, names, ax)
     if not zoom or ax.get_ylim()[0] <= nx <= ax.get_ylim()[1]:
         ax.axhline(nx, color="0.4", ls="--", lw=1, label=None if zoom else f"ideal ANEES = nx = {nx}")
     if floor is not None:
@@ -251,14 +285,21 @@ def plot_tradeoff(results, policies: Sequence[str] | None = None, ax=None, floor
     """Time-averaged RMSE (x) vs ANEES (y) with 95 % CI bars, one labelled point
     per policy; fixed values joined in grid order (paper Figs 3 and 6).
 
-    ``zoom`` (default: when the RMSEs spread over more than a factor 1.5 and no
-    ``ax`` is given) adds a right panel on the policies within 25 % of the best RMSE.
+    ``zoom`` (default: when no ``ax`` is given and at least three points crowd
+    around the best RMSE) adds a right panel on the policies within 15 % of
+    both axis spans (in plotted, possibly log, scale) of the best-RMSE point.
     """
     names = results.names if policies is None else list(policies)
     rm = np.array([results[n].rmse for n in names])
-    near = [n for n, r in zip(names, rm) if r <= 1.25 * rm.min()]
+    an = np.array([results[n].anees for n in names])
+    sx = np.log(rm) if (logx if logx is not None else _wide(rm)) else rm
+    sy = np.log(an) if (logy if logy is not None else _wide(np.append(an, results.config["nx"]))) else an
+    b = int(np.argmin(rm))
+    span = lambda v: max(np.ptp(v), 1e-300)
+    close = (np.abs(sx - sx[b]) <= 0.15 * span(sx)) & (np.abs(sy - sy[b]) <= 0.15 * span(sy))
+    near = [n for n, c in zip(names, close) if c]
     if zoom is None:
-        zoom = ax is None and rm.max() > 1.5 * rm.min() and 2 <= len(near) < len(names)
+        zoom = ax is None and 3 <= len(near) < len(names)
     if zoom and ax is None:
         fig, (ax, axz) = plt.subplots(1, 2, figsize=(13, 5.8), layout="constrained", width_ratios=(1, 1))
     else:
@@ -268,7 +309,7 @@ def plot_tradeoff(results, policies: Sequence[str] | None = None, ax=None, floor
     ax.legend(fontsize=8, loc="best")
     if axz is not None:
         _tradeoff_ax(results, near, axz, floor, None, None, annotate, zoom=True)
-        axz.set_title("zoom: RMSE within 25 % of the best", fontsize=10)
+        axz.set_title("zoom: around the best RMSE", fontsize=10)
         fig.suptitle(_title(results, "RMSE vs ANEES"))
     else:
         ax.set_title(_title(results, "RMSE vs ANEES"))
