@@ -25,7 +25,8 @@ What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 ``*_ci``                  95 % percentile bootstrap interval (runs resampled)
 ``usage (G,)``            how many (run, step) pairs used each grid value
 ``choices (T, G)``        fraction of runs using each grid value at each step
-``n_repairs``             covariances repaired by the filter (``on_indefinite="clip"``)
+``n_repairs``             run-steps whose covariance the filter repaired (``on_indefinite="clip"``;
+                          ML/greedy: P_pred once per step, Pzz once per grid value tried)
 ``wall_time_s``           seconds spent on the policy (filtering + metrics)
 ========================  ==================================================================
 
@@ -405,10 +406,8 @@ def evaluate(
         if progress:
             bar.set_postfix_str(pol.name)
         t0 = time.perf_counter()
-        rep0 = filt.n_repairs
         run, cost = rollout(env, pol, traj=traj, progress=progress == "steps")
-        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts,
-                          filt.n_repairs - rep0, level)
+        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts, run.n_repairs, level)
         del run, cost  # the (M, T, nx, nx) covariances go here
         res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
     return res

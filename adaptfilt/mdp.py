@@ -357,6 +357,7 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     and the cost ``(M, T)`` (None when the env has no cost).
     """
     d = env.reset(n_runs=n_runs, rng=rng, traj=traj, stream=stream)
+    rep0 = env.filt.n_repairs  # the filter's counter is cumulative; report this episode's repairs
     M, T, nx = d.n_runs, env.n_steps, env.nx
     # Time-major buffers: each step writes one contiguous block (a run-major
     # (M, T, ...) buffer would be written with a stride of T elements).
@@ -380,7 +381,7 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
             xp[t], Pp[t] = info["x_pred"], info["P_pred"]
     tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
     return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
-                     x_pred=tr(xp), P_pred=tr(Pp)), tr(costs)
+                     x_pred=tr(xp), P_pred=tr(Pp), n_repairs=env.filt.n_repairs - rep0), tr(costs)
 
 
 def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:

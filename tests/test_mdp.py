@@ -165,3 +165,25 @@ def test_grid_without_the_default():
 def test_unknown_experiment_name():
     with pytest.raises(KeyError, match="unknown experiment 'ungm-ekf'; known: ungm-ukf"):
         get_experiment("ungm-ekf")
+
+
+def test_indefinite_p_pred_is_repaired_once_and_counted_even_when_features_are_read():
+    """kappa = -3 on CTM (n = 4, centre weight -3) loses definiteness; with
+    on_indefinite="clip" the features must not crash and each repair counts once."""
+    model = af.models.coordinated_turn()
+
+    class Curious(FixedPolicy):  # a policy that looks at the information state
+        def act(self, d):
+            assert np.isfinite(d.features).all()
+            return super().act(d)
+
+    def repairs(policy, clip=True):
+        env = FilterEnv(af.UKF(model, on_indefinite="clip" if clip else "raise"), [-3.0, 0.0], cost=Cost("nis"), n_steps=60)
+        run, _ = rollout(env, policy, n_runs=100, rng=np.random.default_rng(0))
+        return run.n_repairs
+
+    n = repairs(FixedPolicy(-3.0, "kappa"))
+    assert n > 0
+    assert repairs(Curious(-3.0, "kappa")) == n
+    with pytest.raises(af.FilterError, match="not positive definite at step"):
+        repairs(Curious(-3.0, "kappa"), clip=False)
