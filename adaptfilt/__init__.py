@@ -12,15 +12,27 @@ trained with a TD(0) actor-critic.
 >>> af.metrics.rmse(traj.x, run.mean).shape
 (500,)
 """
-from adaptfilt import linalg, metrics, models, rules
+import importlib
+
+from adaptfilt import evaluation, experiments, linalg, mdp, metrics, models, policies, rules
 from adaptfilt.exact import KalmanFilter, PointMassFilter
 from adaptfilt.gaf import CKF, SIF, UKF, FilterError, FilterRun, GaussianAssumedFilter, Prediction, Update
 from adaptfilt.models import StateSpaceModel, Trajectory
 
 __version__ = "0.1.0"
 
+# Modules that pull in torch or matplotlib load on first use: `import adaptfilt`
+# stays fast for filtering alone.
+_LAZY = ("plots", "learned", "actor_critic", "toy", "course", "book", "reproduce", "artefacts", "cli")
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return importlib.import_module(f"adaptfilt.{name}")
+    raise AttributeError(f"module 'adaptfilt' has no attribute {name!r}")
+
 __all__ = [
-    "linalg", "metrics", "models", "rules",
+    "linalg", "metrics", "models", "rules", "mdp", "policies", "experiments", "evaluation",
     "StateSpaceModel", "Trajectory",
     "GaussianAssumedFilter", "UKF", "SIF", "CKF", "FilterRun", "FilterError", "Prediction", "Update",
     "KalmanFilter", "PointMassFilter",
