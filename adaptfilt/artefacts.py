@@ -1,0 +1,116 @@
+"""The committed artefacts in ``data/`` (trained policies, evaluation results), for the notebooks.
+
+``data/`` is written by ``adaptfilt reproduce --out data`` (:mod:`adaptfilt.reproduce`);
+every file is listed in ``data/manifest.json`` with its sha256, the one
+command that regenerates it, the seed, the package version and its wall time.
+
+>>> from adaptfilt import artefacts                     # doctest: +SKIP
+>>> res = artefacts.load_results("ungm-ukf")             # doctest: +SKIP
+>>> res.paired_difference("adaptive", "greedy", "rmse")  # doctest: +SKIP
+>>> pol = artefacts.load_policy("ungm-ukf", "adaptive")  # doctest: +SKIP
+>>> artefacts.load_floor()["rmse"]                        # doctest: +SKIP
+>>> artefacts.verify()                                    # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+__all__ = ["data_dir", "manifest", "load_results", "load_policy", "load_floor", "load_table1", "load_claims",
+           "load_reconciliation", "verify"]
+
+
+def data_dir() -> Path:
+    """``$ADAPTFILT_DATA`` if set, else the ``data/`` folder of the repository."""
+    env = os.environ.get("ADAPTFILT_DATA")
+    return Path(env) if env else Path(__file__).resolve().parent.parent / "data"
+
+
+def _d(root) -> Path:
+    return data_dir() if root is None else Path(root)
+
+
+def manifest(root: str | Path | None = None) -> dict:
+    """``data/manifest.json`` as a dict (``{"package_version", "files": [...]}``)."""
+    p = _d(root) / "manifest.json"
+    if not p.exists():
+        raise FileNotFoundError(f"no {p}: run `adaptfilt reproduce --out {_d(root)}` first")
+    return json.loads(p.read_text())
+
+
+def load_results(experiment: str, root: str | Path | None = None):
+    """The M = 10^4 evaluation of ``experiment`` (every baseline + ``adaptive`` and ``myopic``)."""
+    from adaptfilt.evaluation import Results
+
+    return Results.load(_d(root) / "results" / experiment)
+
+
+def load_policy(experiment: str, kind: str = "adaptive", root: str | Path | None = None):
+    """The learned policy ``kind`` ("adaptive": gamma 0.5, "myopic": gamma 0) of ``experiment``."""
+    if kind not in ("adaptive", "myopic"):
+        raise ValueError(f"kind must be 'adaptive' or 'myopic', got {kind!r}")
+    from adaptfilt.learned import load_policy as _load
+
+    return _load(_d(root) / "policies" / f"{experiment}-{kind}.npz", experiment=experiment)
+
+
+def _json(rel: str, root) -> dict:
+    return json.loads((_d(root) / rel).read_text())
+
+
+def load_floor(root: str | Path | None = None) -> dict:
+    """The point-mass (Bayes) RMSE floor on UNGM: ``{"rmse", "rmse_ci", "n_runs", "n_steps", ...}``."""
+    return _json("results/ungm-floor.json", root)
+
+
+def load_table1(root: str | Path | None = None) -> dict:
+    """Table I (ours with CIs beside the paper's)."""
+    return _json("results/table1.json", root)
+
+
+def load_claims(root: str | Path | None = None) -> dict:
+    """The claims C1-C6 as paired comparisons with verdicts."""
+    return _json("results/claims.json", root)
+
+
+def load_reconciliation(root: str | Path | None = None) -> dict:
+    """The CTM RMSE reconciliation table (:func:`adaptfilt.reproduce.ctm_reconciliation`)."""
+    return _json("results/ctm-reconciliation.json", root)
+
+
+def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
+    """Check every manifest entry: the file exists, matches its sha256 and
+    (``load``) loads: policies against their experiment, results with
+    ``Results.load``, JSON files with ``json``. Returns the checked paths;
+    raises ``ValueError`` listing every problem."""
+    d = _d(root)
+    problems, checked = [], []
+    for e in manifest(d)["files"]:
+        p = d / e["path"]
+        if not p.exists():
+            problems.append(f"{e['path']}: missing")
+            continue
+        h = hashlib.sha256(p.read_bytes()).hexdigest()
+        if h != e["sha256"]:
+            problems.append(f"{e['path']}: sha256 {h} != manifest {e['sha256']}")
+            continue
+        if load:
+            try:
+                parts = Path(e["path"]).parts
+                if parts[0] == "policies":
+                    stem = Path(e["path"]).stem
+                    exp, kind = stem.rsplit("-", 1)
+                    load_policy(exp, kind, root=d)
+                elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
+                    load_results(parts[1], root=d)
+                elif p.suffix == ".json":
+                    json.loads(p.read_text())
+            except Exception as ex:  # noqa: BLE001 - report every problem
+                problems.append(f"{e['path']}: does not load ({type(ex).__name__}: {ex})")
+                continue
+        checked.append(e["path"])
+    if problems:
+        raise ValueError("data/ does not match its manifest:\n  " + "\n  ".join(problems))
+    return checked
