@@ -6,7 +6,7 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt experiments
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...]
     adaptfilt train NAME [--gamma G] [--episodes N] [--parallel B] [--seed S] --out FILE [--resume]
-    adaptfilt reproduce --out DIR [--quick] [--retrain]
+    adaptfilt reproduce --out DIR [--quick] [--retrain] [--faithful]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
@@ -60,7 +60,8 @@ def _train(args: argparse.Namespace) -> int:
 def _reproduce(args: argparse.Namespace) -> int:
     from adaptfilt.reproduce import reproduce
 
-    reproduce(out_dir=Path(args.out), quick=args.quick, retrain=args.retrain, progress=not args.no_progress)
+    reproduce(out_dir=Path(args.out), quick=args.quick, retrain=args.retrain, progress=not args.no_progress,
+              faithful=args.faithful)
     return 0
 
 
@@ -108,6 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--quick", action="store_true", help="toy scale, about a minute")
     p.add_argument("--retrain", action="store_true", help="retrain even where data/ has the artefact")
+    p.add_argument("--faithful", action="store_true",
+                   help="also train the paper-faithful (parallel=1) policies data/ lacks (slow: minutes each)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_reproduce)
 

@@ -413,6 +413,14 @@ def evaluate(
     return res
 
 
+def learned_name(path: str | Path, experiment: str) -> str | None:
+    """Result name of a learned policy file: its stem without the experiment
+    prefix (``data/policies/ungm-ukf-adaptive-faithful.npz`` -> ``adaptive-faithful``),
+    or None (the name stored in the file) for other file names."""
+    stem = Path(path).stem
+    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else None
+
+
 def evaluate_experiment(
     name: str,
     n_runs: int = 10_000,
@@ -442,7 +450,7 @@ def evaluate_experiment(
     if policy_files:
         from adaptfilt.learned import load_policy  # torch is imported only when needed
 
-        policies += [load_policy(p, experiment=exp) for p in policy_files]
+        policies += [load_policy(p, experiment=exp, name=learned_name(p, exp.name)) for p in policy_files]
     out = Path(out_dir)
     command = f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed} --out {out}" + "".join(
         f" --policy {p}" for p in policy_files)

@@ -57,7 +57,18 @@ __all__ = ["reproduce", "Scale", "FULL", "QUICK", "PARALLEL", "SEED", "ctm_recon
 PARALLEL = 50
 #: Seed of every training and evaluation.
 SEED = 0
+#: Learned policies trained in the vectorised mode (``parallel=scale.parallel``): kind -> gamma.
 KINDS = {"adaptive": 0.5, "myopic": 0.0}
+#: The same trained paper-faithfully (``parallel=1``: one Adam step per time step of one
+#: episode, Algorithm 2 as printed). Slow (about 5-20 min each), so trained only with
+#: ``reproduce(..., faithful=True)`` (``--faithful``); reused from data/ otherwise.
+FAITHFUL_KINDS = {"adaptive-faithful": 0.5, "myopic-faithful": 0.0}
+ALL_KINDS = {**KINDS, **FAITHFUL_KINDS}
+
+
+def kind_parallel(kind: str, scale: "Scale") -> int:
+    """Episodes per batched update for a policy kind (1 for the faithful kinds)."""
+    return 1 if kind in FAITHFUL_KINDS else scale.parallel
 SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
 #: Table I of the paper: {experiment: {policy: (RMSE, ANEES, cost)}}.
@@ -108,14 +119,14 @@ def policy_command(experiment: str, kind: str, scale: Scale = FULL, prefix: str 
     out = f"{prefix}/policies/{experiment}-{kind}.npz"
     if scale.train_steps is not None:
         return (f"python -c \"from adaptfilt.actor_critic import train_experiment; train_experiment("
-                f"'{experiment}', out='{out}', gamma={KINDS[kind]}, episodes={scale.episodes}, "
-                f"parallel={scale.parallel}, seed={SEED}, n_steps={scale.train_steps}, progress=False)\"")
-    return (f"adaptfilt train {experiment} --gamma {KINDS[kind]:g} --episodes {scale.episodes} "
-            f"--parallel {scale.parallel} --seed {SEED} --out {out}")
+                f"'{experiment}', out='{out}', gamma={ALL_KINDS[kind]}, episodes={scale.episodes}, "
+                f"parallel={kind_parallel(kind, scale)}, seed={SEED}, n_steps={scale.train_steps}, progress=False)\"")
+    return (f"adaptfilt train {experiment} --gamma {ALL_KINDS[kind]:g} --episodes {scale.episodes} "
+            f"--parallel {kind_parallel(kind, scale)} --seed {SEED} --out {out}")
 
 
-def evaluate_command(experiment: str, scale: Scale = FULL, prefix: str = "data") -> str:
-    pol = "".join(f" --policy {prefix}/policies/{experiment}-{k}.npz" for k in KINDS)
+def evaluate_command(experiment: str, scale: Scale = FULL, prefix: str = "data", kinds=tuple(KINDS)) -> str:
+    pol = "".join(f" --policy {prefix}/policies/{experiment}-{k}.npz" for k in kinds)
     if scale.eval_steps is not None:
         return f"adaptfilt.reproduce._evaluate_job('{experiment}', scale=QUICK) (horizon {scale.eval_steps})"
     return f"adaptfilt evaluate {experiment} --runs {scale.eval_runs} --seed {SEED} --out {prefix}/results/{experiment}{pol}"
@@ -138,7 +149,8 @@ def _train_job(experiment: str, kind: str, out: str, scale: Scale) -> dict:
     import io
 
     with contextlib.redirect_stdout(io.StringIO()):
-        train_experiment(experiment, out=out, gamma=KINDS[kind], episodes=scale.episodes, parallel=scale.parallel,
+        train_experiment(experiment, out=out, gamma=ALL_KINDS[kind], episodes=scale.episodes,
+                         parallel=kind_parallel(kind, scale),
                          seed=SEED, progress=False, command=policy_command(experiment, kind, scale), **kw)
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}
 
@@ -151,16 +163,17 @@ def _shrink(res) -> None:
 
 
 def _evaluate_job(experiment: str, policy_files: list[str], out: str, scale: Scale) -> dict:
-    from adaptfilt.evaluation import evaluate
+    from adaptfilt.evaluation import evaluate, learned_name
     from adaptfilt.experiments import get_experiment
     from adaptfilt.learned import load_policy
 
     t0, c0 = time.perf_counter(), _cpu()
     exp = get_experiment(experiment)
-    policies = exp.baselines() + [load_policy(p, experiment=exp) for p in policy_files]
+    policies = exp.baselines() + [load_policy(p, experiment=exp, name=learned_name(p, experiment)) for p in policy_files]
     target = exp if scale.eval_steps is None else exp.make_env(seed=SEED, n_steps=scale.eval_steps)
+    kinds = [learned_name(p, experiment) for p in policy_files]
     res = evaluate(target, policies, n_runs=scale.eval_runs, seed=SEED, progress=False,
-                   command=evaluate_command(experiment, scale))
+                   command=evaluate_command(experiment, scale, kinds=kinds))
     if scale.eval_steps is not None:
         res.config.update(experiment=exp.name, description=exp.description)
     _shrink(res)
@@ -317,34 +330,37 @@ def _anees_metric_ok(res, names) -> bool:
     return all(res[n].anees > res.config["nx"] for n in names)
 
 
-def claims(results: dict) -> dict:
-    """C1-C6 as lists of paired comparisons (``Results.paired_difference``, 95 % CI)."""
+def claims(results: dict, adaptive: str = "adaptive", myopic: str = "myopic") -> dict:
+    """C1-C6 as lists of paired comparisons (``Results.paired_difference``, 95 % CI),
+    for the learned pair named ``adaptive`` / ``myopic`` in the results (e.g. the
+    paper-faithful ``adaptive-faithful`` / ``myopic-faithful``)."""
+    results = {e: r for e, r in results.items() if adaptive in r and myopic in r}
     out = {}
     u, c = results.get("ungm-ukf"), results.get("ctm-ukf")
     for key, res in (("C1", u), ("C3a", c)):
         if res is None:
             continue
-        out[key] = [_cmp(res, "adaptive", b, "anees") for b in ("myopic", "ml", "default")]
+        out[key] = [_cmp(res, adaptive, b, "anees") for b in (myopic, "ml", "default")]
     for key, res in (("C2", u), ("C3b", c)):
         if res is None:
             continue
-        rows = [_cmp(res, "adaptive", b, "rmse") for b in ("myopic", "ml", "default")]
-        rows.append(_cmp(res, "adaptive", res.best_fixed("rmse"), "rmse", better="equal"))
+        rows = [_cmp(res, adaptive, b, "rmse") for b in (myopic, "ml", "default")]
+        rows.append(_cmp(res, adaptive, res.best_fixed("rmse"), "rmse", better="equal"))
         out[key] = rows
-    out["C4"] = [_cmp(res, "adaptive", "myopic", m) for res in (u, c) if res is not None
+    out["C4"] = [_cmp(res, adaptive, myopic, m) for res in (u, c) if res is not None
                  for m in ("rmse", "anees", "cost")]
-    out["C5"] = [_cmp(results[e], "adaptive", b, m) for e in SIF_EXPERIMENTS if e in results
-                 for b in ("default", "myopic") for m in ("rmse", "anees", "cost")]
+    out["C5"] = [_cmp(results[e], adaptive, b, m) for e in SIF_EXPERIMENTS if e in results
+                 for b in ("default", myopic) for m in ("rmse", "anees", "cost")]
     c6 = []
     for e, res in results.items():
         bf_cost, bf_rmse = res.best_fixed("cost"), res.best_fixed("rmse")
         for m in ("cost", "rmse", "anees"):
-            c6.append(_cmp(res, "adaptive", bf_cost, m))
+            c6.append(_cmp(res, adaptive, bf_cost, m))
         if bf_rmse != bf_cost:
-            c6.append(_cmp(res, "adaptive", bf_rmse, "rmse"))
+            c6.append(_cmp(res, adaptive, bf_rmse, "rmse"))
         for m in ("cost", "rmse", "anees"):
-            c6.append(_cmp(res, "adaptive", "greedy", m))
-        c6.append(_cmp(res, "myopic", "greedy", "cost"))
+            c6.append(_cmp(res, adaptive, "greedy", m))
+        c6.append(_cmp(res, myopic, "greedy", "cost"))
         for r in c6[-(8 if bf_rmse != bf_cost else 7):]:
             r["experiment"] = e
     out["C6"] = c6
@@ -365,7 +381,7 @@ def claims(results: dict) -> dict:
             for _ in range(6):
                 out["C5"][j]["experiment"] = e
                 j += 1
-    out["anees_all_above_nx"] = {e: _anees_metric_ok(r, ["adaptive", "myopic", "default"] + (["ml"] if "ml" in r else []))
+    out["anees_all_above_nx"] = {e: _anees_metric_ok(r, [adaptive, myopic, "default"] + (["ml"] if "ml" in r else []))
                                  for e, r in results.items()}
     return out
 
@@ -380,6 +396,7 @@ def table1(results: dict) -> dict:
         res = results[e]
         cols = {"adaptive": "adaptive", "fixed": "default", "myopic": "myopic", "greedy": "greedy",
                 "best fixed (cost)": res.best_fixed("cost")}
+        cols.update({k: k for k in FAITHFUL_KINDS if k in res})
         ours = {}
         for col, n in cols.items():
             p = res[n]
@@ -388,6 +405,10 @@ def table1(results: dict) -> dict:
                          "cost_median": p.cost_median, "mean_n_iter": float((p.usage * res.grid).sum() / p.usage.sum())}
         diffs = {f"adaptive-{b}": {m: list(res.paired_difference("adaptive", cols[b], m)) for m in ("rmse", "anees", "cost")}
                  for b in ("fixed", "myopic", "greedy", "best fixed (cost)")}
+        if all(k in res for k in FAITHFUL_KINDS):
+            diffs.update({f"adaptive-faithful-{b}": {m: list(res.paired_difference("adaptive-faithful", cols[b], m))
+                                                     for m in ("rmse", "anees", "cost")}
+                          for b in ("fixed", "myopic-faithful", "greedy")})
         paper = {k: dict(zip(("rmse", "anees", "cost"), v)) for k, v in PAPER_TABLE1[e].items()}
         out[e] = {"cost_label": COST_LABEL[e], "ours": ours, "paper": paper, "paired_differences": diffs,
                   "n_runs": res.config["n_runs"], "n_steps": res.config["n_steps"]}
@@ -405,7 +426,9 @@ def table1_md(t1: dict) -> str:
     lines = ["| cost | metric | policy | paper | ours [95% CI] |", "|---|---|---|---|---|"]
     for e, d in t1.items():
         for m, label in (("rmse", "time-avg RMSE"), ("anees", "time-avg ANEES"), ("cost", "time-avg cost")):
-            for col in ("adaptive", "fixed", "myopic", "greedy", "best fixed (cost)"):
+            for col in ("adaptive", "fixed", "myopic", "greedy", "best fixed (cost)", *FAITHFUL_KINDS):
+                if col not in d["ours"]:
+                    continue
                 o = d["ours"][col]
                 pv = d["paper"].get(col, {}).get(m)
                 name = col if col not in ("fixed", "best fixed (cost)") else f"{col} ({o['policy']})"
@@ -469,6 +492,8 @@ def report_tables(results: dict, floor: dict | None, t1: dict, cl: dict, rec: di
         parts.append(f"### {e}\n\n" + _summary_md(res, floor if e == "ungm-ukf" else None))
     parts.append("### Table I\n\n" + table1_md(t1))
     parts.append("### Claims\n\n" + _claims_md(cl))
+    if "faithful" in cl:
+        parts.append("### Claims, paper-faithful training (parallel = 1)\n\n" + _claims_md(cl["faithful"]))
     if rec is not None:
         parts.append("### CTM reconciliation\n\n" + _recon_md(rec))
     parts.append("### Stage times\n\n" + _timings_md(timings))
@@ -496,8 +521,9 @@ def _figures(results: dict, floor: dict | None, fig_dir: Path) -> list[Path]:
         specs += [("fig4-ctm-ukf-rmse", plot_rmse_bars(r)), ("fig5-ctm-ukf-anees", plot_anees_bars(r)),
                   ("fig6-ctm-ukf-rmse-anees", plot_tradeoff(r))]
     for e, r in results.items():
-        if "adaptive" in r:
-            specs.append((f"choices-{e}-adaptive", plot_choices(r, "adaptive")))
+        for k in ("adaptive", "adaptive-faithful"):
+            if k in r:
+                specs.append((f"choices-{e}-{k}", plot_choices(r, k)))
     for stem, fig in specs:
         p = fig_dir / f"{stem}.png"
         fig.savefig(p, dpi=110)
@@ -544,12 +570,14 @@ def _run_jobs(fn, args_list, jobs: int, progress: bool, what: str) -> list:
 
 
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
-              jobs: int | None = None, experiments: tuple[str, ...] | None = None) -> dict:
+              jobs: int | None = None, experiments: tuple[str, ...] | None = None, faithful: bool = False) -> dict:
     """Train + evaluate + floor + reconciliation + figures + tables into ``out_dir``.
 
     ``quick``: toy scale (:data:`QUICK`), about a minute. ``retrain``: ignore
     the artefacts in ``data/``. ``jobs``: worker processes (default 2, or
-    ``$ADAPTFILT_JOBS``). Returns ``{"timings": ..., "table1": ..., "claims": ...}``.
+    ``$ADAPTFILT_JOBS``). ``faithful``: also train the paper-faithful
+    (``parallel=1``) policies that data/ does not hold yet; without it, faithful
+    policies found in data/ are reused and evaluated. Returns ``{"timings": ..., "table1": ..., "claims": ...}``.
     """
     import adaptfilt
     from adaptfilt.artefacts import data_dir
@@ -585,15 +613,39 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         entries[rel] = dict(e)
         return True
 
+    def adopt(rel: str, experiment: str, kind: str) -> bool:
+        """Take a policy file in data/ that no manifest lists yet (e.g. a faithful
+        policy trained by its one command) when its recorded command is the expected one."""
+        from adaptfilt.learned import read_npz
+
+        path = data / rel
+        if not path.exists():
+            return False
+        _, meta = read_npz(path)
+        recorded = " ".join(w for w in str(meta.get("command", "")).split() if w != "--no-progress")
+        if recorded != policy_command(experiment, kind, scale):
+            return False
+        if not same:
+            (out / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, out / rel)
+        entries[rel] = {"command": recorded, "seed": SEED, "wall_time_s": float(meta.get("wall_time_s", 0.0)),
+                        "cpu_time_s": float(meta.get("cpu_time_s", 0.0))}
+        return True
+
     # ---- 1. train
     t0, c0 = time.perf_counter(), _cpu()
-    todo = []
+    todo, n_reused = [], 0
+    learned: dict[str, list[str]] = {e: [] for e in exps}  # experiment -> policy kinds to evaluate
     for e in exps:
-        for k in KINDS:
+        for k in ALL_KINDS:
             rel = f"policies/{e}-{k}.npz"
-            if not reuse(rel):
+            if reuse(rel) or (k in FAITHFUL_KINDS and not retrain and not quick and adopt(rel, e, k)):
+                n_reused += 1
+                learned[e].append(k)
+            elif k in KINDS or faithful:
                 todo.append((e, k, str(out / rel), scale))
-    say(f"[train] {len(todo)} policies to train, {2 * len(exps) - len(todo)} reused")
+                learned[e].append(k)
+    say(f"[train] {len(todo)} policies to train, {n_reused} reused")
     res_jobs = _run_jobs(_train_job, todo, jobs, progress, "trained")
     for (e, k, path, _), r in zip(todo, res_jobs):
         rel = f"policies/{e}-{k}.npz"
@@ -601,8 +653,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         job_times[rel] = r
     timings["train"] = {"wall_time_s": time.perf_counter() - t0,
                         "cpu_time_s": sum(r["cpu_time_s"] for r in res_jobs),
-                        "note": f"{len(todo)} trained (parallel={scale.parallel}, {scale.episodes} episodes), "
-                                f"{2 * len(exps) - len(todo)} reused; {jobs} workers"}
+                        "note": f"{len(todo)} trained ({scale.episodes} episodes; parallel={scale.parallel}, "
+                                f"faithful kinds parallel=1), {n_reused} reused; {jobs} workers"}
 
     # ---- 2. evaluate
     t0, c0 = time.perf_counter(), _cpu()
@@ -611,7 +663,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         rel = f"results/{e}"
         if quick or retrain or not all(reuse(f"{rel}/{f}") for f in ("results.json", "results.npz", "summary.json",
                                                                          "summary.md")):
-            pols = [str(out / f"policies/{e}-{k}.npz") for k in KINDS]
+            pols = [str(out / f"policies/{e}-{k}.npz") for k in learned[e]]
             todo.append((e, pols, str(out / rel), scale))
     # the SIF experiments (greedy over 9 iteration counts) are the slowest: start them first
     todo.sort(key=lambda a: a[0] not in SIF_EXPERIMENTS)
@@ -619,7 +671,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     res_jobs = _run_jobs(_evaluate_job, todo, jobs, progress, "evaluated")
     for (e, _, path, _), r in zip(todo, res_jobs):
         for f in ("results.json", "results.npz", "summary.json", "summary.md"):
-            entries[f"results/{e}/{f}"] = {"command": evaluate_command(e, scale), "seed": SEED, **r}
+            entries[f"results/{e}/{f}"] = {"command": evaluate_command(e, scale, kinds=learned[e]), "seed": SEED, **r}
         job_times[f"results/{e}"] = r
     timings["evaluate"] = {"wall_time_s": time.perf_counter() - t0,
                            "cpu_time_s": sum(r["cpu_time_s"] for r in res_jobs),
@@ -665,6 +717,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     figs = _figures(results, floor, out / "figures")
     t1 = table1(results)
     cl = claims(results)
+    if any(all(k in r for k in FAITHFUL_KINDS) for r in results.values()):
+        cl["faithful"] = claims(results, "adaptive-faithful", "myopic-faithful")
     (out / "results/table1.json").write_text(json.dumps(t1, indent=1) + "\n")
     (out / "results/table1.md").write_text(table1_md(t1))
     (out / "results/claims.json").write_text(json.dumps(cl, indent=1) + "\n")
