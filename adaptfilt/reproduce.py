@@ -548,6 +548,16 @@ def _reusable(data: Path, rel: str, man: dict) -> dict | None:
     return None
 
 
+def _evaluated(result_dir: Path, kinds) -> bool:
+    """Whether stored results hold (by name) every learned policy in ``kinds``.
+    A retrained policy is caught earlier: ``--retrain`` re-evaluates everything."""
+    p = result_dir / "results.json"
+    if not p.exists():
+        return False
+    names = set(json.loads(p.read_text()).get("policies", {}))
+    return set(kinds) <= names
+
+
 def _run_jobs(fn, args_list, jobs: int, progress: bool, what: str) -> list:
     if jobs <= 1:
         out = []
@@ -661,8 +671,9 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     todo = []
     for e in exps:
         rel = f"results/{e}"
-        if quick or retrain or not all(reuse(f"{rel}/{f}") for f in ("results.json", "results.npz", "summary.json",
-                                                                         "summary.md")):
+        stale = not _evaluated(data / rel, learned[e])  # a learned policy was added or retrained since
+        if quick or retrain or stale or not all(reuse(f"{rel}/{f}") for f in ("results.json", "results.npz",
+                                                                               "summary.json", "summary.md")):
             pols = [str(out / f"policies/{e}-{k}.npz") for k in learned[e]]
             todo.append((e, pols, str(out / rel), scale))
     # the SIF experiments (greedy over 9 iteration counts) are the slowest: start them first
