@@ -33,6 +33,7 @@ byte-identical file.
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -138,6 +139,24 @@ def arrays_to_state(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, 
 
 
 # ----------------------------------------------------------------- policy
+@contextlib.contextmanager
+def one_torch_thread():
+    """Run torch on one thread inside the block and restore the caller's setting.
+
+    The networks are tiny (2 x 64 units): with several intra-op threads on a
+    busy machine one forward pass was measured 40-170x slower than on one
+    thread (the threads wait on each other), so inference always uses one.
+    """
+    n = torch.get_num_threads()
+    if n != 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if n != 1:
+            torch.set_num_threads(n)
+
+
 class LearnedPolicy:
     """A trained actor used as a policy (Algorithm 3).
 
@@ -179,13 +198,13 @@ class LearnedPolicy:
     def logits(self, features: np.ndarray) -> np.ndarray:
         """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``."""
         s = torch.from_numpy(self.scaler(features).astype(np.float32))
-        with torch.no_grad():
+        with torch.no_grad(), one_torch_thread():
             return self.actor(s).double().numpy()
 
     def probs(self, features: np.ndarray) -> np.ndarray:
         """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)``."""
         s = torch.from_numpy(self.scaler(features).astype(np.float32))
-        with torch.no_grad():
+        with torch.no_grad(), one_torch_thread():
             return torch.softmax(self.actor(s), dim=-1).double().numpy()
 
     def act(self, decision) -> np.ndarray:
