@@ -47,13 +47,18 @@ def load_results(experiment: str, root: str | Path | None = None):
     return Results.load(_d(root) / "results" / experiment)
 
 
+POLICY_KINDS = ("adaptive", "myopic", "adaptive-faithful", "myopic-faithful")
+
+
 def load_policy(experiment: str, kind: str = "adaptive", root: str | Path | None = None):
-    """The learned policy ``kind`` ("adaptive": gamma 0.5, "myopic": gamma 0) of ``experiment``."""
-    if kind not in ("adaptive", "myopic"):
-        raise ValueError(f"kind must be 'adaptive' or 'myopic', got {kind!r}")
+    """The learned policy ``kind`` of ``experiment``: "adaptive" (gamma 0.5) or
+    "myopic" (gamma 0), trained in the vectorised mode, or the same with
+    "-faithful" (trained paper-faithfully, ``parallel=1``). Its ``name`` is the kind."""
+    if kind not in POLICY_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(POLICY_KINDS)}; got {kind!r}")
     from adaptfilt.learned import load_policy as _load
 
-    return _load(_d(root) / "policies" / f"{experiment}-{kind}.npz", experiment=experiment)
+    return _load(_d(root) / "policies" / f"{experiment}-{kind}.npz", experiment=experiment, name=kind)
 
 
 def _json(rel: str, root) -> dict:
@@ -101,8 +106,8 @@ def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
                 parts = Path(e["path"]).parts
                 if parts[0] == "policies":
                     stem = Path(e["path"]).stem
-                    exp, kind = stem.rsplit("-", 1)
-                    load_policy(exp, kind, root=d)
+                    kind = next(k for k in sorted(POLICY_KINDS, key=len, reverse=True) if stem.endswith("-" + k))
+                    load_policy(stem[: -len(kind) - 1], kind, root=d)
                 elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
                     load_results(parts[1], root=d)
                 elif p.suffix == ".json":

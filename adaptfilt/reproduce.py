@@ -548,6 +548,10 @@ def _reusable(data: Path, rel: str, man: dict) -> dict | None:
     return None
 
 
+def _seconds(v) -> float | None:
+    return None if v is None else round(float(v), 2)
+
+
 def _evaluated(result_dir: Path, kinds) -> bool:
     """Whether stored results hold (by name) every learned policy in ``kinds``.
     A retrained policy is caught earlier: ``--retrain`` re-evaluates everything."""
@@ -638,8 +642,9 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         if not same:
             (out / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, out / rel)
-        entries[rel] = {"command": recorded, "seed": SEED, "wall_time_s": float(meta.get("wall_time_s", 0.0)),
-                        "cpu_time_s": float(meta.get("cpu_time_s", 0.0))}
+        # Policy files carry no timings (they would break byte-identical files): the
+        # faithful training times are in REPRODUCTION.md, the manifest says null.
+        entries[rel] = {"command": recorded, "seed": SEED, "wall_time_s": None, "cpu_time_s": None}
         return True
 
     # ---- 1. train
@@ -752,8 +757,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         e = entries[rel]
         files.append({"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
                       "seed": e.get("seed", SEED), "version": e.get("version", adaptfilt.__version__),
-                      "wall_time_s": round(float(e.get("wall_time_s", 0.0)), 2),
-                      "cpu_time_s": round(float(e.get("cpu_time_s", 0.0)), 2)})
+                      "wall_time_s": _seconds(e.get("wall_time_s", 0.0)),
+                      "cpu_time_s": _seconds(e.get("cpu_time_s", 0.0))})
     manifest = {"package_version": adaptfilt.__version__, "scale": scale.name, "parallel": scale.parallel,
                 "generated_by": cmd, "files": files}
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
