@@ -345,7 +345,7 @@ class GaussianAssumedFilter:
             return run_policy(self, z, policy, keep_pred=keep_pred, progress=progress)
         M, T, nx = z.shape[0], z.shape[1], self.model.nx
         sched = self._param_schedule(params, M, T)
-        const = bool((sched == sched[:, :1]).all()) and bool((sched == sched[0, 0]).all())
+        const = bool((sched == sched[0, 0]).all())  # one scalar parameter: no per-run weights
         mean = np.empty((T, nx, M))
         cov = np.empty((T, nx, nx, M))
         nis = np.empty((T, M))
