@@ -1,7 +1,7 @@
 r"""Offline Monte-Carlo TD(0) actor-critic (Algorithm 2 of the paper), in one file.
 
 Read :func:`train` top to bottom: every statement of the inner loop carries the
-name of the line of Algorithm 2 it implements. Hyperparameters (Section V-C):
+name of the line of Algorithm 2 it implements. Hyperparameters (Section VI-C):
 actor and critic MLPs with two hidden layers of 64 ReLU units; Adam with
 learning rates 1e-4 (actor) and 5e-4 (critic), betas (0.9, 0.999); target
 critic with Polyak averaging tau = 0.01; entropy coefficient 1e-3; gamma = 0.5
@@ -30,21 +30,38 @@ Choices the paper is silent about (all documented where they are made):
   thousands, single steps up to 1e7): a TD target of 1e7 destroys a critic
   trained with a squared loss and Adam. By default the networks learn from
   ``L' = log(1 + L)`` (sign-symmetric for negative toy costs). It is strictly
-  monotone, so the ranking of the parameter values at a step is unchanged and
-  the myopic optimum (gamma = 0, where ``L`` is a deterministic function of
-  ``(s, z, theta)``) is exactly the same; for gamma > 0 the discounted
+  monotone, so the ranking of the parameter values at a step is unchanged.
+  The myopic optimum (gamma = 0) is unchanged *only where ``L`` is a
+  deterministic function of what the policy sees*: on UNGM the information
+  state determines the update and its cost for every kappa. On the CTM the
+  policy sees ``tr P`` and ``log det P``, not the whole ``P_pred``, and the
+  SIF's cost is random (its draws), so there the gamma = 0 policy minimises
+  ``E[log(1 + L) | s]``, which need not pick the argmin of ``E[L | s]``
+  (Jensen: the log favours a parameter with a small typical cost over one
+  with a smaller mean but a heavy tail). For gamma > 0 the discounted
   objective becomes the sum of log-costs, a robust version of the paper's.
   ``cost_transform="none"`` trains on the raw cost (the paper taken
   literally). Learning curves report both the raw and the transformed cost.
-* **Terminal step.** The episode's last update has no successor state: its
-  target is ``L'`` alone (``(1 - done)`` multiplies the bootstrap). All T
+* **The last step.** The horizon T is a time limit: the filter and the
+  process go on. With ``bootstrap_at_limit=True`` the last update's target
+  is ``L' + gamma V_target(s_{T+1})`` from the next information state that
+  the environment predicts past the horizon (``info["final_decision"]``).
+  The first policies treated it as terminal (target ``L'`` alone,
+  ``bootstrap_at_limit=False``), which teaches the critic that the last
+  steps are cheaper than they are. All T
   updates of an episode are learned from (the paper's loop is written for
   k = 1..T-1 with predict first; we include the first update, whose
   information state is the prior).
-* **Feature scaling.** Networks see the information state through the
-  :class:`~adaptfilt.mdp.FeatureScaler` (median / IQR, clipped at 10), fitted
-  before training on the states of a seeded rollout of the default policy
-  (``scaler_runs`` runs) and stored with the policy.
+* **Features and their scaling.** Networks see the information state
+  (``features``: the experiment's recommended set, e.g. ``paper+time`` on
+  UNGM and ``paper+circ`` on the bearing-only CTM; the paper's for an
+  environment of your own; see :mod:`adaptfilt.features`)
+  through a :class:`~adaptfilt.features.FeatureScaler` (median / IQR), fitted
+  before training on ``scaler_runs`` runs of a seeded rollout and stored with
+  the policy. The first policies were scaled on default-policy states and
+  clipped at 10 (``scaler_visit="default"``, ``scaler_squash="clip"``), which
+  saturates on the states other parameter values visit; ``"mix"`` and
+  ``"asinh"`` fix that (:func:`~adaptfilt.features.fit_scaler`).
 * **Two modes, one code path.** ``parallel=1`` is paper-faithful: one episode
   at a time, one Adam step per time step, actions sampled. ``parallel=B`` runs
   B episodes as one batched environment and makes one Adam step per time step
@@ -74,6 +91,7 @@ Choices the paper is silent about (all documented where they are made):
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -86,14 +104,14 @@ import torch
 import adaptfilt
 from adaptfilt.learned import (Actor, Critic, LearnedPolicy, arrays_to_state, describe_env, read_npz,
                                state_to_arrays, write_npz)
-from adaptfilt.mdp import FeatureScaler
+from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
 
 __all__ = ["Hyper", "train", "train_experiment", "soft_update", "transform_cost", "checkpoint_path"]
 
 
 @dataclass(frozen=True)
 class Hyper:
-    """Hyperparameters of Algorithm 2 (defaults: Section V-C of the paper)."""
+    """Hyperparameters of Algorithm 2 (defaults: Section VI-C of the paper)."""
 
     lr_actor: float = 1e-4
     lr_critic: float = 5e-4
@@ -103,8 +121,22 @@ class Hyper:
     hidden: tuple[int, ...] = (64, 64)
     cost_transform: str = "log1p"  # "log1p" (default, see module docstring) or "none"
     actor_sign: int = 1            # +1: correct for a cost; -1: the paper's printed sign (demonstration only)
-    scaler_runs: int = 64          # runs of the default-policy rollout the feature scaler is fitted on
+    scaler_runs: int = 64          # runs of the rollout the feature scaler is fitted on
     torch_threads: int = 1
+    features: str | None = None    # the information state (adaptfilt.features); None: the experiment's, else "paper"
+    scaler_visit: str = "mix"      # states the scaler is fitted on: a "mix" of grid values, or the "default" policy's
+    scaler_squash: str = "asinh"   # "asinh" (never saturates) or "clip" at +-10
+    bootstrap_at_limit: bool = True  # the last step is a time limit: bootstrap from the next state
+    repair_penalty: float = 0.0    # added to the transformed cost of a run whose covariance was repaired
+
+
+#: Fields added after policies were stored: recorded only when not at their default, so that the
+#: stored files' commands still reproduce them byte for byte.
+_LATER_FIELDS = {"repair_penalty": 0.0}
+
+
+def _hyper_record(H: Hyper) -> dict:
+    return {k: v for k, v in asdict(H).items() if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
 
 
 def transform_cost(cost: np.ndarray, kind: str) -> np.ndarray:
@@ -131,25 +163,15 @@ def checkpoint_path(out: str | Path) -> Path:
 
 
 def _resolve(env_or_experiment, seed: int, n_steps: int | None):
-    """(env, experiment name or None)."""
+    """(env, experiment name or None, the experiment's recommended feature set or None)."""
     if isinstance(env_or_experiment, str):
         from adaptfilt.experiments import get_experiment
 
         env_or_experiment = get_experiment(env_or_experiment)
     if hasattr(env_or_experiment, "make_env"):
-        return env_or_experiment.make_env(seed=seed, n_steps=n_steps), env_or_experiment.name
-    return env_or_experiment, getattr(env_or_experiment, "experiment", None)
-
-
-def _fit_scaler(env, runs: int, seed: int, names) -> FeatureScaler:
-    """FeatureScaler on the information states of a seeded default-policy rollout."""
-    feats = []
-    d = env.reset(n_runs=runs, rng=np.random.default_rng([seed, 3]), stream=10**9)
-    while d is not None:
-        feats.append(d.features)
-        d, _, _, _ = env.step(np.full(d.n_runs, d.default_index))
-    f = np.concatenate(feats)
-    return FeatureScaler.fit(f[np.isfinite(f).all(axis=1)], names=names)
+        e = env_or_experiment
+        return e.make_env(seed=seed, n_steps=n_steps), e.name, e.features
+    return env_or_experiment, getattr(env_or_experiment, "experiment", None), None
 
 
 def _adam_arrays(prefix: str, opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
@@ -201,7 +223,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
     env_or_experiment
         An experiment name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`,
         a :class:`~adaptfilt.mdp.FilterEnv` or any env with the same interface (``adaptfilt.toy``).
-    gamma : discount (0 = myopic).
+    gamma : discount in [0, 1) (0 = myopic); anything else is a ValueError.
     episodes : N_MC, the total number of simulated episodes.
     parallel : episodes simulated and learned from together (1 = paper-faithful).
     seed : seeds everything (networks, trajectories, actions, stochastic rules).
@@ -219,22 +241,29 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
     and ``nonfinite`` (non-finite costs replaced by the largest float).
     """
     H = Hyper(**hyper)
+    # A discount: gamma < 0 means nothing, and with gamma >= 1 V would be the (growing) sum of the
+    # remaining costs, which the time-free information state cannot represent.
+    if not (isinstance(gamma, (int, float, np.number)) and 0.0 <= float(gamma) < 1.0):
+        raise ValueError(f"gamma must be a discount in [0, 1), got {gamma!r}")
     if H.actor_sign not in (1, -1):
         raise ValueError("actor_sign must be +1 (correct) or -1 (the paper's printed sign)")
     if episodes < 1 or parallel < 1:
         raise ValueError("episodes and parallel must be >= 1")
-    env, experiment = _resolve(env_or_experiment, seed, n_steps)
+    env, experiment, recommended = _resolve(env_or_experiment, seed, n_steps)
+    if H.features is None:
+        H = dataclasses.replace(H, features=recommended or "paper")
     desc = describe_env(env)
     grid = np.asarray(env.grid, dtype=float)
     G = grid.size
     config = {"experiment": experiment, "gamma": float(gamma), "episodes": int(episodes), "parallel": int(parallel),
-              "seed": int(seed), "n_steps": int(env.n_steps), "hyper": asdict(H)}
+              "seed": int(seed), "n_steps": int(env.n_steps), "hyper": _hyper_record(H)}
     config = json.loads(json.dumps(config))  # tuples -> lists: comparable with a checkpoint's copy
     threads = torch.get_num_threads()
     torch.set_num_threads(H.torch_threads)
     try:
         # ---- Input: Theta, gamma, N_MC, T, tau, actor pi(theta | s; phi), critic V(s; psi)
-        scaler = _fit_scaler(env, H.scaler_runs, seed, desc["feature_names"] or ())
+        fs = FeatureSet.parse(H.features)
+        scaler = fit_scaler(env, fs, runs=H.scaler_runs, seed=seed, visit=H.scaler_visit, squash=H.scaler_squash)
         d_in = scaler.center.shape[0]
         # ---- "Initialize actor phi, critic psi and target critic psi_bar <- psi"
         with torch.random.fork_rng(devices=[]):
@@ -261,7 +290,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
             rng_act.bit_generator.state = meta["rng_act"]
             torch_rng = torch.from_numpy(arrays["torch_rng"].copy())
             scaler = FeatureScaler(arrays["scaler/center"], arrays["scaler/scale"], float(meta["scaler"]["clip"]),
-                                   tuple(meta["scaler"]["names"]))
+                                   tuple(meta["scaler"]["names"]), meta["scaler"].get("squash", "clip"))
             episode = int(meta["episode"])
             for k in curve:
                 curve[k] = list(arrays[f"curve/{k}"])
@@ -274,11 +303,11 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
                       **{f"curve/{k}": np.asarray(v, dtype=float).reshape((len(v), G) if k == "action_frac" else (len(v),))
                          for k, v in curve.items()}}
             meta = {"config": config, "episode": episode, "rng_act": rng_act.bit_generator.state,
-                    "scaler": {"clip": scaler.clip, "names": list(scaler.names)}}
+                    "scaler": {"clip": scaler.clip, "names": list(scaler.names), "squash": scaler.squash}}
             write_npz(checkpoint, arrays, meta)
 
         def features(dec) -> torch.Tensor:
-            return torch.from_numpy(scaler(dec.features).astype(np.float32))
+            return torch.from_numpy(scaler(observe(dec, fs)).astype(np.float32))
 
         gamma_t = float(gamma)
         bar = None
@@ -304,17 +333,22 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
                 cdf = np.cumsum(p, axis=1)
                 a = np.minimum((cdf < rng_act.random(B)[:, None] * cdf[:, -1:]).sum(axis=1), G - 1)
                 # ---- "Update(theta_k)", "Compute cost L_k", "Predict", "Construct s_{k+1}"
-                d, cost, done, _ = env.step(a)
+                d, cost, done, info = env.step(a)
                 bad = ~np.isfinite(cost)
                 if bad.any():
                     nonfinite += int(bad.sum())
                     cost = np.where(bad, np.finfo(float).max, cost)
-                c = torch.from_numpy(transform_cost(cost, H.cost_transform).astype(np.float32))
-                # ---- "delta_k <- L_k + gamma V_target(s_{k+1}) - V(s_k)"  (no bootstrap at the last step)
-                if done:
+                tc = transform_cost(cost, H.cost_transform)
+                if H.repair_penalty:
+                    tc = tc + H.repair_penalty * info.get("repaired", 0.0)
+                c = torch.from_numpy(tc.astype(np.float32))
+                # ---- "delta_k <- L_k + gamma V_target(s_{k+1}) - V(s_k)"; at the horizon: a time limit
+                #      (bootstrap from the final state) or, as first implemented, a terminal state (no bootstrap)
+                final = info.get("final_decision") if H.bootstrap_at_limit else None
+                if done and final is None:
                     td_target = c
                 else:
-                    s_next = features(d)
+                    s_next = features(d if not done else final)
                     with torch.no_grad():
                         td_target = c + gamma_t * target(s_next)
                 delta = td_target - critic(s)
@@ -363,10 +397,10 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
     curve_arr = {k: np.asarray(v, dtype=float) for k, v in curve.items()}
     curve_arr["action_frac"] = curve_arr["action_frac"].reshape(-1, G)
     metadata = {
-        **desc, "experiment": experiment, "feature_names": list(scaler.names),
+        **desc, "experiment": experiment, "feature_names": list(scaler.names), "feature_set": fs.name,
         "cost_transform": H.cost_transform, "seed": int(seed), "episodes": int(episodes), "parallel": int(parallel),
-        "episodes_done": int(episode), "n_steps": int(env.n_steps), "hyper": asdict(H),
-        "default_index": int(getattr(env, "default_index", 0)),
+        "episodes_done": int(episode), "n_steps": int(env.n_steps),
+        "hyper": _hyper_record(H), "default_index": int(getattr(env, "default_index", 0)),
         "updates": int(-(-episode // parallel) * env.n_steps),
         "version": adaptfilt.__version__, "command": command, "torch_version": torch.__version__.split("+")[0],
         "curve_summary": _summary(curve_arr, grid),
@@ -377,16 +411,17 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
 
 def train_experiment(name: str, out: str | Path, gamma: float = 0.5, episodes: int = 1000, parallel: int = 1,
                      seed: int = 0, resume: bool = False, progress: bool = True, command: str | None = None,
-                     **kwargs) -> LearnedPolicy:
+                     policy_name: str | None = None, **kwargs) -> LearnedPolicy:
     """``adaptfilt train NAME ...``: train on a named experiment, write the policy
-    file ``out`` (checkpoints in ``OUT.ckpt.npz``, deleted at the end)."""
+    file ``out`` (checkpoints in ``OUT.ckpt.npz``, deleted at the end); ``policy_name``
+    names the policy (default: by its gamma)."""
     out = Path(out)
     ckpt = checkpoint_path(out)
     if resume and not ckpt.exists():
         print(f"no checkpoint {ckpt}: starting from scratch")
     t0 = time.perf_counter()
     policy, curve = train(name, gamma=gamma, episodes=episodes, parallel=parallel, seed=seed, progress=progress,
-                          checkpoint=ckpt, resume=resume, command=command, **kwargs)
+                          checkpoint=ckpt, resume=resume, command=command, name=policy_name, **kwargs)
     if policy.metadata["episodes_done"] < episodes:  # stopped early (stop_after): keep the checkpoint
         return policy
     policy.save(out)

@@ -7,7 +7,7 @@ command that regenerates it, the seed, the package version and its wall time.
 >>> from adaptfilt import artefacts                     # doctest: +SKIP
 >>> res = artefacts.load_results("ungm-ukf")             # doctest: +SKIP
 >>> res.paired_difference("adaptive", "greedy", "rmse")  # doctest: +SKIP
->>> pol = artefacts.load_policy("ungm-ukf", "adaptive")  # doctest: +SKIP
+>>> pol = artefacts.load_policy("ungm-ukf", "adaptive", seed=3)  # doctest: +SKIP
 >>> artefacts.load_floor()["rmse"]                        # doctest: +SKIP
 >>> artefacts.verify()                                    # doctest: +SKIP
 """
@@ -18,8 +18,8 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["data_dir", "manifest", "load_results", "load_policy", "load_floor", "load_table1", "load_claims",
-           "load_reconciliation", "verify"]
+__all__ = ["data_dir", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
+           "load_table1", "load_claims", "load_reconciliation", "verify"]
 
 
 def data_dir() -> Path:
@@ -47,18 +47,31 @@ def load_results(experiment: str, root: str | Path | None = None):
     return Results.load(_d(root) / "results" / experiment)
 
 
-POLICY_KINDS = ("adaptive", "myopic", "adaptive-faithful", "myopic-faithful")
+POLICY_KINDS = ("adaptive", "myopic", "adaptive-faithful")
 
 
-def load_policy(experiment: str, kind: str = "adaptive", root: str | Path | None = None):
-    """The learned policy ``kind`` of ``experiment``: "adaptive" (gamma 0.5) or
-    "myopic" (gamma 0), trained in the vectorised mode, or the same with
-    "-faithful" (trained paper-faithfully, ``parallel=1``). Its ``name`` is the kind."""
+def seeds(experiment: str, kind: str = "adaptive", root: str | Path | None = None) -> list[int]:
+    """The training seeds of ``data/policies/{experiment}-{kind}-s{seed}.npz``, sorted."""
+    d = _d(root) / "policies"
+    pre = f"{experiment}-{kind}-s"
+    return sorted(int(p.stem[len(pre):]) for p in d.glob(pre + "*.npz") if p.stem[len(pre):].isdigit())
+
+
+def load_policy(experiment: str, kind: str = "adaptive", seed: int = 0, root: str | Path | None = None):
+    """The learned policy ``kind`` of ``experiment`` trained with ``seed``: "adaptive"
+    (gamma 0.5) or "myopic" (gamma 0), trained by the fast mode, or "adaptive-faithful"
+    (Algorithm 2 as printed). Its ``name`` is ``{kind}-s{seed}``, as in the stored results."""
     if kind not in POLICY_KINDS:
         raise ValueError(f"kind must be one of {', '.join(POLICY_KINDS)}; got {kind!r}")
     from adaptfilt.learned import load_policy as _load
 
-    return _load(_d(root) / "policies" / f"{experiment}-{kind}.npz", experiment=experiment, name=kind)
+    return _load(_d(root) / "policies" / f"{experiment}-{kind}-s{seed}.npz", experiment=experiment,
+                 name=f"{kind}-s{seed}")
+
+
+def load_policies(experiment: str, kind: str = "adaptive", root: str | Path | None = None) -> list:
+    """Every seed of ``kind`` (see :func:`load_policy`), in seed order."""
+    return [load_policy(experiment, kind, s, root) for s in seeds(experiment, kind, root)]
 
 
 def _json(rel: str, root) -> dict:
@@ -81,7 +94,7 @@ def load_claims(root: str | Path | None = None) -> dict:
 
 
 def load_reconciliation(root: str | Path | None = None) -> dict:
-    """The CTM RMSE reconciliation table (:func:`adaptfilt.reproduce.ctm_reconciliation`)."""
+    """The CTM RMSE reconciliation table (:func:`adaptfilt.experiments.references.ctm_reconciliation`)."""
     return _json("results/ctm-reconciliation.json", root)
 
 
@@ -105,9 +118,9 @@ def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
             try:
                 parts = Path(e["path"]).parts
                 if parts[0] == "policies":
-                    stem = Path(e["path"]).stem
+                    stem, _, seed = Path(e["path"]).stem.rpartition("-s")
                     kind = next(k for k in sorted(POLICY_KINDS, key=len, reverse=True) if stem.endswith("-" + k))
-                    load_policy(stem[: -len(kind) - 1], kind, root=d)
+                    load_policy(stem[: -len(kind) - 1], kind, int(seed), root=d)
                 elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
                     load_results(parts[1], root=d)
                 elif p.suffix == ".json":

@@ -4,19 +4,31 @@ Sub-commands (their names and flags are a contract the course, the README and
 ``data/manifest.json`` rely on)::
 
     adaptfilt experiments
-    adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...]
-    adaptfilt train NAME [--gamma G] [--episodes N] [--parallel B] [--seed S] --out FILE [--resume]
-    adaptfilt reproduce --out DIR [--quick] [--retrain] [--faithful]
+    adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
+    adaptfilt train NAME [--algo faithful|batched|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
+                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] --out FILE [--resume]
+                         [--workers N] [--cluster ADDRESS]
+    adaptfilt reproduce --out DIR [--quick] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood] [--workers N] [--cluster ADDRESS]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
 handler, so that a notebook can call the same function directly.
+
+Errors: every user error -- a bad flag value (checked by the ``type=``
+functions below before any work starts), an unknown experiment, an --out that
+cannot be written, a missing, damaged or mismatched policy file, or any
+``ValueError`` / ``KeyError`` / ``OSError`` the library raises -- prints one
+line ``adaptfilt: error: ...`` on stderr and exits with status 2. Any other
+exception is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 
 def _experiments(args: argparse.Namespace) -> int:
@@ -36,24 +48,51 @@ def _evaluate(args: argparse.Namespace) -> int:
         out_dir=Path(args.out),
         policy_files=[Path(p) for p in args.policy],
         progress=not args.no_progress,
+        n_steps=args.horizon,
     )
     return 0
 
 
-def _train(args: argparse.Namespace) -> int:
-    from adaptfilt.actor_critic import train_experiment
+def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
+    """The one command that makes this file (recorded in it)."""
+    words = ["adaptfilt", "train", args.name, "--algo", args.algo, "--gamma", f"{args.gamma:g}",
+             "--episodes", str(args.episodes)]
+    if args.parallel is not None:
+        words += ["--parallel", str(args.parallel)]
+    words += ["--seed", str(seed)]
+    if args.features is not None:
+        words += ["--features", args.features]
+    if args.repair_penalty:
+        words += ["--repair-penalty", f"{args.repair_penalty:g}"]
+    if args.horizon is not None:
+        words += ["--horizon", str(args.horizon)]
+    return " ".join(words + ["--out", out])
 
-    train_experiment(
-        args.name,
-        out=Path(args.out),
-        gamma=args.gamma,
-        episodes=args.episodes,
-        parallel=args.parallel,
-        seed=args.seed,
-        resume=args.resume,
-        progress=not args.no_progress,
-        command=" ".join(["adaptfilt", *sys.argv[1:]]) if args.command_line is None else args.command_line,
-    )
+
+def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
+    """One training of ``adaptfilt train`` (module level: it may run in a worker process)."""
+    from adaptfilt.trainers import train_policy
+
+    command = args.command_line or _train_command(args, seed, out)
+    train_policy(args.name, args.algo, args.gamma, args.episodes, seed, parallel=args.parallel,
+                 features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
+                 out=out, resume=args.resume, repair_penalty=args.repair_penalty)
+    return out
+
+
+def _train(args: argparse.Namespace) -> int:
+    if args.seeds is None:
+        train_job(args, args.seed, args.out)
+        print(f"wrote {args.out}")
+        return 0
+    from adaptfilt.experiments.sweep import run_jobs
+    from adaptfilt.trainers import seed_path
+
+    args.no_progress = True  # one bar over the seeds instead of one per training
+    outs = [str(seed_path(args.out, s)) for s in args.seeds]
+    run_jobs(train_job, [(args, s, o) for s, o in zip(args.seeds, outs)], workers=args.workers,
+             cluster=args.cluster, desc=f"train {args.name} ({args.algo}, {len(outs)} seeds)")
+    print("wrote " + ", ".join(outs))
     return 0
 
 
@@ -61,8 +100,26 @@ def _reproduce(args: argparse.Namespace) -> int:
     from adaptfilt.reproduce import reproduce
 
     reproduce(out_dir=Path(args.out), quick=args.quick, retrain=args.retrain, progress=not args.no_progress,
-              faithful=args.faithful)
+              faithful=args.faithful, workers=args.workers, cluster=args.cluster)
     return 0
+
+
+def _beyond(args: argparse.Namespace) -> int:
+    from adaptfilt.experiments.beyond import run, summary_md
+
+    summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
+                  studies=tuple(args.studies.split(",")), progress=not args.no_progress)
+    text = summary_md(summary)
+    (Path(args.out) / "beyond" / "summary.md").write_text(text)
+    print(text)
+    return 0
+
+
+def _studies(text: str) -> str:
+    bad = [s for s in text.split(",") if s not in ("cand", "sif", "ood")]
+    if bad or not text:
+        raise argparse.ArgumentTypeError(f"studies are a comma-separated subset of cand,sif,ood; got {text!r}")
+    return text
 
 
 def _book(args: argparse.Namespace) -> int:
@@ -73,8 +130,147 @@ def _book(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------- validation
+# argparse calls these on the raw text; an ArgumentTypeError becomes
+# "adaptfilt: error: argument --runs: <message>" before any work starts.
+
+def _int_at_least(lo: int, why: str = ""):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}{why}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {lo}"
+    return parse
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value >= 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _gamma(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 <= value < 1.0:  # also rejects nan
+        raise argparse.ArgumentTypeError(f"the discount gamma must be in [0, 1), got {text}")
+    return value
+
+
+def _seeds(text: str) -> list[int]:
+    """``"8"`` -> 0..7; ``"0-7"``, ``"3,5,9"``, ``"0-3,10"`` -> those seeds."""
+    try:
+        if text.isdigit():
+            n = int(text)
+            if n < 1:
+                raise ValueError
+            return list(range(n))
+        seeds: list[int] = []
+        for part in text.split(","):
+            lo, _, hi = part.partition("-")
+            a, b = int(lo), int(hi) if hi else int(lo)
+            if a < 0 or b < a:
+                raise ValueError
+            seeds += range(a, b + 1)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a count (8) or seeds like 0-7 or 0,3,5; got {text!r}") from None
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"seed given twice in {text!r}")
+    return seeds
+
+
+def _features(text: str) -> str:
+    from adaptfilt.features import FeatureSet
+
+    try:
+        return FeatureSet.parse(text).name
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _experiment(text: str) -> str:
+    from adaptfilt.experiments import EXPERIMENTS
+
+    if text not in EXPERIMENTS:
+        raise argparse.ArgumentTypeError(f"unknown experiment {text!r}; known: {', '.join(EXPERIMENTS)}")
+    return text
+
+
+def _existing_file(text: str) -> str:
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: not a file")
+    return text
+
+
+def _writable_parent(path: Path, text: str) -> None:
+    """The nearest existing ancestor of ``path`` must be a folder we may write into."""
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: cannot be created, {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{text}: cannot be written, no write permission in {parent}")
+
+
+def _out_dir(text: str) -> str:
+    path = Path(text)
+    if path.exists():
+        if not path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text}: exists and is not a folder")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"{text}: cannot be written, no write permission")
+    else:
+        _writable_parent(path, text)
+    return text
+
+
+def _out_file(text: str) -> str:
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a file name")
+    _writable_parent(path, text)
+    return text
+
+
+class _Parser(argparse.ArgumentParser):
+    """Every usage error is one line ``adaptfilt: error: ...`` and exit status 2,
+    sub-commands included (argparse would print the usage and ``adaptfilt evaluate: error:``)."""
+
+    def error(self, message: str) -> NoReturn:
+        _fail(f"{message} (see `{self.prog} --help`)")
+
+
+def _fail(message: str) -> NoReturn:
+    sys.stderr.write(f"adaptfilt: error: {' '.join(str(message).split())}\n")
+    raise SystemExit(2)
+
+
+def _user_message(e: BaseException) -> str:
+    """One line for a user-facing library error."""
+    if isinstance(e, OSError) and e.filename is not None and e.strerror:
+        return f"{e.filename}: {e.strerror}"
+    if isinstance(e, KeyError) and len(e.args) == 1 and isinstance(e.args[0], str):
+        return e.args[0]  # str(KeyError) would add quotes
+    return str(e) or type(e).__name__
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="adaptfilt",
         description="Learning adaptive parameter policies for nonlinear Bayesian filters.",
     )
@@ -84,45 +280,90 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_experiments)
 
     p = sub.add_parser("evaluate", help="evaluate every baseline (and learned policies) of an experiment")
-    p.add_argument("name", help="experiment name, see `adaptfilt experiments`")
-    p.add_argument("--runs", type=int, default=10_000, help="Monte-Carlo runs (default 10^4)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--policy", action="append", default=[], help="a learned policy file (repeatable)")
+    p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
+    p.add_argument("--runs", type=_int_at_least(2, " (the bootstrap needs two runs)"), default=10_000,
+                   help="Monte-Carlo runs (default 10^4)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0)
+    p.add_argument("--out", required=True, type=_out_dir, help="output directory")
+    p.add_argument("--policy", action="append", default=[], type=_existing_file,
+                   help="a learned policy file (repeatable); its result is named after the file; files "
+                        "NAME-s0.npz, NAME-s1.npz ... are one policy trained on several seeds")
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_evaluate)
 
-    p = sub.add_parser("train", help="train a policy with the TD(0) actor-critic (Algorithm 2)")
-    p.add_argument("name", help="experiment name, see `adaptfilt experiments`")
-    p.add_argument("--gamma", type=float, default=0.5, help="discount factor (0 = myopic)")
-    p.add_argument("--episodes", type=int, default=1000, help="training episodes N_MC")
-    p.add_argument("--parallel", type=int, default=1,
-                   help="episodes run in parallel; 1 = paper-faithful (one update per step of one episode)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True, help="policy file to write")
+    from adaptfilt.trainers import ALGOS
+
+    p = sub.add_parser("train", help="train a policy (Algorithm 2 as printed, or the fast mode)")
+    p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
+    p.add_argument("--algo", choices=ALGOS, default="faithful",
+                   help="faithful: Algorithm 2, one episode at a time (the reference, minutes); batched: the "
+                        "same, --parallel episodes per update; a2c: the fast mode (Stable-Baselines3 A2C, seconds); "
+                        "ppo: Stable-Baselines3 PPO")
+    p.add_argument("--gamma", type=_gamma, default=0.5, help="discount factor in [0, 1) (0 = myopic)")
+    p.add_argument("--episodes", type=_int_at_least(1), default=1000,
+                   help="training budget N_MC in episodes of T steps (default 1000)")
+    p.add_argument("--parallel", type=_int_at_least(1), default=None,
+                   help="batched: episodes per update (default 50); a2c/ppo: runs per batch (default 64/16)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--seed", type=_int_at_least(0), default=0)
+    g.add_argument("--seeds", type=_seeds, default=None,
+                   help="train one policy per seed (8 = 0-7, or 0-7, or 0,3,5) into OUT-s{seed}.npz, in parallel")
+    p.add_argument("--features", type=_features, default=None,
+                   help="information state, e.g. paper, paper+time, paper+circ (default: the experiment's)")
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--repair-penalty", type=_nonnegative, default=0.0,
+                   help="added to the learner's cost of a run whose covariance was repaired (default 0)")
+    p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
+    p.add_argument("--workers", type=_int_at_least(1), default=None,
+                   help="local processes for --seeds (default: every core)")
+    p.add_argument("--cluster", default=None, help="run --seeds on a Dask cluster (scheduler address)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--command-line", default=None, help=argparse.SUPPRESS)
     p.set_defaults(func=_train)
 
     p = sub.add_parser("reproduce", help="train + evaluate + figures + tables of the paper")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, type=_out_dir, help="output directory")
     p.add_argument("--quick", action="store_true", help="toy scale, about a minute")
     p.add_argument("--retrain", action="store_true", help="retrain even where data/ has the artefact")
     p.add_argument("--faithful", action="store_true",
-                   help="also train the paper-faithful (parallel=1) policies data/ lacks (slow: minutes each)")
+                   help="also train the paper-faithful policies data/ lacks (slow: about 11 CPU-minutes each)")
+    p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
+    p.add_argument("--cluster", default=None,
+                   help="run the jobs on a Dask cluster: a scheduler address, or 'local' for a local one")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_reproduce)
 
+    p = sub.add_parser("beyond", help="the studies beyond the paper (candidate-aware states, SIF divergence, "
+                                      "out of distribution), at the seed level, into OUT/beyond")
+    p.add_argument("--out", required=True, type=_out_dir, help="output directory (OUT/beyond)")
+    p.add_argument("--quick", action="store_true", help="toy scale")
+    p.add_argument("--studies", type=_studies, default="cand,sif,ood", help="which: cand,sif,ood (default all)")
+    p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
+    p.add_argument("--cluster", default=None, help="run the jobs on a Dask cluster (scheduler address or 'local')")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_beyond)
+
     p = sub.add_parser("book", help="build the static course book (mdBook) from the executed notebooks")
-    p.add_argument("--out", required=True, help="output directory (DIR/index.html)")
+    p.add_argument("--out", required=True, type=_out_dir, help="output directory (DIR/index.html)")
     p.set_defaults(func=_book)
     return parser
 
 
+#: Library errors that are the user's (a bad name, value or file): one line at the CLI.
+#: Anything else is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, KeyError, OSError)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run ``adaptfilt ARGS``; a user error exits with status 2 and one line
+    ``adaptfilt: error: ...`` on stderr."""
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except USER_ERRORS as e:
+        _fail(_user_message(e))
 
 
 if __name__ == "__main__":  # pragma: no cover

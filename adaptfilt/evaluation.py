@@ -1,4 +1,4 @@
-r"""Monte-Carlo evaluation of parameter policies (Section V-D of the paper).
+r"""Monte-Carlo evaluation of parameter policies (Section VI-E of the paper).
 
 :func:`evaluate` simulates ``M`` trajectories **once** and runs every policy
 on the same trajectories, through the same :class:`~adaptfilt.mdp.FilterEnv`
@@ -22,6 +22,15 @@ What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 ``cost_median`` ...       median, 99 % and 99.9 % quantiles and max of the one-step cost over
                           all ``M T`` (run, step) pairs: the NIS cost is extremely heavy-tailed
 ``rmse_run_median``       median over runs of the run's own RMS error ``sqrt(mean_k e^T e)``
+``objective``             mean of ``log(1 + L)`` over runs and steps: what the trainers minimise
+                          (their default ``cost_transform``), far less heavy-tailed than ``cost``
+``cost_charged``          ``cost`` plus ``compute_weight`` times the iterations the policy spent
+                          *looking* (the SIF innovation feature, the greedy/ML candidates): the
+                          paper charges only the chosen ``n_iter``
+``anees_run_median``      median over runs of the run's time-averaged NEES
+``divergent_frac``        fraction of runs that diverged: time-averaged NEES above ``1e4 nx``
+                          (no consistent filter gets there) or a non-finite estimate
+``cost_t (T,)``           mean one-step cost over runs at each step
 ``*_ci``                  95 % percentile bootstrap interval (runs resampled)
 ``usage (G,)``            how many (run, step) pairs used each grid value
 ``choices (T, G)``        fraction of runs using each grid value at each step
@@ -54,7 +63,8 @@ from adaptfilt import metrics
 from adaptfilt.mdp import FilterEnv, rollout
 from adaptfilt.models import Trajectory
 
-__all__ = ["PolicyResult", "Results", "evaluate", "evaluate_experiment", "RESULTS_FORMAT", "TRAJ_SEED_KEY"]
+__all__ = ["PolicyResult", "Results", "evaluate", "evaluate_experiment", "learned_name", "learned_names",
+           "RESULTS_FORMAT", "TRAJ_SEED_KEY"]
 
 RESULTS_FORMAT = "adaptfilt-results/1"
 #: Trajectories of an evaluation with seed ``s`` come from ``default_rng([TRAJ_SEED_KEY, s])``, so
@@ -68,6 +78,12 @@ _SCALARS = ("rmse", "anees", "nis", "cost", "cost_median", "cost_q99", "cost_q99
 _CIS = ("rmse_ci", "anees_ci", "cost_ci")
 _ARRAYS = ("rmse_t", "rmse_t_band", "anees_t", "anees_t_band", "nis_t", "choices", "usage",
            "boot_rmse", "boot_anees", "boot_cost", "run_rmse", "run_anees", "run_cost")
+# Added later: results written before them load with NaN / empty values.
+_SCALARS_NEW = ("objective", "cost_charged", "anees_run_median", "divergent_frac", "extra_spent")
+_CIS_NEW = ("objective_ci",)
+_ARRAYS_NEW = ("boot_objective", "cost_t")
+#: A run has diverged when its time-averaged NEES exceeds this many times nx.
+DIVERGED_NEES = 1e4
 
 
 @dataclass
@@ -109,11 +125,19 @@ class PolicyResult:
     run_rmse: np.ndarray
     run_anees: np.ndarray
     run_cost: np.ndarray
+    objective: float = float("nan")
+    objective_ci: tuple[float, float] = (float("nan"), float("nan"))
+    cost_charged: float = float("nan")
+    anees_run_median: float = float("nan")
+    divergent_frac: float = float("nan")
+    extra_spent: float = float("nan")
+    boot_objective: np.ndarray = field(default_factory=lambda: np.empty(0))
+    cost_t: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     def scalars(self) -> dict:
         """The JSON-able scalar summaries (CIs as ``[lo, hi]``, usage as counts)."""
-        d = {k: getattr(self, k) for k in _SCALARS}
-        d.update({k: list(getattr(self, k)) for k in _CIS})
+        d = {k: getattr(self, k) for k in _SCALARS + _SCALARS_NEW}
+        d.update({k: list(getattr(self, k)) for k in _CIS + _CIS_NEW})
         d["usage"] = self.usage.tolist()
         return d
 
@@ -155,16 +179,17 @@ class Results:
         same counts, so the interval is that of the difference itself: it
         excludes 0 when the difference is significant at ``level``.
         """
-        if metric not in ("rmse", "anees", "cost"):
-            raise ValueError(f"metric must be 'rmse', 'anees' or 'cost', got {metric!r}")
+        if metric not in ("rmse", "anees", "cost", "objective"):
+            raise ValueError(f"metric must be 'rmse', 'anees', 'cost' or 'objective', got {metric!r}")
         pa, pb = self[a], self[b]
         diff = float(getattr(pa, metric) - getattr(pb, metric))
         lo, hi = metrics.percentile_ci(getattr(pa, "boot_" + metric) - getattr(pb, "boot_" + metric), level)
         return diff, lo, hi
 
-    def best_fixed(self, metric: Literal["rmse", "anees", "cost"] = "rmse") -> str:
-        """Name of the fixed-value policy with the lowest ``metric`` (ANEES: closest to ``nx``)."""
-        fixed = [n for n in self.policies if n.startswith("fixed-")]
+    def best_fixed(self, metric: Literal["rmse", "anees", "cost"] = "rmse", both_steps: bool = False) -> str:
+        """Name of the fixed-value policy with the lowest ``metric`` (ANEES: closest to ``nx``),
+        among those fixed in the update only (default) or, ``both_steps``, in both steps."""
+        fixed = [n for n in self.policies if n.startswith("fixed-") and n.startswith("fixed-both-") == both_steps]
         if not fixed:
             raise ValueError("these results have no fixed-value policies")
         if metric == "anees":
@@ -210,7 +235,8 @@ class Results:
                "order": list(self.policies)}
         # json writes floats with repr(): they read back exactly.
         (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
-        arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values()) for k in _ARRAYS}
+        arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values())
+                  for k in _ARRAYS + _ARRAYS_NEW}
         np.savez_compressed(out / "results.npz", **arrays)
         return out
 
@@ -226,19 +252,21 @@ class Results:
             for i, n in enumerate(doc["order"]):
                 s = doc["policies"][n]
                 kw = {k: s[k] for k in _SCALARS}
-                kw.update({k: (s[k][0], s[k][1]) for k in _CIS})
-                kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS})
+                kw.update({k: s[k] for k in _SCALARS_NEW if k in s})
+                kw.update({k: (s[k][0], s[k][1]) for k in _CIS + _CIS_NEW if k in s})
+                kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS + _ARRAYS_NEW if f"p{i}_{k}" in z.files})
                 pols[n] = PolicyResult(name=n, **kw)
         return cls(config=doc["config"], policies=pols)
 
 
 # ------------------------------------------------------------------ evaluate
 def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
-               counts: np.ndarray, n_repairs: int, level: float) -> dict:
+               counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
     """Reduce one rollout to the :class:`PolicyResult` fields (wall time excluded)."""
     M, T = run.nis.shape
     se = metrics.squared_error(x, run.mean)  # (M, T)
-    ne = metrics.nees(x, run.mean, run.cov)
+    # a clipped filter stores the rare indefinite P_filt before repairing it: see metrics.nees
+    ne = metrics.nees(x, run.mean, run.cov)  # filters return positive definite P_filt (gaf.update_rl)
     a = (1.0 - level) / 2.0
     # RMSE: bootstrap the per-step mean squared error, then sqrt and time-average
     # (RMSE is not a mean over runs, so it is resampled through se, not per run).
@@ -263,16 +291,30 @@ def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.
     out["rmse_ci"] = metrics.percentile_ci(out["boot_rmse"], level)
     out["anees_ci"] = metrics.percentile_ci(out["boot_anees"], level)
     out["rmse_run_median"] = float(np.median(out["run_rmse"]))
+    out["anees_run_median"] = float(np.median(run_anees))
+    nx = x.shape[-1]
+    bad = ~np.isfinite(run.mean).all(axis=(1, 2)) | ~(run_anees <= DIVERGED_NEES * nx)
+    out["divergent_frac"] = float(bad.mean())
+    spent = run.info.get("extra_spent") if getattr(run, "info", None) else None
+    out["extra_spent"] = float(np.mean(spent)) if spent is not None else 0.0
+    nan = float("nan")
     if cost is None:
-        nan = float("nan")
         out.update(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
-                   boot_cost=np.full(counts.shape[0], nan), run_cost=np.full(M, nan))
+                   boot_cost=np.full(counts.shape[0], nan), run_cost=np.full(M, nan), objective=nan,
+                   objective_ci=(nan, nan), boot_objective=np.full(counts.shape[0], nan), cost_charged=nan,
+                   cost_t=np.full(T, nan))
     else:
         run_cost = cost.mean(axis=1)
         q = np.quantile(cost, COST_QUANTILES)
         out.update(cost=float(cost.mean()), run_cost=run_cost, boot_cost=metrics.bootstrap_mean(run_cost, counts),
-                   cost_median=float(q[0]), cost_q99=float(q[1]), cost_q999=float(q[2]), cost_max=float(cost.max()))
+                   cost_median=float(q[0]), cost_q99=float(q[1]), cost_q999=float(q[2]), cost_max=float(cost.max()),
+                   cost_t=cost.mean(axis=0), cost_charged=float(cost.mean()) + compute_weight * out["extra_spent"])
         out["cost_ci"] = metrics.percentile_ci(out["boot_cost"], level)
+        # What the trainers minimise: log(1 + L) (a non-finite cost counts as the largest float, as in training).
+        obj = np.log1p(np.where(np.isfinite(cost), np.maximum(cost, 0.0), np.finfo(float).max))
+        out["objective"] = float(obj.mean())
+        out["boot_objective"] = metrics.bootstrap_mean(obj.mean(axis=1), counts)
+        out["objective_ci"] = metrics.percentile_ci(out["boot_objective"], level)
     # Which grid value each (run, step) used: params hold grid values exactly.
     choices = np.stack([(run.params == g).mean(axis=0) for g in grid], axis=1)  # (T, G)
     out["choices"] = choices
@@ -353,7 +395,7 @@ def evaluate(
     if not given:
         if int(n_runs) < 2:
             raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
-        traj = env.model.simulate(int(n_runs), env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
+        traj = env.truth.simulate(int(n_runs), env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
     M = traj.n_runs
     counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1]))
     filt = env.filt
@@ -378,18 +420,49 @@ def evaluate(
             bar.set_postfix_str(pol.name)
         t0 = time.perf_counter()
         run, cost = rollout(env, pol, traj=traj, progress=progress == "steps")
-        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts, run.n_repairs, level)
+        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts, run.n_repairs, level,
+                          compute_weight=0.0 if env.cost is None else env.cost.compute_weight)
         del run, cost  # the (M, T, nx, nx) covariances go here
         res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
     return res
 
 
-def learned_name(path: str | Path, experiment: str) -> str | None:
-    """Result name of a learned policy file: its stem without the experiment
-    prefix (``data/policies/ungm-ukf-adaptive-faithful.npz`` -> ``adaptive-faithful``),
-    or None (the name stored in the file) for other file names."""
+def learned_name(path: str | Path, experiment: str) -> str:
+    """Result name of a learned policy file: its stem, without the experiment
+    prefix when it has one (``data/policies/ungm-ukf-adaptive-faithful.npz`` ->
+    ``adaptive-faithful``, ``runs/try3.npz`` -> ``try3``)."""
     stem = Path(path).stem
-    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else None
+    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else stem
+
+
+def learned_names(paths: Iterable[str | Path], experiment: str) -> list[str]:
+    """:func:`learned_name` of each file, made unique: files that would share a
+    name (the same stem in different folders) are named ``<folder>/<name>``
+    with as many trailing folders of their resolved path as it takes to tell
+    them apart (``a/x/adaptive.npz``, ``b/x/adaptive.npz`` -> ``a/x/adaptive``,
+    ``b/x/adaptive``). The same file given twice is a ``ValueError``.
+
+    >>> learned_names(["data/policies/ungm-ukf-adaptive.npz", "runs/ungm-ukf-adaptive.npz", "runs/b.npz"], "ungm-ukf")
+    ['policies/adaptive', 'runs/adaptive', 'b']
+    """
+    paths = [Path(p) for p in paths]
+    resolved = [p.resolve() for p in paths]
+    for i, r in enumerate(resolved):
+        if r in resolved[:i]:
+            raise ValueError(f"policy file {paths[i]} is given twice")
+    names = [learned_name(p, experiment) for p in paths]
+    for n in sorted({n for n in names if names.count(n) > 1}):
+        group = [i for i, m in enumerate(names) if m == n]
+        depth = max(len(resolved[i].parent.parts) for i in group)
+        for d in range(1, depth + 1):
+            cand = {i: "/".join([*resolved[i].parent.parts[-d:], n]) for i in group}
+            if len(set(cand.values())) == len(group):
+                break
+        else:  # same folder, stems that strip to the same name (ungm-ukf-a.npz, a.npz): the file names
+            cand = {i: str(resolved[i].parent / resolved[i].name) for i in group}
+        for i in group:
+            names[i] = cand[i]
+    return names
 
 
 def evaluate_experiment(
@@ -403,14 +476,20 @@ def evaluate_experiment(
     floor: float | None = None,
     figures: bool = True,
     quiet: bool = False,
+    n_steps: int | None = None,
 ) -> Results:
-    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...]`` runs.
+    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]`` runs.
+
+    Policy files named ``<kind>-s<seed>.npz`` are one policy trained on several
+    seeds: the table then adds the seed-level aggregate (IQM over seeds with a
+    two-level bootstrap interval, :mod:`adaptfilt.experiments.seeds`).
 
     Evaluates every baseline of experiment ``name`` (default, each fixed grid
     value, ML where it applies, greedy) and the learned policies in
-    ``policy_files``, then writes into ``out_dir``: ``results.json`` +
-    ``results.npz``, ``summary.json``, ``summary.md`` and PNG figures; prints
-    the table (unless ``quiet``). ``floor`` draws a reference RMSE (e.g. the
+    ``policy_files`` (each named after its file by :func:`learned_names`; a
+    name that a baseline uses is a ``ValueError``), then writes into
+    ``out_dir``: ``results.json`` + ``results.npz``, ``summary.json``,
+    ``summary.md`` and PNG figures; prints the table (unless ``quiet``). ``floor`` draws a reference RMSE (e.g. the
     point-mass Bayes floor on UNGM) in the RMSE figures.
     """
     from adaptfilt.experiments import get_experiment
@@ -421,14 +500,29 @@ def evaluate_experiment(
     if policy_files:
         from adaptfilt.learned import load_policy  # torch is imported only when needed
 
-        policies += [load_policy(p, experiment=exp, name=learned_name(p, exp.name)) for p in policy_files]
+        baseline_names = {p.name for p in policies}
+        names = learned_names(policy_files, exp.name)
+        for p, n in zip(policy_files, names):
+            if n in baseline_names or n.startswith("fixed-"):
+                raise ValueError(f"policy file {p} would be named {n!r}, which is reserved for a baseline "
+                                 f"({', '.join(sorted(baseline_names))}); rename the file")
+        policies += [load_policy(p, experiment=exp, name=n) for p, n in zip(policy_files, names)]
     out = Path(out_dir)
-    command = f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed} --out {out}" + "".join(
-        f" --policy {p}" for p in policy_files)
-    res = evaluate(exp, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
+    command = (f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed}"
+               + ("" if n_steps is None else f" --horizon {n_steps}") + f" --out {out}"
+               + "".join(f" --policy {p}" for p in policy_files))
+    target = exp if n_steps is None else exp.make_env(seed=seed, n_steps=n_steps)
+    res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
+    res.config.update(experiment=exp.name, description=exp.description)
     res.save(out)
     (out / "summary.json").write_text(json.dumps(res.summary(), indent=1) + "\n")
     table = res.table()
+    from adaptfilt.experiments.seeds import seed_groups
+
+    if seed_groups(res.names):
+        from adaptfilt.experiments.report import summary_md
+
+        table += "\n**Seed level**: " + summary_md(res)
     (out / "summary.md").write_text(table)
     if figures:
         from adaptfilt.plots import save_figures

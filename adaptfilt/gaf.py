@@ -17,10 +17,14 @@ A GAF is one recursion plus a moment rule (:mod:`adaptfilt.rules`):
 with ``NIS = z~^T (P^{zz})^{-1} z~`` and log-likelihood
 ``log N(z~; 0, P^{zz})``. The UKF is the GAF with the unscented rule
 (parameter ``kappa``), the SIF the GAF with the stochastic integration rule
-(parameter ``n_iter``).
+(parameter ``n_iter``). A stochastic rule asked for its integration-error term
+reports the estimated variance ``V`` of its mean estimate
+(``Moments.mean_var``), which is added to the predicted covariance:
+``P_{k|k-1} = Cov[f] + Q + V_x`` and ``P^{zz} = Cov[h] + R + V_z``, as the
+SIF's authors do.
 
 Everything is batched over Monte-Carlo runs; a parameter is a scalar or one
-value per run. Only the update-step parameter is adapted (Section IV of the
+value per run. Only the update-step parameter is adapted (Section V of the
 paper): ``run(z, params=...)`` sets the update parameter, and the predict step
 uses the filter's own parameter. When the model declares its dynamics linear
 (``model.F``) the predict step is the exact Kalman predict.
@@ -43,7 +47,7 @@ import numpy as np
 
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym
 from adaptfilt.models import StateSpaceModel
-from adaptfilt.rules import MomentRule, StochasticIntegrationRule, UnscentedRule
+from adaptfilt.rules import MomentRule, Moments, StochasticIntegrationRule, UnscentedRule
 
 __all__ = ["FilterError", "Prediction", "Update", "FilterRun", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
 
@@ -60,6 +64,11 @@ class FilterError(RuntimeError):
         more = "" if self.runs.size <= 10 else f" (+{self.runs.size - 10} more)"
         msg = f"{quantity} at step t={step} (k={step + 1}) in run(s) {shown}{more}"
         super().__init__(msg + (f": {detail}" if detail else ""))
+
+
+def _plus_error(C: np.ndarray, mo: Moments) -> np.ndarray:
+    """``C + V``: a predicted covariance plus the rule's integration-error term, when it reports one."""
+    return C if mo.mean_var is None else C + mo.mean_var
 
 
 def _public(a: np.ndarray) -> np.ndarray:
@@ -95,6 +104,8 @@ class Update:
     loglik: np.ndarray
     x_filt: np.ndarray
     P_filt: np.ndarray
+    #: iterations a stochastic rule spent per run ``(M,)``; 0 for deterministic rules and exact linear updates
+    n_iter_spent: np.ndarray | None = None
 
 
 @dataclass
@@ -110,6 +121,7 @@ class _UpdateRL:
     loglik: np.ndarray
     x_filt: np.ndarray
     P_filt: np.ndarray
+    n_iter_spent: np.ndarray | None = None
 
 
 @dataclass
@@ -120,6 +132,10 @@ class FilterRun:
     ``nis``/``loglik`` ``(M, T)`` the per-step normalised innovation squared and
     measurement log-likelihood, ``params (M, T)`` the update-step parameter used.
     ``x_pred``/``P_pred`` are kept when the run was asked to (``keep_pred``).
+    With a stochastic rule, ``info["n_iter_spent"]`` and
+    ``info["n_iter_spent_predict"]`` ``(M, T)`` hold the iterations each run
+    spent in each update and predict step (0 where nothing was drawn: the
+    first step's predict, exact linear steps).
     """
 
     mean: np.ndarray
@@ -157,6 +173,9 @@ class GaussianAssumedFilter:
         steps drew: filters that differ only in their parameters share them.
     on_indefinite : "raise" or "clip"
         What to do when a covariance loses positive definiteness.
+    predict_rule : MomentRule, optional
+        A rule for the predict step only (e.g. another stopping tolerance);
+        default ``rule``. It takes the same parameter.
 
     Example
     -------
@@ -169,6 +188,10 @@ class GaussianAssumedFilter:
     ((100, 50, 1), (100, 50, 1, 1), (100, 50))
     """
 
+    #: ``run(z, policy=...)`` delegates to the MDP's episode loop, which registers itself here
+    #: (:func:`adaptfilt.mdp.run_policy`): the filter does not import the MDP built on it.
+    policy_runner = None
+
     def __init__(
         self,
         model: StateSpaceModel,
@@ -176,6 +199,7 @@ class GaussianAssumedFilter:
         param: float | None = None,
         seed: int = 0,
         on_indefinite: Literal["raise", "clip"] = "raise",
+        predict_rule: MomentRule | None = None,
     ):
         if not isinstance(model, StateSpaceModel):
             raise TypeError(f"model must be a StateSpaceModel, got {type(model).__name__}")
@@ -183,11 +207,19 @@ class GaussianAssumedFilter:
             raise ValueError(f"on_indefinite must be 'raise' or 'clip', got {on_indefinite!r}")
         self.model = model
         self.rule = rule
+        self.predict_rule = rule if predict_rule is None else predict_rule
+        if self.predict_rule.stochastic != rule.stochastic:
+            raise ValueError("rule and predict_rule must both be stochastic or both deterministic")
         self.param = float(rule.default_param(model.nx) if param is None else param)
         rule.check_param(self.param, model.nx)
         self.seed = int(seed)
         self.on_indefinite = on_indefinite
         self.n_repairs = 0
+        #: when a list, every repair appends the indices of the runs it repaired (the MDP reads it per step)
+        self.repair_log: list | None = None
+        #: let :meth:`update_candidates_rl` use the rule's one-set-of-draws path where it has one
+        #: (False: always the tiled call; for cross-checks and benchmarks, the results agree to round-off)
+        self.candidate_prefixes = True
         nx = model.nx
         self._Q = model.Q[:, :, None]
         self._R = model.R[:, :, None]
@@ -224,6 +256,8 @@ class GaussianAssumedFilter:
             if self.on_indefinite == "raise":
                 raise FilterError(f"{quantity} is not positive definite", t, e.runs) from None
             self.n_repairs += int(e.runs.size)
+            if self.repair_log is not None:
+                self.repair_log.append(e.runs)
             P = clip_to_pd(P, e.runs)
             return chol(P, quantity), P
 
@@ -233,18 +267,28 @@ class GaussianAssumedFilter:
 
     # ------------------------------------------------------------- run-last core
     def predict_rl(
-        self, m: np.ndarray, P: np.ndarray, t: int, rng: np.random.Generator | None = None
+        self, m: np.ndarray, P: np.ndarray, t: int, rng: np.random.Generator | None = None, param=None,
+        info: dict | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Predict from step ``t`` to ``t + 1``; ``m (nx, M)``, ``P (nx, nx, M)``."""
+        """Predict from step ``t`` to ``t + 1``; ``m (nx, M)``, ``P (nx, nx, M)``;
+        ``param`` (default: the filter's) scalar or ``(M,)``.
+
+        ``info``, if given, receives ``"n_iter"`` (the iterations a stochastic
+        rule spent per run, or None).
+        """
         model = self.model
+        n_iter = None
         if model.F is not None:
             F = model.F[:, :, None]
             m_pred = mv(F, m)
             P_pred = mm(mm(F, P), F.swapaxes(0, 1)) + self._Q
         else:
             L, P = self._chol(sym(P), "P_filt", t)
-            mo = self.rule.moments(self._wrap(model.f, t + 1), m, P, self.param, rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False)
-            m_pred, P_pred = mo.mean, mo.cov + self._Q
+            mo = self.predict_rule.moments(self._wrap(model.f, t + 1), m, P, self.param if param is None else param,
+                                           rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False)
+            m_pred, P_pred, n_iter = mo.mean, _plus_error(mo.cov + self._Q, mo), mo.n_iter
+        if info is not None:
+            info["n_iter"] = n_iter
         if not np.isfinite(m_pred).all():
             raise FilterError("non-finite predicted mean x_pred", t + 1, np.flatnonzero(~np.isfinite(m_pred).all(0)))
         return m_pred, sym(P_pred)
@@ -257,11 +301,20 @@ class GaussianAssumedFilter:
         t: int,
         param=None,
         rng: np.random.Generator | None = None,
+        tile: int = 1,
     ) -> _UpdateRL:
-        """Update at step ``t`` with ``z (nz, M)``; ``param`` scalar or ``(M,)``."""
+        """Update at step ``t`` with ``z (nz, M)``; ``param`` scalar or ``(M,)``.
+
+        ``tile = G``: the ``M`` runs are ``G`` copies of ``M / G`` runs laid out
+        as ``np.concatenate([a] * G, axis=-1)`` (e.g. the MDP evaluating every
+        candidate parameter at once); a stochastic rule then gives run ``j``
+        the same draws in every copy, the draws an untiled call of the ``M / G``
+        runs with the same ``rng`` gets. ``tile = 1``: independent draws per run.
+        """
         model = self.model
         param = self.param if param is None else param
         L, P = self._chol(sym(P), "P_pred", t)
+        n_iter = np.zeros(m.shape[1], dtype=int)
         if model.H is not None:
             H = model.H[:, :, None]
             z_pred = mv(H, m)
@@ -270,8 +323,80 @@ class GaussianAssumedFilter:
         else:
             if rng is None:
                 rng = self.rng(_UPDATE, t)
-            mo = self.rule.moments(self._wrap(model.h, t + 1), m, P, param, residual=self._residual_rl(), rng=rng, L=L)
-            z_pred, S, Pxz = mo.mean, mo.cov, mo.cross
+            mo = self.rule.moments(self._wrap(model.h, t + 1), m, P, param, residual=self._residual_rl(), rng=rng, L=L, tile=tile)
+            z_pred, S, Pxz = mo.mean, _plus_error(mo.cov, mo), mo.cross
+            if mo.n_iter is not None:
+                n_iter = mo.n_iter
+        return self._finish_update(m, P, z, t, z_pred, S, Pxz, n_iter)
+
+    def candidates_spent(self, grid) -> float:
+        """What :meth:`update_candidates_rl` spends, in units of the parameter (SIF iterations):
+        ``max(grid)`` when the candidates share one pass of draws (prefix averages), else ``sum(grid)``."""
+        grid = np.asarray(grid, dtype=float)
+        shared = self.model.H is None and self.candidate_prefixes and self.rule.supports_prefixes
+        return float(grid.max() if shared else grid.sum())
+
+    def update_candidates_rl(
+        self,
+        m: np.ndarray,
+        P: np.ndarray,
+        z: np.ndarray,
+        t: int,
+        grid,
+        rng: np.random.Generator | None = None,
+    ) -> _UpdateRL:
+        """The update of every run under every parameter of ``grid``, ``G * M`` runs, tile-major.
+
+        Run ``g * M + j`` of the result is the update run ``j`` (of ``m (nx, M)``,
+        ``P``, ``z (nz, M)``) makes with ``grid[g]``, with the same random numbers
+        for every ``g``: exactly ``update_rl(tile(m), tile(P), tile(z), t,
+        np.repeat(grid, M), rng, tile=G)`` with ``tile(a) = np.concatenate([a] * G,
+        axis=-1)``, and, for each ``g``, ``update_rl(m, P, z, t, grid[g], rng)``
+        with a Generator seeded alike.
+
+        When the rule computes several parameters from one set of draws
+        (``rule.supports_prefixes``: the stochastic integration rule with a
+        fixed count, where ``n_iter = k`` averages the first ``k`` draws), the
+        moments come from ``max(grid)`` draws on ``M`` runs
+        (:meth:`~adaptfilt.rules.StochasticIntegrationRule.moments_prefixes`)
+        instead of on ``G * M`` runs; the results agree to round-off
+        (summation order). Otherwise, and for a linear measurement, it is the
+        tiled call above (also when ``candidate_prefixes`` is False). A ``P`` that is not positive definite is repaired
+        (and counted) once per run here, where the tiled call counts it once
+        per copy; callers that repair ``P`` first (the MDP) see no difference.
+
+        Example
+        -------
+        >>> import numpy as np, adaptfilt as af
+        >>> model = af.models.coordinated_turn()
+        >>> sif = af.SIF(model, seed=0)
+        >>> m, P = sif.initial(4)
+        >>> z = model.simulate(4, 1, rng=0).z[:, 0].T
+        >>> u = sif.update_candidates_rl(m, P, z, 0, [1, 5, 10], rng=sif.rng(1, 0))
+        >>> u.x_filt.shape, u.n_iter_spent.tolist()
+        ((4, 12), [1, 1, 1, 1, 5, 5, 5, 5, 10, 10, 10, 10])
+        """
+        grid = np.asarray(grid, dtype=float)
+        if grid.ndim != 1 or grid.size == 0:
+            raise ValueError(f"grid must be a non-empty 1-D sequence of parameters, got shape {grid.shape}")
+        G, M = grid.size, m.shape[1]
+        tile = lambda a: np.concatenate([a] * G, axis=-1)  # noqa: E731
+        model, rule = self.model, self.rule
+        if model.H is not None or not (self.candidate_prefixes and rule.supports_prefixes):
+            return self.update_rl(tile(m), tile(P), tile(z), t, np.repeat(grid, M), rng=rng, tile=G)
+        L, P = self._chol(sym(P), "P_pred", t)
+        if rng is None:
+            rng = self.rng(_UPDATE, t)
+        mos = rule.moments_prefixes(self._wrap(model.h, t + 1), m, P, grid, residual=self._residual_rl(), rng=rng, L=L)
+        cat = lambda arrays: np.concatenate(arrays, axis=-1)  # noqa: E731
+        return self._finish_update(
+            tile(m), tile(P), tile(z), t, cat([mo.mean for mo in mos]), cat([_plus_error(mo.cov, mo) for mo in mos]),
+            cat([mo.cross for mo in mos]), cat([mo.n_iter for mo in mos]),
+        )
+
+    def _finish_update(self, m, P, z, t: int, z_pred, S, Pxz, n_iter) -> _UpdateRL:
+        """The update from the measurement moments: ``S = Cov[h] (+ V_z)`` without ``R``; ``P`` already repaired."""
+        model = self.model
         Pzz = sym(S + self._R)
         Lz, Pzz = self._chol(Pzz, "Pzz", t)
         innov = z - z_pred if model.residual is None else self._residual_rl()(z, z_pred)
@@ -283,7 +408,11 @@ class GaussianAssumedFilter:
         P_filt = sym(P - mm(mm(K, Pzz), K.swapaxes(0, 1)))
         if not np.isfinite(x_filt).all():
             raise FilterError("non-finite filtering mean x_filt", t, np.flatnonzero(~np.isfinite(x_filt).all(0)))
-        return _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_filt)
+        # What the filter returns is a covariance: an indefinite P_filt (a negative centre weight, a
+        # stochastic rule's bad draw) is an error naming the step, or repaired here and counted, so that
+        # no stored covariance gives a negative NEES.
+        _, P_filt = self._chol(P_filt, "P_filt", t)
+        return _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_filt, n_iter)
 
     # ------------------------------------------------------------ public steps
     def predict(self, x_filt: np.ndarray, P_filt: np.ndarray, t: int) -> Prediction:
@@ -298,7 +427,7 @@ class GaussianAssumedFilter:
         return Update(
             x_pred=_public(m), P_pred=_public(P), z_pred=_public(u.z_pred), Pzz=_public(u.Pzz),
             Pxz=_public(u.Pxz), K=_public(u.K), innovation=_public(u.innovation), nis=u.nis,
-            loglik=u.loglik, x_filt=_public(u.x_filt), P_filt=_public(u.P_filt),
+            loglik=u.loglik, x_filt=_public(u.x_filt), P_filt=_public(u.P_filt), n_iter_spent=u.n_iter_spent,
         )
 
     # --------------------------------------------------------------------- run
@@ -340,9 +469,9 @@ class GaussianAssumedFilter:
         if policy is not None:
             if params is not None:
                 raise ValueError("give either params or policy, not both")
-            from adaptfilt.mdp import run_policy
-
-            return run_policy(self, z, policy, keep_pred=keep_pred, progress=progress)
+            if GaussianAssumedFilter.policy_runner is None:  # pragma: no cover - adaptfilt/__init__ imports mdp
+                raise RuntimeError("import adaptfilt.mdp to run a filter with a policy")
+            return GaussianAssumedFilter.policy_runner(self, z, policy, keep_pred=keep_pred, progress=progress)
         M, T, nx = z.shape[0], z.shape[1], self.model.nx
         sched = self._param_schedule(params, M, T)
         const = bool((sched == sched[0, 0]).all())  # one scalar parameter: no per-run weights
@@ -352,6 +481,8 @@ class GaussianAssumedFilter:
         ll = np.empty((T, M))
         xp = np.empty((T, nx, M)) if keep_pred else None
         Pp = np.empty((T, nx, nx, M)) if keep_pred else None
+        spent = np.zeros((2, T, M), dtype=int) if self.rule.stochastic else None  # predict, update
+        pinfo: dict = {}
         self.n_repairs = 0
         m, P = self.initial(M)
         zt = np.ascontiguousarray(np.moveaxis(z, 0, -1))  # (T, nz, M)
@@ -362,17 +493,22 @@ class GaussianAssumedFilter:
             steps = tqdm(steps, desc=repr(self), leave=False)
         for t in steps:
             if t:
-                m, P = self.predict_rl(m, P, t - 1)
+                m, P = self.predict_rl(m, P, t - 1, info=pinfo)
+                if spent is not None and pinfo["n_iter"] is not None:
+                    spent[0, t] = pinfo["n_iter"]
             if keep_pred:
                 xp[t], Pp[t] = m, P
             u = self.update_rl(m, P, zt[t], t, sched[0, t] if const else sched[:, t])
+            if spent is not None:
+                spent[1, t] = u.n_iter_spent
             m, P = u.x_filt, u.P_filt
             mean[t], cov[t], nis[t], ll[t] = m, P, u.nis, u.loglik
+        info = {} if spent is None else {"n_iter_spent": spent[1].T.copy(), "n_iter_spent_predict": spent[0].T.copy()}
         return FilterRun(
             mean=mean.transpose(2, 0, 1), cov=cov.transpose(3, 0, 1, 2), nis=nis.T, loglik=ll.T, params=sched,
             x_pred=None if xp is None else xp.transpose(2, 0, 1),
             P_pred=None if Pp is None else Pp.transpose(3, 0, 1, 2),
-            n_repairs=self.n_repairs,
+            n_repairs=self.n_repairs, info=info,
         )
 
 
@@ -383,6 +519,13 @@ class UKF(GaussianAssumedFilter):
     the default update parameter; ``run(z, params=kappa_t)`` adapts the update.
     ``n + kappa > 0`` is required (a ``ValueError`` otherwise).
 
+    ``form`` chooses how covariances are taken (see
+    :class:`~adaptfilt.rules.UnscentedRule`): ``"standard"`` (default, about
+    the mean), ``"modified"`` (Julier and Uhlmann's form, about the
+    transformed centre point ``g(m)``, positive semidefinite for any
+    ``kappa``) or ``"auto"`` (modified only where ``kappa < 0``, i.e. where
+    the centre weight is negative; identical to standard elsewhere).
+
     Example
     -------
     >>> import numpy as np, adaptfilt as af
@@ -390,10 +533,25 @@ class UKF(GaussianAssumedFilter):
     >>> traj = model.simulate(n_runs=200, rng=np.random.default_rng(0))
     >>> run = af.UKF(model).run(traj.z)
     >>> rmse = af.metrics.rmse(traj.x, run.mean)   # (500,)
+    >>> run = af.UKF(af.models.coordinated_turn(), kappa=-2.0, form="auto").run(
+    ...     af.models.coordinated_turn().simulate(50, rng=0).z)
+    >>> run.n_repairs  # the modified form keeps every covariance positive definite
+    0
     """
 
-    def __init__(self, model: StateSpaceModel, kappa: float | None = None, *, on_indefinite: Literal["raise", "clip"] = "raise"):
-        super().__init__(model, UnscentedRule(), param=kappa, on_indefinite=on_indefinite)
+    def __init__(
+        self,
+        model: StateSpaceModel,
+        kappa: float | None = None,
+        *,
+        form: Literal["standard", "modified", "auto"] = "standard",
+        on_indefinite: Literal["raise", "clip"] = "raise",
+    ):
+        super().__init__(model, UnscentedRule(form=form), param=kappa, on_indefinite=on_indefinite)
+
+    def __repr__(self) -> str:
+        r = super().__repr__()
+        return r if self.rule.form == "standard" else r[:-1] + f", form={self.rule.form!r})"
 
     @property
     def kappa(self) -> float:
@@ -410,9 +568,23 @@ class CKF(GaussianAssumedFilter):
 class SIF(GaussianAssumedFilter):
     """Stochastic integration filter: the GAF with the stochastic integration rule.
 
-    ``n_iter`` independent draws of Genz-Monahan's degree-3 stochastic rule are
-    averaged per moment computation (default 10); ``seed`` makes runs
-    reproducible. ``run(z, params=n_iter_t)`` adapts the update's iteration count.
+    ``n_iter`` draws of Genz and Monahan's stochastic rule are averaged per
+    moment computation (default 10); ``seed`` makes runs reproducible.
+    ``run(z, params=n_iter_t)`` adapts the update's iteration count.
+
+    The keyword options select the variants of the authors' reference codes
+    (:class:`~adaptfilt.rules.StochasticIntegrationRule` documents each):
+    ``order`` (1, 3 or 5), ``passes`` (1: mean and covariances from the same
+    draws; 2: the mean first, then the covariances about it from fresh draws),
+    ``integration_error`` (add the estimated variance of the averaged mean to
+    ``P_pred`` and ``Pzz``), and ``tol`` / ``n_min`` (stop each run once the
+    estimated integration error is below ``tol``; ``n_iter`` is then the
+    maximum; ``tol_predict`` for the predict step, default ``tol``).
+    The defaults are the degree-3 fixed-count rule without the error term,
+    which is what the paper's experiments and ``data/`` use;
+    :meth:`SIF.reference` builds the authors' Stone Soup SIF. With a
+    stochastic rule, ``FilterRun.info["n_iter_spent"]`` reports the iterations
+    each run spent at each step.
 
     Example
     -------
@@ -422,12 +594,57 @@ class SIF(GaussianAssumedFilter):
     >>> run = af.SIF(model, n_iter=10, seed=0).run(traj.z)
     >>> run.mean.shape
     (100, 150, 4)
+    >>> run = af.SIF(model, n_iter=2, seed=0, integration_error=True, on_indefinite="clip").run(traj.z)
+    >>> ref = af.SIF.reference(model, seed=0).run(traj.z)   # degree 5, 5..10 iterations
+    >>> bool(((ref.info["n_iter_spent"] >= 10) & (ref.info["n_iter_spent"] <= 20)).all())  # two passes
+    True
     """
 
     def __init__(
-        self, model: StateSpaceModel, n_iter: int = 10, seed: int = 0, *, on_indefinite: Literal["raise", "clip"] = "raise"
+        self,
+        model: StateSpaceModel,
+        n_iter: int = 10,
+        seed: int = 0,
+        *,
+        order: int = 3,
+        passes: int = 1,
+        integration_error: bool | str = False,
+        tol: float | None = None,
+        tol_predict: float | None = None,
+        n_min: int = 1,
+        on_indefinite: Literal["raise", "clip"] = "raise",
     ):
-        super().__init__(model, StochasticIntegrationRule(default_n_iter=n_iter), param=n_iter, seed=seed, on_indefinite=on_indefinite)
+        opts = dict(order=order, passes=passes, integration_error=integration_error, n_min=n_min)
+        rule = StochasticIntegrationRule(default_n_iter=n_iter, tol=tol, **opts)
+        predict_rule = None
+        if tol_predict is not None and tol_predict != tol:
+            predict_rule = StochasticIntegrationRule(default_n_iter=n_iter, tol=tol_predict, **opts)
+        super().__init__(model, rule, param=n_iter, seed=seed, on_indefinite=on_indefinite, predict_rule=predict_rule)
+
+    @classmethod
+    def reference(
+        cls, model: StateSpaceModel, seed: int = 0, n_iter: int = 10, *, on_indefinite: Literal["raise", "clip"] = "raise"
+    ) -> "SIF":
+        """The SIF with Stone Soup's defaults (the authors' Python port): degree 5, two passes,
+        the diagonal integration-error term, ``n_min = 5``, at most ``n_iter = 10``
+        iterations, tolerance ``5e-4`` in the update and ``5e-3`` in the predict step."""
+        return cls(model, n_iter=n_iter, seed=seed, order=5, passes=2, integration_error="diag",
+                   tol=5e-4, tol_predict=5e-3, n_min=5, on_indefinite=on_indefinite)
+
+    def __repr__(self) -> str:
+        r, rule = super().__repr__(), self.rule
+        opts = []
+        if rule.order != 3:
+            opts.append(f"order={rule.order}")
+        if rule.passes != 1:
+            opts.append(f"passes={rule.passes}")
+        if rule.integration_error != "none":
+            opts.append(f"integration_error={rule.integration_error!r}")
+        if rule.tol is not None:
+            opts += [f"tol={rule.tol:g}", f"n_min={rule.n_min}"]
+        if self.predict_rule is not rule:
+            opts.append(f"tol_predict={self.predict_rule.tol:g}")
+        return r if not opts else r[:-1] + ", " + ", ".join(opts) + ")"
 
     @property
     def n_iter(self) -> int:

@@ -2,7 +2,7 @@ r"""Learned parameter policies: the actor and critic networks, and their files.
 
 * :class:`Actor` -- ``f_phi``: information state -> ``|Theta|`` logits; the
   policy is ``softmax(f_phi(s))`` (Section IV-B). Two hidden layers of 64 ReLU
-  units (Section V-C).
+  units (Section VI-C).
 * :class:`Critic` -- ``V_psi``: information state -> scalar (same architecture).
 * :class:`LearnedPolicy` -- an actor plus the :class:`~adaptfilt.mdp.FeatureScaler`
   it was trained with and the metadata that says what it is for. It implements
@@ -25,7 +25,7 @@ byte-identical file.
 
 >>> import numpy as np
 >>> from adaptfilt.learned import Actor, LearnedPolicy
->>> from adaptfilt.mdp import FeatureScaler
+>>> from adaptfilt.features import FeatureScaler, FeatureSet, observe
 >>> scaler = FeatureScaler(center=np.zeros(3), scale=np.ones(3))
 >>> pol = LearnedPolicy(Actor(3, 4), scaler, grid=[0.0, 1.0, 2.0, 5.0], gamma=0.5)
 >>> pol.name, pol.probs(np.zeros((2, 3))).shape
@@ -34,10 +34,12 @@ byte-identical file.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -45,7 +47,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from adaptfilt.mdp import FeatureScaler
+from adaptfilt.features import FeatureScaler, FeatureSet, observe
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
            "POLICY_FORMAT", "check_compatible"]
@@ -54,12 +56,18 @@ POLICY_FORMAT = "adaptfilt-policy/1"
 HIDDEN = (64, 64)
 
 
-def mlp(in_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> nn.Sequential:
-    """``in_dim -> hidden[0] ReLU -> hidden[1] ReLU -> out_dim`` (PyTorch default init)."""
+ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
+
+
+def mlp(in_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN, activation: str = "relu") -> nn.Sequential:
+    """``in_dim -> hidden[0] act -> hidden[1] act -> out_dim`` (PyTorch default init); ``act``
+    is ReLU (the paper's) or tanh (Stable-Baselines3's default, for imported policies)."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
     layers: list[nn.Module] = []
     d = int(in_dim)
     for h in hidden:
-        layers += [nn.Linear(d, int(h)), nn.ReLU()]
+        layers += [nn.Linear(d, int(h)), ACTIVATIONS[activation]()]
         d = int(h)
     layers.append(nn.Linear(d, int(out_dim)))
     return nn.Sequential(*layers)
@@ -68,10 +76,11 @@ def mlp(in_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> nn.Sequent
 class Actor(nn.Module):
     """``f_phi``: scaled information state ``(B, d)`` -> logits ``(B, |Theta|)``."""
 
-    def __init__(self, in_dim: int, n_actions: int, hidden: Sequence[int] = HIDDEN):
+    def __init__(self, in_dim: int, n_actions: int, hidden: Sequence[int] = HIDDEN, activation: str = "relu"):
         super().__init__()
         self.in_dim, self.n_actions, self.hidden = int(in_dim), int(n_actions), tuple(int(h) for h in hidden)
-        self.net = mlp(in_dim, n_actions, hidden)
+        self.activation = activation
+        self.net = mlp(in_dim, n_actions, hidden, activation)
 
     def forward(self, s: torch.Tensor) -> torch.Tensor:
         return self.net(s)
@@ -99,9 +108,9 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], metadat
     atomic replace. ``np.load(path, allow_pickle=False)`` reads it back."""
     path = Path(path)
     items = dict(arrays)
-    if metadata is not None:
-        text = json.dumps(metadata, sort_keys=True, indent=1, allow_nan=True)
-        items["__metadata__"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    # always a metadata entry (possibly {}): it is what tells read_npz the file is ours
+    text = json.dumps({} if metadata is None else metadata, sort_keys=True, indent=1, allow_nan=True)
+    items["__metadata__"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
@@ -119,12 +128,56 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], metadat
     return path
 
 
-def read_npz(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
-    """Arrays and metadata of a file written by :func:`write_npz` (no pickles)."""
-    with np.load(Path(path), allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
+def read_npz(path: str | os.PathLike, what: str = "adaptfilt policy file") -> tuple[dict[str, np.ndarray], dict]:
+    """Arrays and metadata of a file written by :func:`write_npz` (no pickles).
+
+    A file that is not one -- missing (``FileNotFoundError``), empty, not a
+    zip archive, truncated or damaged, holding pickled objects, or an ``.npz``
+    of plain arrays without the ``__metadata__`` JSON entry -- is a
+    ``ValueError`` "``<path>: not an <what> (<why>)``".
+    """
+    path = Path(path)
+
+    def bad(why: str) -> ValueError:
+        return ValueError(f"{path}: not an {what} ({why})")
+
+    if not path.exists():
+        raise FileNotFoundError(errno.ENOENT, f"no such {what}", str(path))
+    if path.is_dir():
+        raise bad("it is a directory")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if not head:
+        raise bad("the file is empty")
+    if head not in (b"PK\x03\x04", b"PK\x05\x06"):
+        raise bad("not a zip/npz archive" + (": a single .npy array" if head == b"\x93NUM" else ""))
+    arrays: dict[str, np.ndarray] = {}
+    k = None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            for k in z.files:
+                arrays[k] = z[k]
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as e:
+        raise bad(f"damaged or truncated archive: {e}") from None
+    except ValueError as e:  # numpy's refusal to unpickle, or a damaged .npy header
+        why = "holds pickled Python objects, which are never loaded" if "pickle" in str(e) else f"damaged: {e}"
+        raise bad(why if k is None else f"entry {k!r} {why}") from None
     meta_bytes = arrays.pop("__metadata__", None)
-    meta = {} if meta_bytes is None else json.loads(meta_bytes.tobytes().decode("utf-8"))
+    if meta_bytes is None:
+        held = sorted(arrays)
+        raise bad("no __metadata__ entry, so not written by adaptfilt; it holds "
+                  + (", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "") if held else "nothing"))
+    if not isinstance(meta_bytes, np.ndarray) or meta_bytes.dtype != np.uint8 or meta_bytes.ndim != 1:
+        raise bad("its __metadata__ entry is not a .npy array of UTF-8 bytes")
+    other = [k for k, v in arrays.items() if not isinstance(v, np.ndarray)]
+    if other:  # np.load hands non-.npy members of a zip over as raw bytes
+        raise bad(f"entry {other[0]!r} is not a .npy array")
+    try:
+        meta = json.loads(meta_bytes.tobytes().decode("utf-8"))
+    except (ValueError, TypeError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise bad(f"its __metadata__ is not UTF-8 JSON: {e}") from None
+    if not isinstance(meta, dict):
+        raise bad(f"its __metadata__ is a JSON {type(meta).__name__}, not an object")
     return arrays, meta
 
 
@@ -193,6 +246,7 @@ class LearnedPolicy:
         self.curve = {k: np.asarray(v) for k, v in (curve or {}).items()}
         self.sample = bool(sample)
         self.rng = np.random.default_rng(rng)
+        self.feature_set = FeatureSet.parse(self.metadata.get("feature_set"))
 
     # --------------------------------------------------------- policy API
     def logits(self, features: np.ndarray) -> np.ndarray:
@@ -212,9 +266,10 @@ class LearnedPolicy:
         if decision.grid.shape != self.grid.shape or not np.allclose(decision.grid, self.grid):
             raise ValueError(f"policy {self.name!r} was trained on the grid {self.grid.tolist()}, "
                              f"the environment uses {np.asarray(decision.grid).tolist()}")
+        s = observe(decision, self.feature_set)
         if not self.sample:
-            return np.argmax(self.logits(decision.features), axis=1)
-        p = self.probs(decision.features)
+            return np.argmax(self.logits(s), axis=1)
+        p = self.probs(s)
         u = self.rng.random(p.shape[0])
         return np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)
 
@@ -237,8 +292,13 @@ class LearnedPolicy:
             "grid": self.grid.tolist(),
             "feature_names": list(self.scaler.names),
             "scaler_clip": float(self.scaler.clip),
+            "feature_set": self.feature_set.name,
             "actor": {"in_dim": self.actor.in_dim, "n_actions": self.actor.n_actions, "hidden": list(self.actor.hidden)},
         })
+        if self.scaler.squash != "clip":  # absent in the first policy files: they all clip
+            meta["scaler_squash"] = self.scaler.squash
+        if self.actor.activation != "relu":
+            meta["actor"]["activation"] = self.actor.activation
         return arrays, meta
 
     def save(self, path: str | os.PathLike) -> Path:
@@ -251,7 +311,7 @@ class LearnedPolicy:
         return load_policy(path, experiment)
 
 
-def _describe_target(experiment) -> dict:
+def _describe_target(experiment, features=None) -> dict:
     """What a policy must match: from an experiment name / Experiment / FilterEnv / dict."""
     if experiment is None:
         return {}
@@ -263,21 +323,20 @@ def _describe_target(experiment) -> dict:
         experiment = get_experiment(experiment)
     if hasattr(experiment, "make_env"):  # an Experiment
         env = experiment.make_env()
-        out = describe_env(env)
+        out = describe_env(env, features)
         out["experiment"] = experiment.name
         return out
-    return describe_env(experiment)
+    return describe_env(experiment, features)
 
 
-def describe_env(env) -> dict:
-    """Model name, rule parameter, grid, feature names and cost of an environment."""
-    from adaptfilt.mdp import feature_names
-
+def describe_env(env, features=None) -> dict:
+    """Model name, rule parameter, grid, feature names (of feature set ``features``,
+    default the paper's) and cost of an environment."""
     model = getattr(env, "model", None)
     filt = getattr(env, "filt", None)
     names = getattr(env, "feature_names", None)
     if names is None and model is not None:
-        names = feature_names(model.nx, model.nz)
+        names = FeatureSet.parse(features).names(model, env.grid)
     cost = getattr(env, "cost", None)
     return {
         "model": getattr(model, "name", getattr(env, "name", None)),
@@ -304,6 +363,39 @@ def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> No
                              f"but the target has {key} = {want!r}")
 
 
+def _check_policy_file(path, arrays: Mapping[str, np.ndarray], meta: Mapping) -> None:
+    """ValueError "<path>: not an adaptfilt policy file (why)" unless ``read_npz``'s
+    ``arrays`` and ``meta`` hold everything :func:`load_policy` reads."""
+    def bad(why: str) -> ValueError:
+        return ValueError(f"{path}: not an adaptfilt policy file ({why})")
+
+    fmt = meta.get("format")
+    if fmt != POLICY_FORMAT:
+        if fmt is None and {"config", "episode"} <= set(meta):
+            raise bad("it is a training checkpoint; finish the training with `adaptfilt train ... --resume`")
+        raise bad(f"format {fmt!r}, expected {POLICY_FORMAT!r}")
+    missing = [k for k in ("gamma", "grid", "actor", "scaler_clip") if k not in meta]
+    missing += [k for k in ("scaler/center", "scaler/scale") if k not in arrays]
+    if missing:
+        raise bad(f"missing {', '.join(missing)}")
+    a = meta["actor"]
+    try:
+        in_dim, n_actions, hidden = int(a["in_dim"]), int(a["n_actions"]), [int(h) for h in a["hidden"]]
+        grid = np.asarray(meta["grid"], dtype=float)
+        gamma = float(meta["gamma"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise bad(f"malformed actor, grid or gamma metadata: {type(e).__name__}: {e}") from None
+    if grid.ndim != 1 or grid.size != n_actions or not np.isfinite(grid).all():
+        raise bad(f"the grid {grid.tolist()} does not give the actor's {n_actions} finite values")
+    if not 0.0 <= gamma < 1.0:
+        raise bad(f"gamma = {gamma!r} is outside [0, 1)")
+    for k in ("scaler/center", "scaler/scale"):
+        if arrays[k].shape != (in_dim,):
+            raise bad(f"{k} has shape {arrays[k].shape}, the actor expects ({in_dim},)")
+    if min(hidden, default=1) < 1 or in_dim < 1 or n_actions < 1:
+        raise bad(f"an empty network layer in {a}")
+
+
 def load_policy(path: str | os.PathLike, experiment=None, name: str | None = None) -> LearnedPolicy:
     """Read a policy file written by :meth:`LearnedPolicy.save` (no pickles).
 
@@ -311,17 +403,28 @@ def load_policy(path: str | os.PathLike, experiment=None, name: str | None = Non
     :class:`~adaptfilt.mdp.FilterEnv` or a dict of expected fields), if given,
     is checked against the file: a different experiment, model, rule
     parameter, grid, feature layout or cost is a ``ValueError`` naming it.
+
+    A file that is not a policy (random bytes, empty, truncated, an ``.npz``
+    of plain arrays, a training checkpoint, missing or mis-shaped weights) is
+    a ``ValueError`` "``<path>: not an adaptfilt policy file (<why>)``"; a
+    missing file a ``FileNotFoundError`` naming the path.
     """
     arrays, meta = read_npz(path)
-    if meta.get("format") != POLICY_FORMAT:
-        raise ValueError(f"{path}: not an adaptfilt policy file (format {meta.get('format')!r}, expected {POLICY_FORMAT!r})")
-    check_compatible(meta, _describe_target(experiment), what=f"policy {Path(path).name}")
+    _check_policy_file(path, arrays, meta)
+    check_compatible(meta, _describe_target(experiment, meta.get("feature_set")), what=f"policy {Path(path).name}")
     a = meta["actor"]
-    actor = Actor(a["in_dim"], a["n_actions"], a["hidden"])
-    actor.load_state_dict(arrays_to_state("actor", arrays))
+    actor = Actor(a["in_dim"], a["n_actions"], a["hidden"], a.get("activation", "relu"))
+    try:
+        actor.load_state_dict(arrays_to_state("actor", arrays))
+    except RuntimeError as e:  # missing, unexpected or mis-shaped weights
+        first = str(e).strip().splitlines()[:2]
+        raise ValueError(f"{path}: not an adaptfilt policy file (its actor weights do not fit the "
+                         f"{a['in_dim']}-{'-'.join(map(str, a['hidden']))}-{a['n_actions']} network: "
+                         f"{' '.join(first)})") from None
     scaler = FeatureScaler(arrays["scaler/center"], arrays["scaler/scale"], float(meta["scaler_clip"]),
-                           tuple(meta.get("feature_names") or ()))
+                           tuple(meta.get("feature_names") or ()), meta.get("scaler_squash", "clip"))
     curve = {k[len("curve/"):]: v for k, v in arrays.items() if k.startswith("curve/")}
-    meta_rest = {k: v for k, v in meta.items() if k not in ("gamma", "grid", "actor", "scaler_clip", "format")}
+    meta_rest = {k: v for k, v in meta.items()
+                 if k not in ("gamma", "grid", "actor", "scaler_clip", "scaler_squash", "format")}
     return LearnedPolicy(actor, scaler, meta["grid"], gamma=meta["gamma"], name=name or meta.get("name"),
                          metadata=meta_rest, curve=curve)

@@ -6,7 +6,7 @@ update runs with it, a cost ``L(s_t, z_t, theta_t)`` is paid, and the filter
 predicts to the next step. :class:`FilterEnv` wraps exactly that loop, batched
 over Monte-Carlo runs; training and evaluation drive the same environment.
 
-**Information state** (Section V-E)
+**Information state** (Section VI-D)
 
 .. math::
     \bar s_t = [\hat x_{t|t-1}^T,\ \mathrm{tr} P_{t|t-1},\ \log\det P_{t|t-1},\ z_t^T,\
@@ -17,7 +17,7 @@ with the *default* parameter: the chosen parameter is not known yet when the
 state is formed. Networks see the features through a :class:`FeatureScaler`
 that is stored with a trained policy.
 
-**Costs** (Section V-E), all functions of the update under the chosen parameter:
+**Costs** (Section VI-D), all functions of the update under the chosen parameter:
 ``L_NIS = (NIS - nz)^2``, ``L_logmaxNIS = log(1 + max(0, NIS - nz))``,
 ``L_stateInnov = ||K z~||``, plus an optional computational term
 ``weight * n_iter`` (the paper uses ``1/50``).
@@ -29,11 +29,13 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from adaptfilt.features import PAPER, FeatureScaler, FeatureSet, feature_names, fit_scaler
 from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter, _UpdateRL
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
 
-__all__ = ["Cost", "FeatureScaler", "Decision", "FilterEnv", "feature_names", "run_policy"]
+__all__ = ["Cost", "FeatureScaler", "FeatureSet", "Decision", "FilterEnv", "feature_names", "fit_scaler",
+           "rollout", "run_policy"]
 
 _PREDICT, _UPDATE = 0, 1
 
@@ -41,7 +43,7 @@ _PREDICT, _UPDATE = 0, 1
 # ------------------------------------------------------------------- costs
 @dataclass(frozen=True)
 class Cost:
-    """One-step cost ``L(s, z, theta)`` of Section V-E.
+    """One-step cost ``L(s, z, theta)`` of Section VI-D.
 
     ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
     (``log(1 + max(0, NIS - nz))``) or ``"stateinnov"`` (``||K z~||``);
@@ -83,69 +85,28 @@ class Cost:
         return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
 
 
-# -------------------------------------------------------- information state
-def feature_names(nx: int, nz: int) -> list[str]:
-    """Names of the information-state features, in order."""
-    return ([f"x_pred[{i}]" for i in range(nx)] + ["tr P_pred", "logdet P_pred"]
-            + [f"z[{i}]" for i in range(nz)] + [f"innov_default[{i}]" for i in range(nz)])
-
-
-@dataclass
-class FeatureScaler:
-    """Affine feature scaling ``clip((s - center) / scale, -clip, clip)``.
-
-    Fitted robustly (median and inter-quartile range / 1.349) on information
-    states visited by the default filter: the states are heavy-tailed (UNGM's
-    log-determinant and innovation) and a mean/std fit would be dominated by a
-    few runs. Travels with a trained policy.
-    """
-
-    center: np.ndarray
-    scale: np.ndarray
-    clip: float = 10.0
-    names: tuple[str, ...] = ()
-
-    @classmethod
-    def fit(cls, features: np.ndarray, names: Sequence[str] = (), clip: float = 10.0) -> "FeatureScaler":
-        f = np.asarray(features, dtype=float).reshape(-1, np.shape(features)[-1])
-        q25, med, q75 = np.quantile(f, [0.25, 0.5, 0.75], axis=0)
-        scale = (q75 - q25) / 1.349
-        fallback = f.std(axis=0)
-        scale = np.where(scale > 1e-12, scale, np.where(fallback > 1e-12, fallback, 1.0))
-        return cls(center=med, scale=scale, clip=float(clip), names=tuple(names))
-
-    def __call__(self, features: np.ndarray) -> np.ndarray:
-        f = np.asarray(features, dtype=float)
-        if f.shape[-1] != self.center.shape[0]:
-            raise ValueError(f"features have {f.shape[-1]} columns, the scaler was fitted on {self.center.shape[0]}")
-        return np.clip((f - self.center) / self.scale, -self.clip, self.clip)
-
-    def to_dict(self) -> dict:
-        return {"center": self.center.tolist(), "scale": self.scale.tolist(), "clip": self.clip, "names": list(self.names)}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "FeatureScaler":
-        return cls(np.asarray(d["center"], float), np.asarray(d["scale"], float), float(d["clip"]), tuple(d.get("names", ())))
-
-
 # ------------------------------------------------------------------ decision
 @dataclass
 class Decision:
     """What a policy sees at step ``t``, batched over ``M`` runs.
 
-    ``features (M, d)``: the information state (unscaled, see
-    :func:`feature_names`); ``x_pred (M, nx)``, ``P_pred (M, nx, nx)``,
-    ``z (M, nz)``; ``grid``: the parameter values an action indexes.
-    :meth:`candidates` runs the update for every grid value (what the
-    maximum-likelihood and greedy baselines need); it is computed once and,
-    when a policy used it, the step reuses it so that the chosen candidate is
-    exactly the update that happens.
+    ``features (M, d)``: the paper's information state (unscaled, see
+    :func:`feature_names`); :meth:`observe` gives any other
+    :class:`~adaptfilt.features.FeatureSet`. ``x_pred (M, nx)``,
+    ``P_pred (M, nx, nx)``, ``z (M, nz)``; ``grid``: the parameter values an
+    action indexes. :meth:`candidates` runs the update for every grid value
+    (what the maximum-likelihood and greedy baselines need); it is computed
+    once and, when a policy used it, the step reuses it so that the chosen
+    candidate is exactly the update that happens.
 
-    ``features`` is computed on first access and cached: it costs an extra
-    update with the default parameter (the innovation feature), which fixed,
-    ML and greedy policies never need. A decision keeps its own predicted
-    moments, so its features and candidates stay correct even when read
-    after the environment has stepped on.
+    Features are computed on first access and cached: the innovation feature
+    costs an extra update with the default parameter, which fixed, ML and
+    greedy policies never need. What a decision computed beyond the chosen
+    update is counted in ``extra_spent`` (in units of the parameter: SIF
+    iterations), so that an evaluation can report, and a cost can charge,
+    what looking at the information state costs. A decision keeps its own
+    predicted moments, so its features and candidates stay correct even when
+    read after the environment has stepped on.
     """
 
     t: int
@@ -157,14 +118,21 @@ class Decision:
     _z: np.ndarray = field(repr=False)  # (nz, M)
     _stream: int | None = field(default=None, repr=False)
     _cand: dict | None = field(default=None, repr=False)
-    _feat: np.ndarray | None = field(default=None, repr=False)
+    _obs: dict = field(default_factory=dict, repr=False)  # feature-set name -> (M, d)
+    _innov: dict = field(default_factory=dict, repr=False)  # innovation parameter -> (nz, M)
+    extra_spent: float = 0.0
 
     @property
     def features(self) -> np.ndarray:
-        """The information state ``(M, nx + 2 + 2 nz)`` (computed once, on first access)."""
-        if self._feat is None:
-            self._feat = self._env._features(self._m, self._P, self._z, self.t, self._stream)
-        return self._feat
+        """The paper's information state ``(M, nx + 2 + 2 nz)`` (computed once, on first access)."""
+        return self.observe(PAPER)
+
+    def observe(self, features: "str | FeatureSet | None" = None) -> np.ndarray:
+        """The information state for a feature set (default: the paper's), ``(M, d)``, cached."""
+        fs = FeatureSet.parse(features)
+        if fs.name not in self._obs:
+            self._obs[fs.name] = self._env._observe(self, fs)
+        return self._obs[fs.name]
 
     @property
     def n_runs(self) -> int:
@@ -187,7 +155,14 @@ class Decision:
         as ``(G, M)`` arrays (``cost`` is None when the env has no cost)."""
         if self._cand is None:
             self._cand = self._env._candidates(self._m, self._P, self._z, self.t, self._stream)
+            self.extra_spent += self._env.filt.candidates_spent(self.grid)
         return self._cand
+
+    def _innovation(self, param: float) -> np.ndarray:
+        if param not in self._innov:
+            self._innov[param] = self._env._innovation(self._m, self._P, self._z, self.t, self._stream, param)
+            self.extra_spent += float(param)
+        return self._innov[param]
 
 
 # ----------------------------------------------------------------- the env
@@ -204,6 +179,8 @@ class FilterEnv:
         The one-step cost; None (e.g. to filter real data) returns no cost.
     n_steps : int, optional
         Horizon; defaults to the model's.
+    truth : StateSpaceModel, optional
+        The model trajectories are simulated from (default: the filter's own).
 
     ``reset(n_runs, rng)`` simulates fresh trajectories (or takes ``traj``),
     initialises the filter and returns the first :class:`Decision`;
@@ -226,9 +203,16 @@ class FilterEnv:
     >>> d, cost, done, info = env.step(np.full(4, d.default_index))
     """
 
-    def __init__(self, filt: GaussianAssumedFilter, grid: Sequence[float], cost: Cost | None = None, n_steps: int | None = None):
+    def __init__(self, filt: GaussianAssumedFilter, grid: Sequence[float], cost: Cost | None = None,
+                 n_steps: int | None = None, truth=None):
         self.filt = filt
         self.model = filt.model
+        #: the model ``reset`` simulates trajectories from: the filter's own (default), or another one with the
+        #: same dimensions (a mismatched truth: other noise levels or prior, for out-of-distribution studies)
+        self.truth = self.model if truth is None else truth
+        if (self.truth.nx, self.truth.nz) != (self.model.nx, self.model.nz):
+            raise ValueError(f"the truth model has nx = {self.truth.nx}, nz = {self.truth.nz}; the filter's model "
+                             f"nx = {self.model.nx}, nz = {self.model.nz}")
         grid = np.asarray(grid, dtype=float)
         if grid.ndim != 1 or grid.size < 1:
             raise ValueError(f"grid must be a non-empty 1-D sequence of parameter values, got shape {grid.shape}")
@@ -249,30 +233,67 @@ class FilterEnv:
         self._decision: Decision | None = None
 
     # ----------------------------------------------------------- helpers
-    def _features(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> np.ndarray:
+    def _repaired(self, P: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, L)``: ``P_pred`` symmetrised, repaired as the update will repair it (the update counts it)."""
         P = sym(P)
         try:
-            L = chol(P, "P_pred")
+            return P, chol(P, "P_pred")
         except NotPositiveDefinite as e:
-            # The update of this step repairs (and counts) the same runs; the
-            # features see the same repaired matrix without counting twice.
             if self.filt.on_indefinite == "raise":
                 raise FilterError("P_pred is not positive definite", t, e.runs) from None
-            P = clip_to_pd(P, e.runs)
-            L = chol(sym(P), "P_pred")
-        tr = np.trace(P, axis1=0, axis2=1)
-        logdet = logdet_chol(L)
-        u = self.filt.update_rl(m, P, z, t, self.filt.param, rng=self.filt.rng(_UPDATE, t, stream))
-        return np.concatenate([m, tr[None], logdet[None], z, u.innovation], axis=0).T
+            P = sym(clip_to_pd(P, e.runs))
+            return P, chol(P, "P_pred")
+
+    def _innovation(self, m, P, z, t: int, stream: int | None, param: float) -> np.ndarray:
+        """The innovation ``z - z_pred(param)`` ``(nz, M)``, with the chosen update's random numbers."""
+        P, _ = self._repaired(P, t)
+        return self.filt.update_rl(m, P, z, t, param, rng=self.filt.rng(_UPDATE, t, stream)).innovation
+
+    def _observe(self, d: "Decision", fs: FeatureSet) -> np.ndarray:
+        """The raw information state of decision ``d`` for feature set ``fs`` (see :mod:`adaptfilt.features`)."""
+        P, L = self._repaired(d._P, d.t)
+        M = d.n_runs
+        z = d._z
+        if fs.circular and self.model.circular_z:
+            rows = []
+            for i in range(self.nz):
+                rows += [np.sin(z[i]), np.cos(z[i])] if i in self.model.circular_z else [z[i]]
+            z = np.stack(rows)
+        blocks = [d._m, np.trace(P, axis1=0, axis2=1)[None], logdet_chol(L)[None], z,
+                  d._innovation(self.filt.param if fs.innovation is None else fs.innovation)]
+        if fs.time and self.model.time_features is not None:
+            # The paper's k = t + 1 is the index of this step; its dynamics' phase is what the next predict uses.
+            tf = np.asarray(self.model.time_features(d.t + 1), dtype=float)
+            blocks.append(np.repeat(tf[:, None], M, axis=1))
+        if fs.candidates:
+            cost = d.candidates()["cost"]
+            if cost is None:
+                raise ValueError("the 'cand' features need an environment with a cost")
+            # log1p keeps the heavy-tailed NIS cost (up to 1e7) in range; a non-finite
+            # candidate (a diverging update) reads as the largest log-cost a float has.
+            blocks.append(np.nan_to_num(np.log1p(np.maximum(cost, 0.0)), nan=710.0, posinf=710.0))
+        return np.concatenate(blocks, axis=0).T
+
+    def _logging_repairs(self, n: int, fn):
+        """Run ``fn()`` and return ``(its result, bool (n,) runs repaired meanwhile)``."""
+        self.filt.repair_log = []
+        try:
+            out = fn()
+            flags = np.zeros(n, dtype=bool)
+            for runs in self.filt.repair_log:
+                flags[np.asarray(runs) % n] = True
+            return out, flags
+        finally:
+            self.filt.repair_log = None
 
     def _candidates(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> dict:
         G, M = self.grid.size, m.shape[1]
         # Repair (and count) an indefinite P_pred once here, not once per grid value.
-        _, P = self.filt._chol(sym(P), "P_pred", t)
-        tile = lambda a: np.concatenate([a] * G, axis=-1)
+        (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt._chol(sym(P), "P_pred", t))
         theta = np.repeat(self.grid, M)
-        u = self.filt.update_rl(tile(m), tile(P), tile(z), t, theta, rng=self.filt.rng(_UPDATE, t, stream))
-        out = {"update": u, "theta": theta,
+        u, flags = self._logging_repairs(
+            G * M, lambda: self.filt.update_candidates_rl(m, P, z, t, self.grid, rng=self.filt.rng(_UPDATE, t, stream)))
+        out = {"update": u, "theta": theta, "repaired": flags.reshape(G, M) | pred_flags[None],
                "nis": u.nis.reshape(G, M), "loglik": u.loglik.reshape(G, M), "cost": None}
         if self.cost is not None:
             out["cost"] = self.cost(u, theta, self.nz).reshape(G, M)
@@ -292,7 +313,11 @@ class FilterEnv:
         if traj is None:
             if n_runs is None:
                 raise ValueError("reset needs n_runs (to simulate) or traj (to replay)")
-            traj = self.model.simulate(n_runs, self.n_steps, rng=rng)
+            # One step beyond the horizon: the episode ends at a time limit, not in a
+            # terminal state, and a learner bootstraps from the next information
+            # state (``info["final_decision"]``), which needs the next measurement.
+            # The first n_steps steps are those of simulate(n_runs, n_steps, rng).
+            traj = self.truth.simulate(n_runs, self.n_steps + 1, rng=rng)
         if traj.z.shape[1] < self.n_steps or traj.z.shape[2] != self.nz:
             raise ValueError(f"traj.z must have shape (M, >= {self.n_steps}, {self.nz}), got {traj.z.shape}")
         self.traj, self.stream = traj, stream
@@ -317,12 +342,24 @@ class FilterEnv:
             raise ValueError(f"action index {int(bad[0])} out of range: the grid has {self.grid.size} values (0..{self.grid.size - 1})")
         return a
 
-    def step(self, actions) -> tuple[Decision | None, np.ndarray | None, bool, dict]:
+    def step(self, actions, predict_param: float | None = None) -> tuple[Decision | None, np.ndarray | None, bool, dict]:
         """Update with ``grid[actions]``, pay the cost, predict to the next step.
 
         Returns ``(decision, cost, done, info)``; ``info`` holds the update's
         ``x_filt (M, nx)``, ``P_filt (M, nx, nx)``, ``nis``, ``loglik``,
-        ``theta`` and ``t``. After the last step ``decision`` is None and ``done`` True.
+        ``theta``, ``t``, ``extra_spent`` (what the decision computed
+        beyond the chosen update, see :class:`Decision`) and ``repaired``
+        (bool ``(M,)``: runs whose covariance the filter repaired in this step,
+        ``on_indefinite="clip"``; what a learner may be charged for).
+        ``predict_param`` replaces the filter's default in the following predict
+        step (a "fixed in both steps" policy); the paper adapts the update only.
+
+        After the last step ``decision`` is None and ``done`` True. The horizon
+        is a time limit, not a terminal state (Gymnasium: ``terminated`` False,
+        ``truncated`` True, both in ``info``): when the trajectory has a
+        measurement beyond the horizon (``reset`` simulates one),
+        ``info["final_decision"]`` is the next information state, predicted as
+        any other, for a learner to bootstrap from; otherwise it is None.
         """
         if self._decision is None:
             raise RuntimeError("call reset() before step()")
@@ -334,18 +371,30 @@ class FilterEnv:
             cu = d._cand["update"]
             u = _UpdateRL(*(getattr(cu, f)[..., idx] for f in _UpdateRL.__dataclass_fields__))
             cost = None if d._cand["cost"] is None else d._cand["cost"][a, np.arange(M)]
+            repaired = d._cand["repaired"][a, np.arange(M)]
         else:
-            u = self.filt.update_rl(self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(_UPDATE, t, self.stream))
+            u, repaired = self._logging_repairs(M, lambda: self.filt.update_rl(
+                self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(_UPDATE, t, self.stream)))
             cost = None if self.cost is None else self.cost(u, theta, self.nz)
         info = {"t": t, "theta": theta, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
-                "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0)}
+                "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0),
+                # the chosen candidate is the update that happens: not spent on top of it
+                "extra_spent": d.extra_spent - (theta if d._cand is not None else 0.0),
+                "repaired": repaired, "terminated": False, "truncated": False}
         done = t + 1 >= self.n_steps
-        if done:
+        if done and self._zs.shape[0] <= self.n_steps:
             self._decision = None
+            info.update(truncated=True, final_decision=None)
             return None, cost, True, info
-        self._m, self._P = self.filt.predict_rl(u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream))
+        (self._m, self._P), pred_repaired = self._logging_repairs(M, lambda: self.filt.predict_rl(
+            u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream), param=predict_param))
+        info["repaired"] = repaired | pred_repaired
         self._t = t + 1
         self._z_t = self._zs[self._t]
+        if done:
+            info.update(truncated=True, final_decision=self._new_decision())
+            self._decision = None
+            return None, cost, True, info
         return self._new_decision(), cost, False, info
 
 
@@ -371,8 +420,11 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc=getattr(policy, "name", "policy"), leave=False)
+    predict_param = getattr(policy, "predict_param", None)  # a policy fixed in both steps
+    spent = np.empty(T)
     for t in steps:
-        d, c, done, info = env.step(policy.act(d))
+        d, c, done, info = env.step(policy.act(d), predict_param=predict_param)
+        spent[t] = np.mean(info["extra_spent"])
         mean[t], cov[t], nis[t], ll[t], params[t] = (
             info["x_filt"], info["P_filt"], info["nis"], info["loglik"], info["theta"])
         if costs is not None:
@@ -381,7 +433,8 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
             xp[t], Pp[t] = info["x_pred"], info["P_pred"]
     tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
     return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
-                     x_pred=tr(xp), P_pred=tr(Pp), n_repairs=env.filt.n_repairs - rep0), tr(costs)
+                     x_pred=tr(xp), P_pred=tr(Pp), n_repairs=env.filt.n_repairs - rep0,
+                     info={"extra_spent": spent}), tr(costs)
 
 
 def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:
@@ -394,3 +447,6 @@ def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bo
     traj = Trajectory(x=np.full(z.shape[:2] + (filt.model.nx,), np.nan), z=z)
     run, _ = rollout(env, policy, traj=traj, keep_pred=keep_pred, progress=progress)
     return run
+
+
+GaussianAssumedFilter.policy_runner = staticmethod(run_policy)

@@ -1,4 +1,4 @@
-r"""Performance metrics of Section V-D, with their uncertainty.
+r"""Performance metrics of Section VI-E, with their uncertainty.
 
 * ``RMSE_k = sqrt( (1/M) sum_l  e_l^T e_l )``, ``e_l = x_k(l) - x_{k|k}(l)``
 * ``ANEES_k = (1/M) sum_l e_l^T P_{k|k}(l)^{-1} e_l`` (ideal value ``nx``; the
@@ -10,6 +10,8 @@ Monte-Carlo runs, paired across filters when given the same resamples) and
 chi-square acceptance bounds for an average of NEES/NIS values.
 """
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 from scipy import stats
@@ -46,40 +48,124 @@ def rmse(x: np.ndarray, mean: np.ndarray) -> np.ndarray:
     return np.sqrt(squared_error(x, mean).mean(axis=0))
 
 
-def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """Normalised estimation error squared ``e^T P^{-1} e`` per run and step, ``(M, T)``.
+def _where(flat: int, shape: tuple[int, ...]) -> str:
+    """``run r, step k`` of a flat index over the ``(M, T)`` leading axes."""
+    idx = np.unravel_index(int(flat), shape)
+    if len(shape) == 2:
+        return f"run {idx[0]}, step {idx[1]}"
+    return "index " + str(tuple(int(i) for i in idx))
 
-    Through the run-last batched Cholesky of :mod:`adaptfilt.linalg` (about
-    10x faster than ``np.linalg.solve`` on 1.5 million 4x4 matrices); the rare
-    covariance that is not positive definite falls back to a plain solve.
+
+def _indefinite_error(bad: np.ndarray, shape: tuple[int, ...], cov: np.ndarray,
+                      singular: bool = False) -> ValueError:
+    """ValueError naming the first (run, step) of ``bad`` (flat indices over
+    ``shape``) whose covariance in ``cov (*shape, nx, nx)`` has no NEES."""
+    first = int(bad[0])
+    P = cov[np.unravel_index(first, shape)]
+    why = "is not finite" if not np.isfinite(P).all() else "is singular" if singular else "is not positive definite"
+    n = int(bad.size) - 1
+    more = f" (and {n} more (run, step) pair{'s' if n > 1 else ''})" if n else ""
+    hint = "on_indefinite='nan' gives NaN there" if singular else "pass on_indefinite='nan' or 'solve' to accept such covariances"
+    return ValueError(f"covariance P {why} at {_where(first, shape)}{more}: the NEES e^T P^-1 e is undefined there; {hint}")
+
+
+def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+         on_indefinite: Literal["raise", "nan", "solve"] = "raise") -> np.ndarray:
+    r"""Normalised estimation error squared per run and step, ``(M, T)``.
+
+    ``NEES_k(l) = e^T P^{-1} e`` with ``e = x_k(l) - x_{k|k}(l)`` and
+    ``P = P_{k|k}(l)``, through the run-last batched Cholesky ``P = L L^T`` of
+    :mod:`adaptfilt.linalg` (``NEES = ||L^{-1} e||^2``), which also names the
+    (run, step) pairs whose ``P`` has no Cholesky factor.
+
+    Parameters
+    ----------
+    x, mean : (M, T, nx)
+        True states and estimates.
+    cov : (M, T, nx, nx)
+        Estimate covariances ``P_{k|k}``.
+    on_indefinite : "raise", "nan" or "solve"
+        What to do where ``P`` is not positive definite (or not finite), where
+        the NEES is undefined:
+
+        * ``"raise"`` (default): ``ValueError`` naming the first such (run, step);
+        * ``"nan"``: NaN there (an explicit opt-in; average with ``np.nanmean``);
+        * ``"solve"``: ``e^T P^{-1} e`` of the indefinite matrix itself through a
+          plain solve (it may be negative; a singular ``P`` is still an error).
+          A filter with ``on_indefinite="clip"`` stores the filtering covariance
+          *before* the next step repairs it, so its rare indefinite ``P_{k|k}``
+          reach the metrics; :func:`adaptfilt.evaluation.evaluate` uses this
+          mode, as every stored evaluation in ``data/`` did.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from adaptfilt import metrics
+    >>> e = np.array([[[1.0, 2.0]]])                 # M = 1 run, T = 1 step, nx = 2
+    >>> float(metrics.nees(e, np.zeros_like(e), np.diag([1.0, 4.0])[None, None])[0, 0])
+    2.0
+    >>> metrics.nees(e, np.zeros_like(e), -np.eye(2)[None, None])
+    Traceback (most recent call last):
+    ...
+    ValueError: covariance P is not positive definite at run 0, step 0: ...
     """
+    if on_indefinite not in ("raise", "nan", "solve"):
+        raise ValueError(f"on_indefinite must be 'raise', 'nan' or 'solve', got {on_indefinite!r}")
     e = errors(x, mean)
     cov = np.asarray(cov, dtype=float)
     if cov.shape != e.shape + e.shape[-1:]:
         raise ValueError(f"covariances must have shape {e.shape + e.shape[-1:]}, got {cov.shape}")
-    nx = e.shape[-1]
+    lead, nx = e.shape[:-1], e.shape[-1]
     if nx == 1:
-        return e[..., 0] ** 2 / cov[..., 0, 0]
+        P = cov[..., 0, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = e[..., 0] ** 2 / P
+        if on_indefinite == "solve":
+            bad = np.flatnonzero(P == 0.0)
+            if bad.size:
+                raise _indefinite_error(bad, lead, cov, singular=True)
+            return out
+        bad = np.flatnonzero(~(P > 0.0) | ~np.isfinite(P))
+        if bad.size:
+            if on_indefinite == "raise":
+                raise _indefinite_error(bad, lead, cov)
+            out.reshape(-1)[bad] = np.nan
+        return out
     er = e.reshape(-1, nx).T  # (nx, N) run-last
-    P = np.moveaxis(cov.reshape(-1, nx, nx), 0, -1)  # (nx, nx, N)
+    flat_cov = cov.reshape(-1, nx, nx)  # one copy when cov is a transposed view (FilterRun.cov)
+    P = np.moveaxis(flat_cov, 0, -1)  # (nx, nx, N)
     bad = np.empty(0, dtype=np.int64)
     try:
         L = chol(P)
     except NotPositiveDefinite as ex:
         bad = ex.runs
+        if on_indefinite == "raise":
+            raise _indefinite_error(bad, lead, cov) from None
         P = P.copy()
         P[:, :, bad] = np.eye(nx)[:, :, None]
         L = chol(P)
     out = (er * solve_spd(L, er[:, None, :])[:, 0, :]).sum(axis=0)
     if bad.size:
-        eb = er[:, bad].T
-        out[bad] = (eb * np.linalg.solve(cov.reshape(-1, nx, nx)[bad], eb[..., None])[..., 0]).sum(-1)
-    return out.reshape(e.shape[:-1])
+        if on_indefinite == "nan":
+            out[bad] = np.nan
+        else:
+            eb, Pb = er[:, bad].T, flat_cov[bad]
+            try:
+                out[bad] = (eb * np.linalg.solve(Pb, eb[..., None])[..., 0]).sum(-1)
+            except np.linalg.LinAlgError:  # a singular member: name the first
+                singular = [i for i, Pi in zip(bad, Pb) if np.isfinite(Pi).all() and np.linalg.matrix_rank(Pi) < nx]
+                raise _indefinite_error(np.asarray(singular or bad), lead, cov, singular=True) from None
+    return out.reshape(lead)
 
 
-def anees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``ANEES_k``: NEES averaged over runs, ``(T,)``; ideal value ``nx``."""
-    return nees(x, mean, cov).mean(axis=0)
+def anees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+          on_indefinite: Literal["raise", "nan", "solve"] = "raise") -> np.ndarray:
+    """``ANEES_k``: NEES averaged over runs, ``(T,)``; ideal value ``nx``.
+
+    ``on_indefinite`` as in :func:`nees` (with ``"nan"`` a step with an
+    indefinite covariance averages to NaN: average with ``np.nanmean`` yourself).
+    """
+    return nees(x, mean, cov, on_indefinite=on_indefinite).mean(axis=0)
 
 
 def time_average(series: np.ndarray, start: int = 0) -> float:

@@ -12,7 +12,7 @@ axes, and they return ``(..., nx)`` / ``(..., nz)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -79,6 +79,12 @@ class StateSpaceModel:
     F, H : array, optional
         Set when ``f`` (``h``) is linear, ``f(x, k) = F x``: filters then
         predict (update) exactly, and the Kalman filter accepts the model.
+    circular_z : tuple of int
+        Measurement components that are angles (policies may see them as
+        ``(sin, cos)``, see :mod:`adaptfilt.features`).
+    time_features : callable ``k -> sequence of float``, optional
+        The phase of a time-varying model (UNGM: ``cos 0.05k, sin 0.05k``),
+        named by ``time_feature_names``; an optional policy feature.
 
     Every argument is checked at construction: dimensions agree, covariances
     are symmetric positive definite, and ``f``/``h`` return the right shapes on
@@ -107,6 +113,9 @@ class StateSpaceModel:
     F: np.ndarray | None = None
     H: np.ndarray | None = None
     description: str = field(default="", repr=False)
+    circular_z: tuple[int, ...] = ()
+    time_features: Callable[[int], Sequence[float]] | None = field(default=None, repr=False)
+    time_feature_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not callable(self.f) or not callable(self.h):
@@ -137,6 +146,16 @@ class StateSpaceModel:
                     f"{fname}(x, k) must map a batch x of shape (..., {nx}) to (..., {nout}); "
                     f"on a probe of shape {probe.shape} it returned shape {out.shape}"
                 )
+        self.circular_z = tuple(int(i) for i in self.circular_z)
+        if any(not 0 <= i < nz for i in self.circular_z):
+            raise ValueError(f"circular_z {self.circular_z} must index measurement components 0..{nz - 1}")
+        if self.time_features is not None:
+            tf = np.asarray(self.time_features(1), dtype=float)
+            if tf.ndim != 1 or tf.shape[0] != len(self.time_feature_names):
+                raise ValueError(f"time_features(k) must return one value per name in time_feature_names "
+                                 f"{self.time_feature_names}; it returned shape {tf.shape}")
+        elif self.time_feature_names:
+            raise ValueError("time_feature_names given without time_features")
         if self.residual is not None:
             zz = np.zeros((3, 2, nz))
             out = np.asarray(self.residual(zz, zz))
@@ -180,7 +199,7 @@ class StateSpaceModel:
 
 
 def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) -> StateSpaceModel:
-    r"""Univariate nonstationary growth model (Section V-A).
+    r"""Univariate nonstationary growth model (Section VI-A).
 
     .. math::
         x_{k+1} = 0.5 x_k + \frac{25 x_k}{1 + x_k^2} + 8 \cos(0.05 k) + w_k,\qquad
@@ -196,15 +215,19 @@ def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) ->
     def h(x, k):
         return x * x / 20.0
 
+    def phase(k):
+        return (np.cos(0.05 * k), np.sin(0.05 * k))
+
     return StateSpaceModel(
         f=f, h=h, Q=[[Q]], R=[[R]], m0=[0.0], P0=[[P0]], name="ungm", n_steps=n_steps,
         description="univariate nonstationary growth model (paper Sec. V-A)",
+        time_features=phase, time_feature_names=("cos 0.05k", "sin 0.05k"),
     )
 
 
 def ct_matrices(omega: float, dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition matrix ``F`` and noise covariance ``Q`` of the coordinated turn
-    with known turn rate, state ``[px, vx, py, vy]`` (Section V-B)."""
+    with known turn rate, state ``[px, vx, py, vy]`` (Section VI-B)."""
     s, c = np.sin(omega * dt), np.cos(omega * dt)
     F = np.array(
         [
@@ -221,7 +244,7 @@ def ct_matrices(omega: float, dt: float, q: float) -> tuple[np.ndarray, np.ndarr
 def coordinated_turn(
     omega: float = 0.5, dt: float = 1.0, q: float = 1.0, R: float = 0.04, n_steps: int = 150
 ) -> StateSpaceModel:
-    r"""Coordinated turn with a bearing-only sensor at the origin (Section V-B).
+    r"""Coordinated turn with a bearing-only sensor at the origin (Section VI-B).
 
     State ``[px, vx, py, vy]``, linear dynamics ``x_{k+1} = F x_k + w_k`` with
     known turn rate ``omega``, bearing ``z_k = atan2(py, px) + v_k``,
@@ -244,7 +267,7 @@ def coordinated_turn(
     return StateSpaceModel(
         f=f, h=h, Q=Q, R=[[R]], m0=[80.0, 0.0, 0.0, 20.0], P0=np.diag([1e3, 1e2, 1e3, 1e2]),
         residual=residual, name="ctm", n_steps=n_steps, F=F,
-        description="coordinated turn, bearing-only (paper Sec. V-B)",
+        description="coordinated turn, bearing-only (paper Sec. V-B)", circular_z=(0,),
     )
 
 

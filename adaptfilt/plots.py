@@ -37,6 +37,7 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from adaptfilt.metrics import chi2_bounds  # noqa: E402
+from adaptfilt.style import colors as _colors, param_label, policy_label  # noqa: E402
 
 __all__ = ["policy_style", "selected_policies", "plot_rmse_time", "plot_anees_time", "plot_rmse_bars",
            "plot_anees_bars", "plot_tradeoff", "plot_choices", "plot_usage", "save_figures"]
@@ -60,6 +61,10 @@ def _fixed_value(name: str) -> float:
     return float(name.split("=", 1)[1])
 
 
+def _both(name: str) -> bool:
+    return name.startswith("fixed-both-")
+
+
 def policy_style(results, name: str) -> dict:
     """``{"color", "marker", "family"}`` of policy ``name`` in ``results``."""
     fam = _family(name)
@@ -76,8 +81,8 @@ def policy_style(results, name: str) -> dict:
 
 
 def _label(results, name: str) -> str:
-    """Short label: fixed values as ``kappa=2``."""
-    return name[len("fixed-"):] if name.startswith("fixed-") else name
+    """Short label as the prose writes it: fixed values as ``κ = 2``."""
+    return policy_label(name[len("fixed-"):] if name.startswith("fixed-") else name)
 
 
 def selected_policies(results) -> list[str]:
@@ -103,6 +108,10 @@ def _title(results, what: str) -> str:
     return f"{what} — {c.get('experiment') or c.get('model')} (M = {c['n_runs']})"
 
 
+def _unit(unit: str | None) -> str:
+    return f" ({unit})" if unit else ""
+
+
 def _wide(values) -> bool:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v) & (v > 0)]
@@ -116,7 +125,7 @@ def _time_plot(results, key: str, policies, ax, band: bool, logy, ylabel: str, w
     for n in names:
         p, st = results[n], policy_style(results, n)
         y = getattr(p, key)
-        ax.plot(k, y, color=st["color"], lw=1.1, label=n)
+        ax.plot(k, y, color=st["color"], lw=1.1, label=policy_label(n))
         if band:
             lo, hi = getattr(p, key + "_band")
             ax.fill_between(k, lo, hi, color=st["color"], alpha=0.15, lw=0)
@@ -133,13 +142,14 @@ def _time_plot(results, key: str, policies, ax, band: bool, logy, ylabel: str, w
 
 
 def plot_rmse_time(results, policies: Sequence[str] | None = None, ax=None, floor: float | np.ndarray | None = None,
-                   band: bool = True, logy: bool | None = None) -> Figure:
+                   band: bool = True, logy: bool | None = None, unit: str | None = None) -> Figure:
     """``RMSE_k`` over time with pointwise 95 % bootstrap bands.
 
     ``policies`` defaults to :func:`selected_policies`; ``floor`` is a
-    reference (a number, or a ``(T,)`` series such as a point-mass filter's RMSE_k).
+    reference (a number, or a ``(T,)`` series such as a point-mass filter's RMSE_k);
+    ``unit`` (e.g. ``"m"``) labels the RMSE axis.
     """
-    fig, ax = _time_plot(results, "rmse_t", policies, ax, band, logy, "RMSE$_k$", "RMSE over time")
+    fig, ax = _time_plot(results, "rmse_t", policies, ax, band, logy, "RMSE$_k$" + _unit(unit), "RMSE over time")
     if floor is not None:
         f = np.asarray(floor, dtype=float)
         if f.ndim == 0:
@@ -172,8 +182,13 @@ def _bars(results, metric: str, policies, ax, xlabel: str, what: str, logx) -> t
     y = np.arange(len(names))[::-1]  # first policy on top
     for yi, n, v, (lo, hi) in zip(y, names, vals, cis):
         st = policy_style(results, n)
+        pts = getattr(results[n], "seed_points", {}).get(metric)
+        if pts is not None:  # a seed group: each training seed beside the aggregate (IQM, two-level CI)
+            jitter = np.linspace(-0.22, 0.22, len(pts))
+            ax.scatter(pts, yi + jitter, s=10, color=st["color"], alpha=0.55, lw=0, zorder=1)
+            vals = np.append(vals, pts)
         ax.errorbar(v, yi, xerr=[[v - lo], [hi - v]], fmt=st["marker"], color=st["color"], ms=6, capsize=3,
-                    mec="black" if st["family"] != "fixed" else st["color"], mew=0.6)
+                    mec="black" if st["family"] != "fixed" else st["color"], mew=0.6, zorder=2)
     ax.set_yticks(y, [_label(results, n) for n in names])
     if logx is None:
         logx = _wide(np.concatenate([vals, cis.ravel()]))
@@ -187,9 +202,10 @@ def _bars(results, metric: str, policies, ax, xlabel: str, what: str, logx) -> t
 
 
 def plot_rmse_bars(results, policies: Sequence[str] | None = None, ax=None, floor: float | None = None,
-                   logx: bool | None = None) -> Figure:
-    """Time-averaged RMSE per policy with 95 % bootstrap CIs (paper Figs 1 and 4)."""
-    fig, ax = _bars(results, "rmse", policies, ax, "time-averaged RMSE", "Time-averaged RMSE", logx)
+                   logx: bool | None = None, unit: str | None = None) -> Figure:
+    """Time-averaged RMSE per policy with 95 % bootstrap CIs (paper Figs 1 and 4);
+    ``unit`` (e.g. ``"m"``) labels the axis."""
+    fig, ax = _bars(results, "rmse", policies, ax, "time-averaged RMSE" + _unit(unit), "Time-averaged RMSE", logx)
     if floor is not None:
         ax.axvline(floor, color="0.3", ls=":", lw=1.2, label=f"floor {floor:.3g}")
         ax.legend(fontsize=8)
@@ -241,19 +257,25 @@ def _place_labels(results, names, ax) -> None:
                     ha=ha, va=va, fontsize=fs, color=st["color"] if big else "0.25", zorder=4)
 
 
-def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) -> None:
-    fixed = sorted((n for n in names if _family(n) == "fixed"), key=_fixed_value)
-    if len(fixed) > 1:
-        ax.plot([results[n].rmse for n in fixed], [results[n].anees for n in fixed], color="0.6", lw=1, zorder=1)
+def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool, unit: str | None = None) -> None:
+    for both in (False, True):  # fixed in the update only, and in both steps: one line each, in grid order
+        fixed = sorted((n for n in names if _family(n) == "fixed" and _both(n) == both), key=_fixed_value)
+        if len(fixed) > 1:
+            ax.plot([results[n].rmse for n in fixed], [results[n].anees for n in fixed], color="0.6", lw=1,
+                    ls=":" if both else "-", zorder=1)
     for n in names:
         p, st = results[n], policy_style(results, n)
         big = st["family"] != "fixed"
+        pts = getattr(p, "seed_points", None)
+        if pts and not zoom:  # a seed group: one faint point per training seed
+            ax.scatter(pts["rmse"], pts["anees"], s=14, color=st["color"], alpha=0.45, lw=0, zorder=1)
         ax.errorbar(p.rmse, p.anees, xerr=[[p.rmse - p.rmse_ci[0]], [p.rmse_ci[1] - p.rmse]],
                     yerr=[[p.anees - p.anees_ci[0]], [p.anees_ci[1] - p.anees]], fmt=st["marker"], color=st["color"],
                     ms=9 if big else 6, mec="black" if big else st["color"], mew=0.6, capsize=2, elinewidth=0.8,
-                    zorder=3 if big else 2, label=None if (zoom or not big) else n)
-    xs = np.concatenate([[results[n].rmse, *results[n].rmse_ci] for n in names])
-    ys = np.concatenate([[results[n].anees, *results[n].anees_ci] for n in names])
+                    zorder=3 if big else 2, label=None if (zoom or not big) else policy_label(n))
+    pts = lambda n, m: [] if zoom else list(getattr(results[n], "seed_points", {}).get(m, []))
+    xs = np.concatenate([[results[n].rmse, *results[n].rmse_ci, *pts(n, "rmse")] for n in names])
+    ys = np.concatenate([[results[n].anees, *results[n].anees_ci, *pts(n, "anees")] for n in names])
     nx = results.config["nx"]
     if logx is None:
         logx = _wide(xs)
@@ -274,20 +296,21 @@ def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool) ->
         ax.axhline(nx, color="0.4", ls="--", lw=1, label=None if zoom else f"ideal ANEES = nx = {nx}")
     if floor is not None:
         ax.axvline(floor, color="0.3", ls=":", lw=1.2, label=None if zoom else f"RMSE floor {floor:.3g}")
-    ax.set_xlabel("time-averaged RMSE")
+    ax.set_xlabel("time-averaged RMSE" + _unit(unit))
     ax.set_ylabel("time-averaged ANEES")
     ax.grid(alpha=0.3, which="both")
 
 
 def plot_tradeoff(results, policies: Sequence[str] | None = None, ax=None, floor: float | None = None,
                   logx: bool | None = None, logy: bool | None = None, annotate: bool = True,
-                  zoom: bool | None = None) -> Figure:
+                  zoom: bool | None = None, unit: str | None = None) -> Figure:
     """Time-averaged RMSE (x) vs ANEES (y) with 95 % CI bars, one labelled point
     per policy; fixed values joined in grid order (paper Figs 3 and 6).
 
     ``zoom`` (default: when no ``ax`` is given and at least three points crowd
     around the best RMSE) adds a right panel on the policies within 15 % of
-    both axis spans (in plotted, possibly log, scale) of the best-RMSE point.
+    both axis spans (in plotted, possibly log, scale) of the best-RMSE point;
+    ``unit`` (e.g. ``"m"``) labels the RMSE axis.
     """
     names = results.names if policies is None else list(policies)
     rm = np.array([results[n].rmse for n in names])
@@ -305,10 +328,10 @@ def plot_tradeoff(results, policies: Sequence[str] | None = None, ax=None, floor
     else:
         fig, ax = _axes(ax, (8, 6))
         axz = None
-    _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom=False)
+    _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom=False, unit=unit)
     ax.legend(fontsize=8, loc="best")
     if axz is not None:
-        _tradeoff_ax(results, near, axz, floor, None, None, annotate, zoom=True)
+        _tradeoff_ax(results, near, axz, floor, None, None, annotate, zoom=True, unit=unit)
         axz.set_title("zoom: around the best RMSE", fontsize=10)
         fig.suptitle(_title(results, "RMSE vs ANEES"))
     else:
@@ -322,18 +345,17 @@ def plot_choices(results, policy: str, ax=None) -> Figure:
     grid = results.grid
     fig, ax = _axes(ax, (8, 4))
     k = np.arange(1, p.choices.shape[0] + 1)
-    cmap = plt.get_cmap("viridis")
-    colors = [cmap(0.05 + 0.85 * i / max(1, grid.size - 1)) for i in range(grid.size)]
+    colors = _colors(grid.size)  # qualitative: a 13-value sequential map cannot be told apart
     used = p.choices.sum(axis=0) > 0
     pname = results.config.get("param_name", "param")
     ax.stackplot(k, p.choices.T[used], colors=[c for c, u in zip(colors, used) if u],
-                 labels=[f"{pname}={g:g}" for g, u in zip(grid, used) if u], lw=0)
+                 labels=[param_label(pname, g) for g, u in zip(grid, used) if u], lw=0)
     ax.set_xlim(k[0], k[-1])
     ax.set_ylim(0, 1)
     ax.set_xlabel("time step k")
     ax.set_ylabel("fraction of runs")
     ax.set_title(_title(results, f"parameter chosen by {policy}"))
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), reverse=True)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5), reverse=True)
     return fig
 
 
@@ -350,9 +372,9 @@ def plot_usage(results, policies: Sequence[str] | None = None, ax=None) -> Figur
     for i, n in enumerate(names):
         u = results[n].usage
         ax.bar(x + (i - (len(names) - 1) / 2) * width, u / max(1, u.sum()), width, color=policy_style(results, n)["color"],
-               label=n, edgecolor="black", lw=0.4)
+               label=policy_label(n), edgecolor="black", lw=0.4)
     ax.set_xticks(x, [f"{g:g}" for g in grid])
-    ax.set_xlabel(results.config.get("param_name", "parameter"))
+    ax.set_xlabel(param_label(results.config.get("param_name", "parameter")))
     ax.set_ylabel("fraction of run-steps")
     ax.set_title(_title(results, "parameter usage"))
     ax.grid(axis="y", alpha=0.3)

@@ -5,7 +5,7 @@ Every policy has a ``name`` (used in results: ``default``, ``fixed-kappa=2``,
 ``decision`` is an :class:`adaptfilt.mdp.Decision`. A policy that carries a
 ``grid`` can also drive ``filter.run(z, policy=...)``.
 
-Baselines (Section V-E and DESIGN.md):
+Baselines (Section VI-D of the paper, and ours):
 
 * :class:`FixedPolicy` / :func:`default_policy`: one value for all steps;
 * :class:`MaxLikelihoodPolicy`: ``argmax_theta N(z; z_pred(theta), Pzz(theta))``
@@ -37,14 +37,23 @@ class Policy(Protocol):
 class FixedPolicy:
     """Always the grid value ``value`` (named ``fixed-<param>=<value>``).
 
-    >>> FixedPolicy(2.0, param_name="kappa").name
-    'fixed-kappa=2'
+    ``both_steps=True`` uses the value in the predict step too (named
+    ``fixed-both-<param>=<value>``): a filter run with one constant parameter,
+    the natural reading of a "fixed" baseline when the dynamics are nonlinear
+    (UNGM). By default only the update step changes, as for every adaptive
+    policy (the paper adapts the update only; the predict uses the default).
+
+    >>> FixedPolicy(2.0, param_name="kappa").name, FixedPolicy(2.0, "kappa", both_steps=True).name
+    ('fixed-kappa=2', 'fixed-both-kappa=2')
     """
 
-    def __init__(self, value: float, param_name: str = "param", name: str | None = None, grid=None):
+    def __init__(self, value: float, param_name: str = "param", name: str | None = None, grid=None,
+                 both_steps: bool = False):
         self.value = float(value)
-        self.name = name or f"fixed-{param_name}={self.value:g}"
+        self.name = name or f"fixed-{'both-' if both_steps else ''}{param_name}={self.value:g}"
         self.grid = None if grid is None else np.asarray(grid, dtype=float)
+        #: read by :func:`adaptfilt.mdp.rollout`: the predict step's parameter (None: the filter's default)
+        self.predict_param = self.value if both_steps else None
 
     def act(self, decision) -> np.ndarray:
         hit = np.flatnonzero(np.isclose(decision.grid, self.value))

@@ -1,10 +1,10 @@
 r"""Moment rules: E[g(x)], Cov[g(x)] and Cov[x, g(x)] for x ~ N(m, P).
 
 A Gaussian-assumed filter (Algorithm 1 of the paper) is one recursion plus a
-moment rule; this module holds the rules. All rules here are *fully symmetric
-axis rules*: with ``P = L L^T`` they evaluate ``g`` at the centre ``m`` and at
-``2n`` points ``m +- s L u_j`` that all carry the same weight ``w``; the centre
-carries ``1 - 2 n w``.
+moment rule; this module holds the rules. All rules here are *fully symmetric*:
+with ``P = L L^T`` they evaluate ``g`` at the centre ``m`` and at pairs of
+points ``m +- L a_k`` that share a weight ``w_k``; the centre carries
+``1 - 2 sum_k w_k``.
 
 Deviations are taken about the centre value ``g0 = g(m)`` (through the model's
 ``residual``, which wraps angles), so the centre contributes nothing to
@@ -19,30 +19,40 @@ with ``D_i = residual(g(X_i), g0)`` and ``E[g] = g0 + \bar D``. The two
 covariance forms are algebraically equal to the textbook
 ``sum_i w_i (g_i - E[g])(.)^T`` because the weights sum to one; the centred form
 is what makes a bearing's predicted mean a circular mean about ``g0`` and keeps
-round-off small. For linear ``g`` every rule here is exact, whatever its
-parameter: all filters then agree with the Kalman filter.
+round-off small. For linear ``g`` the deterministic rules and the stochastic
+rules of degree 3 and 5 are exact, whatever their parameter: all those filters
+then agree with the Kalman filter.
 
 Rules
 -----
 * :class:`UnscentedRule` (Julier's sigma points, parameter ``kappa``):
-  ``s = sqrt(n + kappa)``, ``u_j = e_j``, ``w = 1 / (2 (n + kappa))``; the
-  centre weight ``kappa / (n + kappa)`` is negative for ``kappa < 0``.
+  ``a_j = sqrt(n + kappa) e_j``, ``w = 1 / (2 (n + kappa))``; the centre
+  weight ``kappa / (n + kappa)`` is negative for ``kappa < 0``. ``form``
+  selects Julier and Uhlmann's *modified* form for that case (the covariance
+  taken about ``g0``: ``Cov[g] = sum_i w_i D_i D_i^T``, positive semidefinite
+  whatever ``kappa``).
 * :class:`CubatureRule`: the unscented rule at ``kappa = 0``.
-* :class:`StochasticIntegrationRule` (parameter ``n_iter``): Genz-Monahan's
-  stochastic spherical-radial rule of degree 3 as used by Dunik, Straka and
-  Simandl's SIF, averaged over ``n_iter`` independent draws.
+* :class:`StochasticIntegrationRule` (parameter ``n_iter``): Genz and
+  Monahan's stochastic spherical-radial rules of degree 1, 3 or 5 as used by
+  Dunik, Straka and Simandl's stochastic integration filter, averaged over
+  ``n_iter`` independent draws, with the options of the authors' reference
+  implementations (separate mean / covariance passes, the integration-error
+  term, tolerance stopping).
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Literal
 
 import numpy as np
 
 from adaptfilt.linalg import chol, mm, sym
 
-__all__ = ["Moments", "MomentRule", "UnscentedRule", "CubatureRule", "StochasticIntegrationRule"]
+__all__ = [
+    "Moments", "MomentRule", "UnscentedRule", "CubatureRule", "StochasticIntegrationRule",
+    "haar_rotations", "stochastic_rule_points",
+]
 
 #: ``g`` maps points ``(n, S, M)`` to values ``(ng, S, M)`` (run axis last).
 BatchFn = Callable[[np.ndarray], np.ndarray]
@@ -51,33 +61,124 @@ Residual = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass
 class Moments:
-    """Moments of ``g(x)``, run axis last: ``mean (ng, M)``, ``cov (ng, ng, M)``, ``cross (n, ng, M)``."""
+    """Moments of ``g(x)``, run axis last: ``mean (ng, M)``, ``cov (ng, ng, M)``, ``cross (n, ng, M)``.
+
+    Stochastic rules also report ``n_iter (M,)``, the iterations (draws) each
+    run spent, and, when asked for the integration-error term, ``mean_var
+    (ng, ng, M)``: the estimated variance of the stochastic estimate ``mean``,
+    which a filter adds to the predicted covariance. ``None`` otherwise.
+    """
 
     mean: np.ndarray
     cov: np.ndarray
     cross: np.ndarray | None
+    mean_var: np.ndarray | None = None
+    n_iter: np.ndarray | None = None
 
 
 @dataclass
 class _PointSet:
-    scale: np.ndarray | float  # s, scalar or (M,)
-    rotation: np.ndarray | None  # u_j as columns, (n, n, M); None = identity
-    weight: np.ndarray | float  # w of each axis point, scalar or (M,)
-    mask: np.ndarray | None  # (M,) runs that use this set; None = all
+    """The points ``m +- A[:, k]``, ``A = L @ rotation * scale``, with weight ``weight``.
+
+    ``rotation (n, K, M)`` (None: identity), ``scale`` and ``weight`` a
+    scalar or ``(M,)``; ``mask (M,)``: the runs that use this set (None: all).
+    With ``groups``, the directions are instead ``L @ rotation @ basis[:, cols]
+    * radius`` with weight ``w`` for each ``(cols, radius, w)`` of ``groups``
+    (``basis (n, B)``, ``radius``, ``w`` ``(M,)``): each basis column is rotated
+    once, however many groups use it.
+    """
+
+    scale: np.ndarray | float
+    rotation: np.ndarray | None
+    weight: np.ndarray | float
+    mask: np.ndarray | None
+    basis: np.ndarray | None = None
+    groups: list | None = None
+
+
+def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | None, cross: bool, work: dict | None = None):
+    """``sum_i w_i D_i``, ``sum_i w_i D_i D_i^T`` and ``sum_i w_i (X_i - m) D_i^T`` of one point set
+    (masked runs contribute zeros). ``work`` keeps buffers between calls."""
+    A = L if ps.rotation is None else mm(L, ps.rotation)
+    if ps.groups is None:
+        return _pair_sums(g, m, g0, A * ps.scale, ps.weight, ps.mask, residual, cross)
+    # rotate the basis once (BLAS: basis^T @ (L Q)[i] per row i), then one group at a time: small
+    # temporaries, reused, cost far less first-touch paging than one large array of all points
+    n, M = m.shape
+    B = np.empty((n, ps.basis.shape[1], M))
+    for i in range(n):
+        np.matmul(ps.basis.T, A[i], out=B[i])
+    sums = None
+    for cols, radius, w in ps.groups:
+        part = _pair_sums_lean(g, m, g0, B[:, cols] * radius, w, ps.mask, residual, cross, {} if work is None else work)
+        sums = part if sums is None else [a if b is None else a + b for a, b in zip(sums, part)]
+    return tuple(sums)
+
+
+def _pair_sums_lean(g, m, g0, A, w, mask, residual, cross, work: dict):
+    """:func:`_pair_sums` with fewer temporaries (``X`` in a reused buffer, no ``dX``;
+    ``Cov[x, g]`` from ``w (D+ - D-)``); ``w`` a scalar or ``(M,)``."""
+    K = A.shape[1]
+    X = work.get(A.shape)
+    if X is None:
+        X = work[A.shape] = np.empty((A.shape[0], 2 * K, A.shape[2]))
+    np.add(m[:, None, :], A, out=X[:, :K])
+    np.subtract(m[:, None, :], A, out=X[:, K:])
+    G = g(X)
+    D = np.ascontiguousarray(G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :]))
+    if mask is not None:
+        w = w * mask
+    Dp, Dm = D[:, :K], D[:, K:]
+    wDp, wDm = Dp * w, Dm * w
+    ED = (wDp + wDm).sum(axis=1)
+    EDD = np.einsum("isM,jsM->ijM", wDp, Dp) + np.einsum("isM,jsM->ijM", wDm, Dm)
+    EXD = np.einsum("isM,jsM->ijM", A, wDp - wDm) if cross else None
+    return ED, EDD, EXD
+
+
+def _pair_sums(g, m, g0, A, weight, mask, residual, cross):
+    """The sums over the points ``m +- A[:, k]`` with weights ``weight[k]`` (scalar, ``(M,)`` or ``(K, M)``)."""
+    dX = np.concatenate([A, -A], axis=1)  # (n, 2K, M)
+    G = g(m[:, None, :] + dX)
+    D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
+    # A model function returns (..., ng) with ng fastest; moved to run-last
+    # its runs are strided, which makes the einsums below ~6x slower for
+    # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
+    D = np.ascontiguousarray(D)
+    w = weight if mask is None else weight * mask
+    if np.ndim(w) == 2:  # one weight per direction and run: the same for +a_k and -a_k
+        w = np.concatenate([w, w], axis=0)
+    wD = D * w
+    ED = wD.sum(axis=1)
+    EDD = np.einsum("isM,jsM->ijM", wD, D)
+    EXD = np.einsum("isM,jsM->ijM", dX, wD) if cross else None
+    return ED, EDD, EXD
+
+
+def _check_tile(tile, M: int) -> int:
+    t = int(tile) if np.ndim(tile) == 0 and float(tile) == int(tile) else -1
+    if t < 1:
+        raise ValueError(f"tile must be a positive integer, got {tile!r}")
+    if M % t:
+        raise ValueError(f"tile = {t} must divide the number of runs M = {M}")
+    return t
 
 
 class MomentRule(ABC):
     """A rule for the Gaussian moments of a function, with one scalar parameter.
 
-    Subclasses say how their axis point sets are drawn (:meth:`_point_sets`);
-    the moment arithmetic is shared. ``param`` may be a scalar or one value per
-    run ``(M,)``.
+    Deterministic subclasses say how their point sets are drawn
+    (:meth:`_point_sets`); the moment arithmetic is shared. ``param`` may be a
+    scalar or one value per run ``(M,)``.
     """
 
     #: name of the parameter, as in the paper ("kappa", "n_iter")
     param_name: str = "param"
     #: whether the rule draws random numbers (then ``moments`` needs ``rng``)
     stochastic: bool = False
+    #: whether the rule offers ``moments_prefixes`` (the moments for several parameter values from one
+    #: set of draws; see :meth:`StochasticIntegrationRule.moments_prefixes`)
+    supports_prefixes: bool = False
 
     @abstractmethod
     def default_param(self, n: int) -> float:
@@ -87,9 +188,12 @@ class MomentRule(ABC):
     def check_param(self, param, n: int) -> np.ndarray:
         """Validated parameter as an array (scalar or ``(M,)``); ValueError if invalid."""
 
-    @abstractmethod
     def _point_sets(self, n: int, M: int, param: np.ndarray, rng: np.random.Generator | None) -> Iterator[_PointSet]:
-        ...
+        raise NotImplementedError
+
+    def _cov_from_sums(self, EDD: np.ndarray, ED: np.ndarray, param: np.ndarray) -> np.ndarray:
+        """``Cov[g]`` from the averaged centred sums (about the mean: ``EDD - ED ED^T``)."""
+        return EDD - ED[:, None, :] * ED[None, :, :]
 
     def n_points(self, n: int, param) -> np.ndarray:
         """Number of function evaluations the rule spends (centre included)."""
@@ -105,15 +209,19 @@ class MomentRule(ABC):
         rng: np.random.Generator | None = None,
         L: np.ndarray | None = None,
         cross: bool = True,
+        tile: int = 1,
     ) -> Moments:
         """Moments of ``g(x)`` for ``x ~ N(m, P)``, ``m (n, M)``, ``P (n, n, M)``.
 
         ``L`` may pass a Cholesky factor of ``P`` that the caller already has.
-        Raises :class:`~adaptfilt.linalg.NotPositiveDefinite` when ``P`` is not
+        ``tile`` only matters for stochastic rules (see
+        :meth:`StochasticIntegrationRule.moments`). Raises
+        :class:`~adaptfilt.linalg.NotPositiveDefinite` when ``P`` is not
         positive definite.
         """
         n, M = m.shape
         param = self.check_param(param, n)
+        _check_tile(tile, M)
         if L is None:
             L = chol(sym(P), "P")
         g0 = g(m[:, None, :])[:, 0, :]
@@ -122,25 +230,15 @@ class MomentRule(ABC):
         EXD = np.zeros((n, g0.shape[0], M)) if cross else None
         count = 0.0
         for ps in self._point_sets(n, M, param, rng):
-            A = L if ps.rotation is None else mm(L, ps.rotation)
-            A = A * ps.scale
-            dX = np.concatenate([A, -A], axis=1)  # (n, 2n, M)
-            G = g(m[:, None, :] + dX)
-            D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
-            # A model function returns (..., ng) with ng fastest; moved to run-last
-            # its runs are strided, which makes the einsums below ~6x slower for
-            # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
-            D = np.ascontiguousarray(D)
-            w = ps.weight if ps.mask is None else ps.weight * ps.mask
-            wD = D * w
-            ED += wD.sum(axis=1)
-            EDD += np.einsum("isM,jsM->ijM", wD, D)
+            e, ee, ex = _weighted_sums(g, m, g0, L, ps, residual, cross)
+            ED += e
+            EDD += ee
             if cross:
-                EXD += np.einsum("isM,jsM->ijM", dX, wD)
+                EXD += ex
             count = count + (1.0 if ps.mask is None else ps.mask)
         ED /= count
         EDD /= count
-        cov = EDD - ED[:, None, :] * ED[None, :, :]
+        cov = self._cov_from_sums(EDD, ED, param)
         if cross:
             EXD /= count
         return Moments(mean=g0 + ED, cov=sym(cov), cross=EXD)
@@ -156,20 +254,60 @@ class UnscentedRule(MomentRule):
     moment of a scalar Gaussian is matched only at ``n + kappa = 3``, which is
     why ``kappa`` changes ``Pzz`` of UNGM's quadratic measurement.
 
+    Negative ``kappa`` and the modified form
+    ----------------------------------------
+    With ``W_0 < 0`` the standard covariance
+    ``sum_i W_i (Y_i - y)(Y_i - y)^T`` (``y`` the weighted mean) can be
+    indefinite. Julier and Uhlmann's *modified form* takes the covariance
+    about the transformed centre point ``Y_0 = g(m)`` instead:
+
+    .. math::
+
+        P_{yy}^{\rm mod} = \sum_{i} W_i (Y_i - Y_0)(Y_i - Y_0)^T
+        = P_{yy} + (y - Y_0)(y - Y_0)^T .
+
+    Here deviations are already taken about ``Y_0`` (``D_i = Y_i - Y_0``,
+    ``D_0 = 0``), so the modified form is ``sum_{i>0} W_i D_i D_i^T``: it only
+    drops the ``- ED ED^T`` term. Every remaining weight is positive, so it
+    is positive semidefinite for any ``kappa > -n`` (and the filter's
+    ``P_pred``, ``Pzz`` and ``P_filt`` stay positive definite). The mean and
+    the cross-covariance are unchanged (``sum_i W_i (X_i - m) = 0``). It
+    over-states the covariance by the squared bias ``(y - Y_0)(y - Y_0)^T``,
+    a fourth-order term, and leaves the mean and ``Pxz`` exact to the same
+    orders as the standard form.
+
+    Parameters
+    ----------
+    default_kappa : float, optional
+        ``None``: ``max(0, 3 - n)``.
+    form : "standard", "modified" or "auto"
+        ``"standard"`` (default): the covariance about the mean, as always.
+        ``"modified"``: about ``Y_0`` for every ``kappa``.
+        ``"auto"``: the modified form only where ``W_0 < 0`` (``kappa < 0``,
+        per run for per-run ``kappa``), the standard one elsewhere, so
+        ``kappa >= 0`` results are bit-for-bit those of ``"standard"``.
+
     Example
     -------
     >>> import numpy as np
     >>> from adaptfilt.rules import UnscentedRule
     >>> m, P = np.zeros((1, 1)), np.ones((1, 1, 1))
     >>> mo = UnscentedRule().moments(lambda X: X**2, m, P, param=2.0)
-    >>> float(mo.mean[0, 0]), float(mo.cov[0, 0, 0])  # E[x^2] = 1, Var[x^2] = 2
+    >>> round(float(mo.mean[0, 0]), 12), round(float(mo.cov[0, 0, 0]), 12)  # E[x^2] = 1, Var[x^2] = 2
     (1.0, 2.0)
+    >>> mo = UnscentedRule(form="auto").moments(lambda X: X**2, m, P, param=-0.5)
+    >>> round(float(mo.cov[0, 0, 0]), 12)  # (1 + kappa) P^2 = 0.5 >= 0; the standard form gives kappa P^2 = -0.5
+    0.5
     """
 
     param_name = "kappa"
+    FORMS = ("standard", "modified", "auto")
 
-    def __init__(self, default_kappa: float | None = None):
+    def __init__(self, default_kappa: float | None = None, form: Literal["standard", "modified", "auto"] = "standard"):
+        if form not in self.FORMS:
+            raise ValueError(f"form must be one of {self.FORMS}, got {form!r}")
         self._default = default_kappa
+        self.form = form
 
     def default_param(self, n: int) -> float:
         return float(max(0, 3 - n)) if self._default is None else float(self._default)
@@ -186,6 +324,14 @@ class UnscentedRule(MomentRule):
     def _point_sets(self, n, M, kappa, rng):
         c = n + kappa
         yield _PointSet(scale=np.sqrt(c), rotation=None, weight=0.5 / c, mask=None)
+
+    def _cov_from_sums(self, EDD, ED, kappa):
+        if self.form == "standard":
+            return super()._cov_from_sums(EDD, ED, kappa)
+        if self.form == "modified":
+            return EDD.copy()
+        keep = (kappa >= 0).astype(float)  # auto: drop the -ED ED^T term where W_0 < 0
+        return EDD - keep * (ED[:, None, :] * ED[None, :, :])
 
 
 class CubatureRule(UnscentedRule):
@@ -211,35 +357,189 @@ def haar_rotations(n: int, M: int, rng: np.random.Generator) -> np.ndarray:
     return Q
 
 
+def _simplex(n: int) -> np.ndarray:
+    """The ``n + 1`` unit vertices of a regular simplex centred at the origin, ``(n, n + 1)``
+    (``v_i . v_j = -1/n``), built as in the authors' code."""
+    V = np.zeros((n, n + 1))
+    for i in range(n):
+        V[i, i] = np.sqrt((n + 1) * (n - i) / (n * (n - i + 1)))
+        V[i, i + 1 :] = -np.sqrt((n + 1) / ((n - i) * n * (n - i + 1)))
+    return V
+
+
+def _simplex_midpoints(V: np.ndarray) -> np.ndarray:
+    """Normalised midpoints ``(v_i + v_j) / |v_i + v_j|`` of the simplex edges, ``i > j`` in
+    row-major order (the authors' order), ``(n, n (n + 1) / 2)``."""
+    i, j = np.tril_indices(V.shape[1], k=-1)
+    Y = V[:, i] + V[:, j]
+    return Y / np.linalg.norm(Y, axis=0)
+
+
+_INTEGRATION_ERROR = {False: "none", None: "none", "none": "none", True: "diag", "diag": "diag", "full": "full"}
+
+
 class StochasticIntegrationRule(MomentRule):
-    r"""Stochastic integration rule of degree 3 (Genz & Monahan), as in the SIF.
+    r"""Stochastic integration rule (Genz and Monahan) as in the stochastic integration filter.
 
-    One draw uses a radius ``rho ~ sqrt(chi2(n + 2))`` and a Haar-random
-    rotation ``Q``: points ``m``, ``m +- rho L Q e_j`` with weights
-    ``1 - n / rho^2`` (centre) and ``1 / (2 rho^2)``. The estimate is unbiased
-    for any integrand and exact for polynomials of degree 3; ``n_iter``
-    independent draws are averaged (the running average of Dunik, Straka and
-    Simandl's SIF with a fixed iteration count), so its error shrinks like
-    ``1 / sqrt(n_iter)``.
+    One *draw* is a randomised spherical-radial rule for ``N(0, I_n)`` mapped
+    through ``x = m + L u`` (``P = L L^T``); each draw is unbiased for any
+    integrand and exact for polynomials up to its degree. ``n_iter`` draws are
+    averaged (the SIR recursion of Dunik, Straka and Simandl), so the error
+    shrinks like ``1 / sqrt(n_iter)``. All draws use a Haar-random rotation
+    ``Q`` (:func:`haar_rotations`); points come in pairs ``+-a`` with equal
+    weights, so every draw integrates linear functions exactly (the
+    integration error of the mean is then zero, too).
 
-    Variant: the *axes* points (``2n + 1`` per draw) rather than the simplex
-    (``n + 2``): fully symmetric, so odd moments vanish exactly, linear
-    functions are integrated exactly in every single draw (the SIF equals the
-    Kalman filter on linear models for any ``n_iter``), and the rule shares
-    its arithmetic with the unscented rule. The centre weight ``1 - n/rho^2``
-    is negative with probability ``P(chi2(n+2) < n)`` (0.32 for ``n = 4``).
+    ``order=3`` (default): ``rho^2 ~ chi2(n + 2)``; points ``m``,
+    ``m +- rho L Q e_j`` (``2n + 1``); weights ``1 - n / rho^2`` (centre),
+    ``1 / (2 rho^2)``. These are the *axis* points. All three public codes of
+    the authors' group (the NEF toolbox's ``nefSIF``, the MATLAB
+    ``stochasticCubatureRulePoints`` of ``sifTimeUpdate`` /
+    ``sifMeasurementUpdatev2``, and Stone Soup's
+    ``stochastic_cubature_rule_points``) use exactly these axis points for
+    degree 3, so there is no separate "simplex" degree-3 variant to select:
+    only degree 5 is built on a simplex. The centre weight is negative with
+    probability ``P(chi2(n+2) < n)`` (0.32 for ``n = 4``).
 
-    Per-run ``n_iter`` draws ``max(n_iter)`` sets; a run averages its first
-    ``n_iter`` of them. Draw ``i`` consumes the same random numbers whatever
-    the iteration counts, so policies that differ in ``n_iter`` see common
-    random numbers.
+    ``order=5``: ``r^2 ~ chi2(2n + 7)``, ``q ~ Beta(n + 2, 3/2)``,
+    ``rho = r sin(asin(q)/2)``, ``delta = r cos(asin(q)/2)``; with ``v_i``
+    the ``n + 1`` vertices of a regular simplex and ``y_ij`` the normalised
+    midpoints of its edges, both rotated by ``Q``, the points
+    ``m +- L {rho v_i, delta v_i, rho y_ij, delta y_ij}`` (``1 + 4(n+1) +
+    2n(n+1)`` points, 61 for ``n = 4``) carry Genz and Monahan's weights,
+    with ``c = 2 (n+1)^2 (n+2)``,
+
+    .. math::
+
+        w_{\rho v} = \frac{(n+2-\delta^2)(7-n)n^2}{c\,\rho^2(\rho^2-\delta^2)},\;
+        w_{\delta v} = \frac{(n+2-\rho^2)(7-n)n^2}{c\,\delta^2(\delta^2-\rho^2)},\;
+        w_{\rho y} = \frac{(n+2-\delta^2)\,4(n-1)^2}{c\,\rho^2(\rho^2-\delta^2)},\;
+        w_{\delta y} = \frac{(n+2-\rho^2)\,4(n-1)^2}{c\,\delta^2(\delta^2-\rho^2)},
+
+    and the centre ``1 - n (rho^2 + delta^2 - n - 2) / (rho^2 delta^2)``
+    (constructed as in Stone Soup, whose draws it reproduces given the same
+    ``r``, ``q``, ``Q``; see :func:`stochastic_rule_points`). Exact for
+    polynomials of degree 5, so one draw gives the variance of a quadratic
+    exactly. For ``n = 1`` the midpoints vanish (and carry weight zero): they
+    are left out. The weights are heavy-tailed: as ``q -> 1``, ``rho -> delta``
+    and the ``rho`` and ``delta`` weights grow without bound with opposite
+    signs. Smooth integrands cancel that; a bearing's wrap cut or a target
+    near the sensor does not, and on the CTM the degree-5 filter with few
+    iterations loses definiteness and diverges far more often than degree 3
+    (``benchmarks/bench_sif.py``), although one degree-5 draw is as accurate
+    as ten degree-3 draws on its first update.
+
+    ``order=1``: ``+-L X``, ``X ~ N(0, I)``, weights 1/2 (antithetic Monte
+    Carlo; the mean of a linear function is exact, its covariance is not).
+
+    Options of the authors' reference implementations
+    -------------------------------------------------
+    ``passes`` -- ``1`` (default): every draw updates the mean and the
+    covariances together, and the covariance is taken about the average of
+    the same draws (the NEF toolbox's ``nefSIF`` and the MATLAB
+    ``sifTimeUpdate``). ``2``: first the mean ``I_z`` from draws of its own,
+    then ``Pzz``, ``Pxz`` from fresh draws about that mean (``sum_i w_i (h_i -
+    I_z)(h_i - I_z)^T``; MATLAB ``sifMeasurementUpdatev2`` and Stone Soup's
+    ``StochasticIntegrationPredictor`` / ``Updater``). The second pass draws
+    from ``rng.spawn(1)[0]``, so its draw ``i`` is also the same whatever the
+    iteration counts.
+
+    ``integration_error`` -- ``False`` (default) or ``"diag"`` / ``True`` or
+    ``"full"``: report in ``Moments.mean_var`` the estimated variance of the
+    averaged mean, ``V_N = s_N^2 / N`` (``s_N^2`` the sample covariance of the
+    ``N`` per-draw means), by the references' recursion
+
+    .. math::
+
+        D_N = (S_N - I_{N-1}) / N,\quad I_N = I_{N-1} + D_N,\quad
+        V_N = \frac{N-2}{N} V_{N-1} + D_N D_N^T ,
+
+    which the filters add to the predicted covariance (``Pzz = IPz + R +
+    Vz``, ``P_pred = IPx + Q + Vx``, as in Stone Soup and, for ``Pzz``, the
+    MATLAB v2 update). ``"diag"`` keeps its diagonal (Stone Soup), ``"full"``
+    the whole matrix (MATLAB v2, ``Dz*Dz'``); for a scalar measurement they
+    agree. ``Pxz`` gets no such term (none of the references adds one).
+    *Convention for* ``N = 1``: ``V_1 = 0``. The references start the recursion
+    from ``I_0 = 0, V_0 = 0``, which gives ``V_1 = I_1 I_1^T``, the square of
+    the estimate itself: it depends on the coordinate origin (a bearing's
+    zero direction, a position's origin) and is not a variance; one draw
+    carries no information about the spread, so nothing is added. From
+    ``N = 2`` on the recursion is exactly the references'.
+
+    ``tol``, ``n_min`` -- ``tol=None`` (default): a fixed number of draws,
+    ``n_iter`` (the parameter a policy picks). With ``tol`` set, ``n_iter``
+    is the *maximum* and each run iterates while ``N < n_min`` or
+    (``N < n_iter`` and the estimated integration error exceeds ``tol``), the
+    references' ``while N < Nmin || (N < Nmax && norm(V) > Eps)``: the
+    error is the Frobenius norm of the element-wise variances of the mean
+    (and, for the covariance pass or ``passes=1``, of ``Pzz`` and ``Pxz``), as
+    Stone Soup computes it. Because ``V_1 = 0`` carries no information the
+    tolerance is tested from ``N = 2`` on. ``n_min`` wins over ``n_iter``, as
+    in the references. The iterations each run spent are in
+    ``Moments.n_iter`` (both passes counted).
+
+    Batched runs: per-run ``n_iter`` and per-run stopping mask the draws;
+    every iteration draws for all runs, so draw ``i`` of run ``j`` consumes the
+    same random numbers whatever the iteration counts (common random numbers
+    between policies).
+
+    Stone Soup's defaults (the authors' Python port) are
+    ``StochasticIntegrationRule(10, order=5, passes=2,
+    integration_error="diag", tol=5e-4, n_min=5)`` for the update and
+    ``tol=5e-3`` for the predict step (:meth:`adaptfilt.gaf.SIF.reference`).
+    The default here stays the degree-3, one-pass, fixed-count rule without
+    the error term: it is the rule the paper's experiments adapt (a fixed
+    ``N_it`` chosen by the policy), ``SIF(model, seed=...)`` in
+    :mod:`adaptfilt.experiments` and every result in ``data/`` were computed
+    with it, and the authors' own codes differ on all three choices (the NEF
+    toolbox and the MATLAB time update use one pass and no error term; the
+    order is an argument everywhere, 5 being Stone Soup's default).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from adaptfilt.rules import StochasticIntegrationRule
+    >>> m, P = np.zeros((2, 3)), np.repeat(np.eye(2)[:, :, None], 3, axis=2)
+    >>> quad = lambda X: (X * X).sum(axis=0, keepdims=True)  # |x|^2: E = 2, Var = 4
+    >>> mo = StochasticIntegrationRule(order=5).moments(quad, m, P, 1, rng=np.random.default_rng(0))
+    >>> np.allclose(mo.mean, 2.0), np.allclose(mo.cov, 4.0)  # degree 5: exact in every draw
+    (True, True)
     """
 
     param_name = "n_iter"
     stochastic = True
+    ORDERS = (1, 3, 5)
 
-    def __init__(self, default_n_iter: int = 10):
+    def __init__(
+        self,
+        default_n_iter: int = 10,
+        *,
+        order: Literal[1, 3, 5] = 3,
+        passes: Literal[1, 2] = 1,
+        integration_error: bool | Literal["none", "diag", "full"] = False,
+        tol: float | None = None,
+        n_min: int = 1,
+    ):
         self._default = int(default_n_iter)
+        if order not in self.ORDERS:
+            raise ValueError(f"order must be one of {self.ORDERS}, got {order!r}")
+        if passes not in (1, 2):
+            raise ValueError(f"passes must be 1 or 2, got {passes!r}")
+        if not isinstance(integration_error, (bool, str, type(None))) or integration_error not in _INTEGRATION_ERROR:
+            raise ValueError(f"integration_error must be False, True, 'none', 'diag' or 'full', got {integration_error!r}")
+        if tol is not None and not (np.isfinite(tol) and tol > 0):
+            raise ValueError(f"tol must be a positive number or None, got {tol!r}")
+        if int(n_min) != n_min or n_min < 1:
+            raise ValueError(f"n_min must be a positive integer, got {n_min!r}")
+        self.order, self.passes = int(order), int(passes)
+        self.integration_error = _INTEGRATION_ERROR[integration_error]
+        self.tol = None if tol is None else float(tol)
+        self.n_min = int(n_min)
+        self._basis5: dict[int, np.ndarray] = {}
+
+    def __repr__(self) -> str:
+        return (f"StochasticIntegrationRule(order={self.order}, passes={self.passes}, "
+                f"integration_error={self.integration_error!r}, tol={self.tol}, n_min={self.n_min})")
 
     def default_param(self, n: int) -> float:
         return float(self._default)
@@ -250,15 +550,333 @@ class StochasticIntegrationRule(MomentRule):
             raise ValueError(f"n_iter must be a positive integer (or one per run), got {param!r}")
         return it
 
-    def n_points(self, n: int, param) -> np.ndarray:
-        return 1 + 2 * n * np.asarray(param, dtype=float)
+    def points_per_draw(self, n: int) -> int:
+        """Function evaluations of one draw, centre excluded."""
+        if self.order == 1:
+            return 2
+        if self.order == 3:
+            return 2 * n
+        return 4 * (n + 1) + (2 * n * (n + 1) if n > 1 else 0)
 
-    def _point_sets(self, n, M, n_iter, rng):
+    def n_points(self, n: int, param) -> np.ndarray:
+        """Function evaluations for ``param`` iterations (at most, with ``tol``); centre included."""
+        it = np.asarray(param, dtype=float)
+        if self.tol is not None:
+            it = np.maximum(it, self.n_min)
+        return 1 + self.passes * self.points_per_draw(n) * it
+
+    # ------------------------------------------------------------ draws
+    def _draw(self, n: int, M: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+        """The random variates of one draw for ``M`` runs (run axis last)."""
+        if self.order == 1:
+            return (rng.standard_normal((n, M)),)
+        Q = haar_rotations(n, M, rng)
+        if self.order == 3:
+            return Q, rng.chisquare(n + 2, size=M)
+        return Q, rng.chisquare(2 * n + 7, size=M), rng.beta(n + 2, 1.5, size=M)
+
+    def _basis(self, n: int) -> np.ndarray:
+        """Simplex vertices and (``n > 1``) edge midpoints, ``(n, n + 1 + n(n+1)/2)``."""
+        if n not in self._basis5:
+            V = _simplex(n)
+            self._basis5[n] = np.concatenate([V, _simplex_midpoints(V)], axis=1) if n > 1 else V
+        return self._basis5[n]
+
+    @staticmethod
+    def _degree5_weights(n: int, rho: np.ndarray, delta: np.ndarray):
+        """Genz-Monahan degree-5 weights of the four point groups and the centre, as in the references."""
+        r2, d2 = rho**2, delta**2
+        c1up, c1do = n + 2 - d2, r2 * (r2 - d2)
+        c2up, c2do = n + 2 - r2, d2 * (d2 - r2)
+        cdo = 2 * (n + 1) ** 2 * (n + 2)
+        c3, c4 = (7 - n) * n**2, 4 * (n - 1) ** 2
+        coef = (c1up * c3 / cdo / c1do, c2up * c3 / cdo / c2do, c1up * c4 / cdo / c1do, c2up * c4 / cdo / c2do)
+        w0 = 1 - n * (r2 + d2 - n - 2) / (r2 * d2)
+        return coef, w0
+
+    def _point_set(self, n: int, raw: tuple[np.ndarray, ...]) -> _PointSet:
+        if self.order == 1:
+            return _PointSet(scale=1.0, rotation=raw[0][:, None, :], weight=0.5, mask=None)
+        if self.order == 3:
+            Q, rho2 = raw
+            return _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2, mask=None)
+        Q, r2, q = raw
+        r, a = np.sqrt(r2), np.arcsin(q) / 2
+        rho, delta = r * np.sin(a), r * np.cos(a)
+        coef, _ = self._degree5_weights(n, rho, delta)
+        v, y = slice(0, n + 1), slice(n + 1, None)
+        groups = [(v, rho, coef[0]), (v, delta, coef[1])] + ([(y, rho, coef[2]), (y, delta, coef[3])] if n > 1 else [])
+        return _PointSet(scale=1.0, rotation=Q, weight=1.0, mask=None, basis=self._basis(n), groups=groups)
+
+    def _point_sets(self, n: int, M: int, n_iter: np.ndarray, rng: np.random.Generator, tile: int = 1) -> Iterator[_PointSet]:
+        """The draws of one pass, each for all ``M`` runs: ``max(n_iter)`` of them (at least
+        ``n_min`` with ``tol``); the recursion masks the runs that are done and may stop early.
+        With ``tile = G`` each draw is made for ``M / G`` runs and repeated ``G`` times."""
+        cap = int(n_iter.max()) if self.tol is None else max(int(n_iter.max()), self.n_min)
+        M0 = M // tile
+        for _ in range(cap):
+            raw = self._draw(n, M0, rng)
+            if tile > 1:
+                raw = tuple(np.concatenate([a] * tile, axis=-1) for a in raw)
+            yield self._point_set(n, raw)
+
+    # -------------------------------------------------------- recursion
+    def _recursion(self, sets, evaluate, n_iter: np.ndarray, M: int, what: str, cross: bool, c=None,
+                   at: tuple[int, ...] | None = None) -> dict | dict[int, dict]:
+        """One SIR recursion over draws, per run, until its fixed count or the stopping rule ends it.
+
+        ``what``: ``"joint"`` (mean and covariances from the same draws),
+        ``"mean"`` (first pass) or ``"cov"`` (second pass, about ``g0 + c``).
+        Returns the averaged sums, the per-run counts and the Welford state.
+        ``at`` (fixed count, scalar ``n_iter = max(at)`` only): return instead
+        ``{k: state after draw k}`` for every ``k`` in ``at``, the states the
+        recursion with ``n_iter = k`` ends in (the first ``k`` draws are the same).
+        """
+        tol = self.tol
+        per_run = n_iter.ndim > 0 or tol is not None
+        want_mean, want_cov = what != "cov", what != "mean"
+        cross = cross and want_cov
+        want_var = want_mean and self.integration_error != "none"
+        track = want_var or tol is not None
+        ng = None
+        N = np.zeros(M) if per_run else 0.0
+        active = np.ones(M, dtype=bool)
+        sums = None
+        stats: dict[str, list[np.ndarray]] = {}
+        Vfull = None
+        if at is not None and (per_run or int(n_iter) != max(at)):
+            raise ValueError("_recursion(at=...) needs a fixed count with scalar n_iter = max(at)")
+        snaps: dict[int, dict] = {}
+        for ps in sets:
+            if per_run:
+                ps.mask = active.astype(float)
+            e, ee, ex = evaluate(ps, cross)
+            if sums is None:
+                ng = e.shape[0]
+                sums = [np.zeros_like(e), np.zeros_like(ee), None if ex is None else np.zeros_like(ex)]
+            sums[0] += e
+            sums[1] += ee
+            if cross:
+                sums[2] += ex
+            N = N + (1.0 if ps.mask is None else ps.mask)
+            if not track:
+                if at is not None and N in at:
+                    snaps[int(N)] = self._averaged(sums, N, cross, None, None)
+                if per_run:
+                    active = N < n_iter
+                continue
+            tracked = {}
+            if want_mean:
+                tracked["mean"] = e
+            if want_cov and tol is not None:
+                tracked["cov"] = ee if c is None else ee - e[:, None] * c[None] - c[:, None] * e[None] + c[:, None] * c[None]
+                if cross:
+                    tracked["cross"] = ex
+            act = active if per_run else None
+            for name, X in tracked.items():
+                I, V = stats.get(name, (np.zeros_like(X), np.zeros_like(X)))
+                Dv = (X - I) / N
+                later = N >= 2  # V_1 = 0: one draw says nothing about the spread
+                if act is None:
+                    I, V = I + Dv, ((N - 2) / N * V + Dv * Dv if later else V)
+                else:
+                    I = np.where(act, I + Dv, I)
+                    V = np.where(act & later, (N - 2) / N * V + Dv * Dv, V)
+                stats[name] = [I, V]
+                if name == "mean" and self.integration_error == "full":
+                    if Vfull is None:
+                        Vfull = np.zeros((ng, ng, M))
+                    outer = Dv[:, None] * Dv[None]
+                    Vfull = np.where(np.broadcast_to(later if act is None else act & later, (M,)), (N - 2) / N * Vfull + outer, Vfull)
+            if at is not None and N in at:
+                snaps[int(N)] = self._averaged(sums, N, cross, stats["mean"][1] if want_var else None, Vfull)
+            if tol is None:
+                if per_run:
+                    active = N < n_iter
+            else:
+                big = np.zeros(M, dtype=bool)
+                for name in (("mean", "cov", "cross") if what == "joint" else ("mean",) if what == "mean" else ("cov", "cross")):
+                    if name in stats:
+                        V = stats[name][1]
+                        big |= np.sqrt((V * V).reshape(-1, M).sum(axis=0)) > tol
+                active = active & ((N < self.n_min) | ((N < n_iter) & ((N < 2) | big)))
+                if not active.any():
+                    break
+        if at is not None:
+            return snaps
+        return self._averaged(sums, N, cross, stats["mean"][1] if want_var else None, Vfull)
+
+    @staticmethod
+    def _averaged(sums: list, N, cross: bool, V, Vfull) -> dict:
+        """The recursion's result after ``N`` draws: the sums averaged (new arrays; ``sums`` is left as it is)."""
+        ED, EDD, EXD = sums
+        return {"ED": ED / N, "EDD": EDD / N, "EXD": EXD / N if cross else None, "N": N, "V": V, "Vfull": Vfull}
+
+    def moments(
+        self,
+        g: BatchFn,
+        m: np.ndarray,
+        P: np.ndarray,
+        param,
+        residual: Residual | None = None,
+        rng: np.random.Generator | None = None,
+        L: np.ndarray | None = None,
+        cross: bool = True,
+        tile: int = 1,
+    ) -> Moments:
+        """Moments of ``g(x)`` for ``x ~ N(m, P)``, ``m (n, M)``, ``P (n, n, M)``; ``param`` is ``n_iter``.
+
+        ``rng`` (required) supplies the draws. ``tile = G`` declares the call
+        a tiling of ``G`` copies of ``M / G`` runs (run ``g * M/G + j`` is
+        copy ``g`` of run ``j``, as ``np.concatenate([a] * G, axis=-1)`` lays
+        them out): draws are made for ``M / G`` runs and repeated, so run
+        ``j`` sees the same draws in every copy, exactly those an untiled
+        call with the same ``rng`` gives it. ``tile = 1`` changes nothing.
+        """
+        n, M = m.shape
+        n_iter = self.check_param(param, n)
         if rng is None:
             raise ValueError("the stochastic integration rule needs a numpy Generator (rng)")
-        per_run = n_iter.ndim > 0
-        for i in range(int(n_iter.max())):
-            Q = haar_rotations(n, M, rng)
-            rho2 = rng.chisquare(n + 2, size=M)
-            mask = (n_iter > i).astype(float) if per_run else None
-            yield _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2, mask=mask)
+        tile = _check_tile(tile, M)
+        return self._run(g, m, P, n_iter, residual, rng, L, cross, tile)
+
+    @property
+    def supports_prefixes(self) -> bool:
+        """Whether :meth:`moments_prefixes` applies: a fixed count (``tol`` is None)."""
+        return self.tol is None
+
+    def moments_prefixes(
+        self,
+        g: BatchFn,
+        m: np.ndarray,
+        P: np.ndarray,
+        n_iters,
+        residual: Residual | None = None,
+        rng: np.random.Generator | None = None,
+        L: np.ndarray | None = None,
+        cross: bool = True,
+    ) -> list[Moments]:
+        r"""The moments for several iteration counts from one set of draws: one :class:`Moments` per ``n_iters``.
+
+        With a fixed count, the rule at ``n_iter = k`` averages the first ``k``
+        draws its ``rng`` gives (draw ``i`` is the same whatever the count; the
+        second pass draws from ``rng.spawn(1)[0]``), so every count is a
+        prefix of the largest one. This makes ``max(n_iters)`` draws once and
+        keeps the running sums, the Welford state of the integration-error
+        term and the counts at each requested ``k``:
+
+        .. math::
+
+            \bar D^{(k)} = \frac1k \sum_{i \le k} S_i,\qquad
+            \mathrm{Moments}^{(k)} = \text{moments}(g, m, P, k, \text{rng}),
+
+        equal to ``moments(g, m, P, k, rng=Generator(same seed))`` up to
+        summation order, for every order, pass count and
+        ``integration_error`` form, at the cost of ``max(n_iters)`` draws on
+        ``M`` runs instead of ``max(n_iters)`` draws on ``M * len(n_iters)``
+        runs (the tiled call, ``moments(..., tile=G)``). ``n_iters`` is a
+        sequence of positive integers (repeats allowed, any order). ValueError
+        when ``tol`` is set: tolerance stopping depends on the draws, and the
+        counts are then no longer prefixes of one another.
+
+        Example
+        -------
+        >>> import numpy as np
+        >>> from adaptfilt.rules import StochasticIntegrationRule
+        >>> rule, m, P = StochasticIntegrationRule(), np.zeros((2, 3)), np.repeat(np.eye(2)[:, :, None], 3, axis=2)
+        >>> sin = lambda X: np.sin(X[:1])
+        >>> few, many = rule.moments_prefixes(sin, m + 1, P, [2, 5], rng=np.random.default_rng(1))
+        >>> two = rule.moments(sin, m + 1, P, 2, rng=np.random.default_rng(1))
+        >>> bool(np.allclose(few.cov, two.cov, rtol=1e-12)), many.n_iter.tolist()
+        (True, [5, 5, 5])
+        """
+        if not self.supports_prefixes:
+            raise ValueError("moments_prefixes needs a fixed count (tol=None): with tol, counts are not prefixes")
+        n, M = m.shape
+        counts = np.asarray(n_iters, dtype=float)
+        if counts.ndim != 1 or counts.size == 0:
+            raise ValueError(f"n_iters must be a non-empty sequence of iteration counts, got {n_iters!r}")
+        counts = self.check_param(counts, n).astype(int)
+        if rng is None:
+            raise ValueError("the stochastic integration rule needs a numpy Generator (rng)")
+        return self._run(g, m, P, np.array(float(counts.max())), residual, rng, L, cross, 1, at=tuple(counts.tolist()))
+
+    def _run(self, g, m, P, n_iter, residual, rng, L, cross, tile, at=None) -> Moments | list[Moments]:
+        """The passes of :meth:`moments`; with ``at`` (see :meth:`_recursion`), one Moments per count in ``at``."""
+        n, M = m.shape
+        if L is None:
+            L = chol(sym(P), "P")
+        g0 = g(m[:, None, :])[:, 0, :]
+        work: dict = {}
+        evaluate = lambda ps, cr: _weighted_sums(g, m, g0, L, ps, residual, cr, work)  # noqa: E731
+        if self.passes == 1:
+            joint = self._recursion(self._point_sets(n, M, n_iter, rng, tile), evaluate, n_iter, M, "joint", cross, at=at)
+            if at is None:
+                return self._finish(g0, joint, None, n_iter, M)
+            return [self._finish(g0, joint[k], None, n_iter, M) for k in at]
+        try:
+            rng2 = rng.spawn(1)[0]
+        except (AttributeError, TypeError, ValueError) as err:
+            raise ValueError("passes=2 needs a numpy Generator with a SeedSequence (np.random.default_rng(seed))") from err
+        mean_pass = self._recursion(self._point_sets(n, M, n_iter, rng, tile), evaluate, n_iter, M, "mean", False, at=at)
+        if at is None:
+            cov_pass = self._recursion(self._point_sets(n, M, n_iter, rng2, tile), evaluate, n_iter, M, "cov", cross,
+                                       c=mean_pass["ED"])
+            return self._finish(g0, mean_pass, cov_pass, n_iter, M)
+        # without tol the covariance pass's sums do not depend on the centre c, so one
+        # recursion serves every count (c only enters the tolerance test)
+        cov_pass = self._recursion(self._point_sets(n, M, n_iter, rng2, tile), evaluate, n_iter, M, "cov", cross, at=at)
+        return [self._finish(g0, mean_pass[k], cov_pass[k], n_iter, M) for k in at]
+
+    def _finish(self, g0: np.ndarray, mean_pass: dict, cov_pass: dict | None, n_iter, M: int) -> Moments:
+        """Moments from the recursion's results (``cov_pass`` None: one pass, ``mean_pass`` is the joint one)."""
+        ED = mean_pass["ED"]
+        if cov_pass is None:
+            r = mean_pass
+            cov = self._cov_from_sums(r["EDD"], ED, n_iter)
+            spent = r["N"]
+        else:
+            r = cov_pass
+            E2 = r["ED"]
+            # sum_i w_i (D_i - c)(D_i - c)^T averaged over the draws, c = ED
+            cov = r["EDD"] - E2[:, None] * ED[None] - ED[:, None] * E2[None] + ED[:, None] * ED[None]
+            spent = mean_pass["N"] + r["N"]
+        mean_var = None
+        if self.integration_error == "diag":
+            mean_var = mean_pass["V"][:, None, :] * np.eye(ED.shape[0])[:, :, None]
+        elif self.integration_error == "full":
+            mean_var = mean_pass["Vfull"] if mean_pass["Vfull"] is not None else np.zeros((ED.shape[0],) * 2 + (M,))
+        return Moments(mean=g0 + ED, cov=sym(cov), cross=r["EXD"], mean_var=mean_var,
+                       n_iter=np.broadcast_to(spent, (M,)).astype(int))
+
+
+def stochastic_rule_points(n: int, order: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One draw of the stochastic integration rule for ``N(0, I_n)``: points ``(n, S)``, weights ``(S,)``.
+
+    The points and weights of Stone Soup's ``stochastic_cubature_rule_points``
+    (and the authors' MATLAB ``stochasticCubatureRulePoints``), in their
+    order, but drawn from ``rng`` as :class:`StochasticIntegrationRule` draws
+    them (``Q`` by :func:`haar_rotations`, then ``chi2``, then ``Beta``):
+    given the same radii and rotation the two agree. Order 1: ``[X, -X]``;
+    order 3: centre, ``+rho Q e_j``, ``-rho Q e_j``; order 5: centre,
+    ``-+rho v``, ``-+delta v``, ``-+rho y``, ``-+delta y`` (``y`` left out for
+    ``n = 1``, where it is 0/0 in the references and has weight zero).
+    """
+    rule = StochasticIntegrationRule(order=order)
+    raw = rule._draw(n, 1, rng)
+    if order == 1:
+        X = raw[0]
+        return np.concatenate([X, -X], axis=1), np.array([0.5, 0.5])
+    Q = raw[0][:, :, 0]
+    if order == 3:
+        rho2 = raw[1][0]
+        A = Q * np.sqrt(rho2)
+        return np.concatenate([np.zeros((n, 1)), A, -A], axis=1), np.concatenate([[1 - n / rho2], np.full(2 * n, 0.5 / rho2)])
+    ps = rule._point_set(n, raw)
+    _, w0 = rule._degree5_weights(n, ps.groups[0][1], ps.groups[1][1])
+    pts, wts = [np.zeros((n, 1))], [w0]
+    for cols, radius, w in ps.groups:
+        A = (Q @ ps.basis[:, cols]) * radius[0]
+        pts += [-A, A]
+        wts += [np.full(2 * A.shape[1], w[0])]
+    return np.concatenate(pts, axis=1), np.concatenate(wts)

@@ -1,0 +1,386 @@
+r"""The plumbing of the course's learning chapters (5 The actor-critic, 9 Your own model, 10 RL in practice).
+
+As :mod:`adaptfilt.course` does for chapters 1-4: what a chapter computes in
+passing (bookkeeping over seeds, binned policy probabilities, a timed
+training) and its figures live here, documented and tested
+(``tests/test_course_rl.py``), so that a chapter reads as prose with short
+calls. Figures use :mod:`adaptfilt.style`.
+
+========================================  =========================================================
+chapter                                   helpers
+========================================  =========================================================
+5 The actor-critic                        :func:`plot_sign_demo`, :func:`plot_training`,
+                                          :func:`candidate_cost_range`, :func:`scaler_saturation`,
+                                          :func:`plot_share_over_time`, :func:`usage_lines`,
+                                          :func:`plot_switch_off`, :func:`ungm_state`,
+                                          :func:`plot_policy_probs` (widget :func:`show_policy_probs`)
+9 Your own model                          :func:`seed_lines`, :func:`plot_differences`
+10 RL in practice                         :func:`plot_seed_spread`, :func:`seed_verdicts`,
+                                          :func:`claims_table`, :func:`timed`
+========================================  =========================================================
+
+A *seed group* is a set of policies named ``<group>-s<seed>``
+(:func:`adaptfilt.experiments.seeds.seed_groups`); its aggregate is the IQM
+over seeds with the two-level (seeds x runs) bootstrap interval of
+:func:`adaptfilt.experiments.seeds.aggregate`.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from adaptfilt.experiments.seeds import aggregate, seed_groups, seed_verdict
+
+__all__ = [
+    # chapter 5
+    "plot_sign_demo", "plot_training", "candidate_cost_range", "scaler_saturation", "plot_share_over_time",
+    "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs", "show_policy_probs",
+    # chapter 9
+    "seed_lines", "plot_differences",
+    # chapter 10
+    "plot_seed_spread", "seed_verdicts", "claims_table", "timed",
+]
+
+
+def _ax(ax, **figure_kw):
+    if ax is not None:
+        return ax.figure, ax
+    from adaptfilt import style
+
+    return style.figure(**figure_kw)
+
+
+def _smooth(y: np.ndarray, w: int) -> np.ndarray:
+    w = max(1, min(int(w), len(y)))
+    return np.convolve(y, np.ones(w) / w, mode="valid")
+
+
+# ============================================================== chapter 5
+def plot_sign_demo(states: np.ndarray, policies: Mapping[str, object], curves: Mapping[str, Mapping],
+                   window: int = 32):
+    r"""The sign demonstration on a toy with a scalar state: ``pi(a | s)`` of each
+    policy over ``states`` (one panel per policy) and the smoothed learning
+    curves (mean cost per step, last panel). ``policies`` and ``curves`` are
+    keyed by the same labels; features are ``(s, 0)`` (the toy's noise feature at 0)."""
+    from adaptfilt import style
+
+    n = len(policies)
+    fig, axes = style.figure(1, n + 1, size=(3.0 * (n + 1), 3.0))
+    feats = np.stack([states, np.zeros_like(states)], axis=1)
+    for ax, (label, pol) in zip(axes, policies.items()):
+        p = pol.probs(feats)
+        for a, col in zip(range(p.shape[1]), style.colors(p.shape[1])):
+            ax.plot(states, p[:, a], color=col, label=f"action {a}")
+        ax.axvline(0, color="0.5", lw=0.8, ls=":")
+        ax.set(xlabel="state s", ylim=(-0.02, 1.02), title=label)
+    axes[0].set_ylabel(r"$\pi(a\,|\,s)$")
+    axes[0].legend(loc="center left")
+    for label, c in curves.items():
+        y = _smooth(np.asarray(c["cost"]), window)
+        axes[-1].plot(np.arange(len(y)) + window, y, label=label)
+    axes[-1].set(xlabel="episode", ylabel="mean cost per step", title="learning curves")
+    axes[-1].legend()
+    return fig
+
+
+def plot_training(curve: Mapping[str, np.ndarray], grid: Sequence[float], batch: int):
+    r"""A learning curve of :func:`adaptfilt.actor_critic.train`: the transformed cost
+    per episode, the raw cost (log scale) and the share of each grid value sampled
+    in each batch of ``batch`` episodes (a stack plot)."""
+    from adaptfilt import style
+
+    grid = np.asarray(grid, dtype=float)
+    fig, axes = style.figure(1, 3, size=(10.5, 3.3))
+    ep = np.arange(1, len(curve["cost"]) + 1)
+    axes[0].plot(ep, curve["train_cost"], ".", ms=2, alpha=0.5)
+    axes[0].set(xlabel="episode", ylabel=r"mean $\log(1+\bar L)$ per step", title="transformed cost")
+    axes[1].semilogy(ep, curve["cost"], ".", ms=2, color="0.4", alpha=0.5)
+    axes[1].set(xlabel="episode", ylabel=r"mean $\bar L_\mathrm{NIS}$ per step", title="raw cost")
+    n_b = len(ep) // batch
+    frac = np.asarray(curve["action_frac"])[: n_b * batch].reshape(n_b, batch, grid.size).mean(axis=1)
+    mid = batch * (np.arange(n_b) + 0.5)
+    axes[2].stackplot(mid, frac.T, colors=style.colors(grid.size), labels=[f"{g:g}" for g in grid])
+    axes[2].set(xlabel="episode", ylabel="share of steps", title=r"$\kappa$ sampled", ylim=(0, 1),
+                xlim=(mid[0], mid[-1]))
+    axes[2].legend(title=r"$\kappa$", loc="center left", bbox_to_anchor=(1.0, 0.5), reverse=True, fontsize=8)
+    return fig
+
+
+def candidate_cost_range(env, n_runs: int = 200, seed: int = 0) -> dict:
+    r"""Run the default parameter on ``n_runs`` runs and, at every decision, compute the
+    one-step cost of *every* grid value (:meth:`~adaptfilt.mdp.Decision.candidates`).
+
+    Returns ``{"decisions", "median", "max", "max_log1p", "share_above_1e3"}`` over all
+    candidate costs: the range of the TD targets a critic would regress on, raw and
+    as ``log(1 + L)``."""
+    from adaptfilt.actor_critic import transform_cost
+
+    d = env.reset(n_runs=n_runs, rng=np.random.default_rng(seed))
+    costs, n = [], 0
+    while d is not None:
+        costs.append(np.asarray(d.candidates()["cost"], dtype=float).ravel())
+        n += d.n_runs
+        d, _, _, _ = env.step(np.full(d.n_runs, d.default_index))
+    c = np.concatenate(costs)
+    return {"decisions": n, "median": float(np.median(c)), "max": float(c.max()),
+            "max_log1p": float(transform_cost(c, "log1p").max()), "share_above_1e3": float((c > 1e3).mean())}
+
+
+def scaler_saturation(env, features: str = "paper", seed: int = 0, runs: int = 64) -> dict[str, dict[str, float]]:
+    r"""How the first policies' scaler (fitted on default-parameter states, clipped at
+    ``+-10``) and the current one (a mix of grid values, ``asinh``) treat the states
+    that *other* parameter values visit (:func:`~adaptfilt.features.visited_states`
+    with ``visit="mix"`` and another seed).
+
+    Returns ``{feature: {"clipped": share of states at the clip (old scaler),
+    "asinh_max": largest |scaled value| (new scaler)}}``."""
+    from adaptfilt.features import fit_scaler, visited_states
+
+    old = fit_scaler(env, features, runs=runs, seed=seed, visit="default", squash="clip")
+    new = fit_scaler(env, features, runs=runs, seed=seed, visit="mix", squash="asinh")
+    s = visited_states(env, features, runs=runs, seed=seed + 1, visit="mix")
+    s = s[np.isfinite(s).all(axis=1)]
+    clipped = (np.abs(old(s)) >= old.clip).mean(axis=0)
+    big = np.abs(new(s)).max(axis=0)
+    return {n: {"clipped": float(c), "asinh_max": float(b)} for n, c, b in zip(old.names, clipped, big)}
+
+
+def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=None,
+                         overlay: Callable[[np.ndarray], np.ndarray] | None = None, overlay_label: str = ""):
+    r"""Share of runs whose parameter is ``>= at_least`` at each step ``k``, per policy
+    (from ``Results[...].choices``; a seed group's choices are averaged over seeds),
+    with an optional ``overlay(k)`` on a second axis (e.g. the forcing of the dynamics)."""
+    fig, ax = _ax(ax)
+    grid = results.grid
+    for name in policies:
+        members = seed_groups(results.names).get(name, [name])
+        ch = np.mean([results[m].choices for m in members], axis=0)
+        k = np.arange(1, ch.shape[0] + 1)
+        ax.plot(k, ch[:, grid >= at_least].sum(axis=1), label=name)
+    ax.set(xlabel="time step k", ylabel=f"share of runs with $\\kappa \\geq$ {at_least:g}", ylim=(0, None))
+    if overlay is not None:
+        ax2 = ax.twinx()
+        ax2.plot(k, overlay(k), color="0.55", lw=1, ls="--")
+        ax2.set_ylabel(overlay_label, color="0.4")
+        ax2.grid(False)
+        ax2.spines["right"].set_visible(True)
+    ax.legend(loc="upper right")
+    return fig
+
+
+def usage_lines(results, names: Sequence[str], split: float = 50.0, min_share: float = 0.01) -> str:
+    r"""One line per policy: its RMSE, the share of steps with a parameter ``<= split``
+    and every grid value used in at least ``min_share`` of the steps."""
+    grid = results.grid
+    out = []
+    for n in names:
+        u = np.asarray(results[n].usage, dtype=float)
+        u = u / u.sum()
+        used = ", ".join(f"{g:g}: {x:.0%}" for g, x in zip(grid, u) if x >= min_share)
+        out.append(f"{n:12s} RMSE {results[n].rmse:5.3g} | {split:g} or less: {u[grid <= split].sum():4.0%} | {used}")
+    return "\n".join(out)
+
+
+def _binned(x: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Medians of ``x`` and means of ``y`` in ``n_bins`` bins of equal count of ``x``."""
+    order = np.argsort(x)
+    parts = np.array_split(order, n_bins)
+    return np.array([np.median(x[p]) for p in parts]), np.array([y[p].mean() for p in parts])
+
+
+def plot_switch_off(policies: Sequence, states: np.ndarray, columns: Mapping[str, int], at_least: float,
+                    n_bins: int = 12):
+    r"""The probability ``pi(theta >= at_least | s)`` that each policy puts on the large
+    parameter values, averaged in bins of equal count of one feature (``|feature|``),
+    one panel per entry of ``columns`` (label -> column of ``states``), one line per
+    policy. All policies are probed on the same raw ``states`` (their own scalers
+    apply), so the lines compare functions, not the states each policy visits."""
+    from adaptfilt import style
+
+    states = states[np.isfinite(states).all(axis=1)]
+    fig, axes = style.figure(1, len(columns), size=(4.2 * len(columns), 3.3), sharey=True)
+    axes = np.atleast_1d(axes)
+    cols = style.colors(len(policies))
+    for ax, (label, j) in zip(axes, columns.items()):
+        x = np.abs(states[:, j])
+        for pol, c in zip(policies, cols):
+            p = pol.probs(states)[:, np.asarray(pol.grid) >= at_least].sum(axis=1)
+            mid, mean = _binned(x, p, n_bins)
+            ax.plot(mid, mean, "o-", ms=3, color=c, label=pol.name)
+        ax.set(xscale="log", xlabel=f"{label} (bins of equal count)", ylim=(-0.02, 1.02))
+    axes[0].set_ylabel(f"$\\pi(\\kappa \\geq$ {at_least:g}$\\,|\\,s)$")
+    axes[-1].legend(loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8)
+    return fig
+
+
+def ungm_state(P_pred: float, innov: float, x_pred: float = 5.0, k: int = 100) -> np.ndarray:
+    r"""A raw UNGM information state ``(1, 7)`` at step ``k`` (the paper's index) in the layout
+    ``paper+time``: ``[x_pred, tr P, log det P, z, innov, cos 0.05k, sin 0.05k]``, consistent with
+    the default-parameter update: the unscented mean of ``x^2/20`` is exact for every
+    kappa, ``(x_pred^2 + P_pred)/20``, so ``z = (x_pred^2 + P_pred)/20 + innov``."""
+    from adaptfilt.models import ungm
+
+    if not P_pred > 0:
+        raise ValueError(f"P_pred must be > 0, got {P_pred}")
+    z = (x_pred ** 2 + P_pred) / 20.0 + innov
+    phase = np.asarray(ungm().time_features(k), dtype=float)
+    return np.array([[x_pred, P_pred, np.log(P_pred), z, innov, *phase]])
+
+
+def plot_policy_probs(policies: Sequence, state: np.ndarray, ax=None, title: str | None = None,
+                      colorbar: bool = False):
+    r"""``pi(theta | s)`` of each policy at one raw information state ``(1, d)`` as a heat map:
+    one row per policy, one column per grid value, the most probable value of each row marked."""
+    fig, ax = _ax(ax)
+    P = np.concatenate([p.probs(state) for p in policies])          # (n_policies, G)
+    grid = np.asarray(policies[0].grid)
+    im = ax.imshow(P, vmin=0.0, vmax=1.0, cmap="Blues", aspect="auto", interpolation="nearest")
+    ax.plot(P.argmax(axis=1), np.arange(len(policies)), "o", ms=3, color="#D55E00")
+    ax.set_xticks(np.arange(grid.size), [f"{g:g}" for g in grid], rotation=90)
+    ax.set_yticks(np.arange(len(policies)), [p.name for p in policies])
+    ax.set_xlabel(r"$\kappa$")
+    ax.grid(False)
+    if title:
+        ax.set_title(title)
+    if colorbar:
+        fig.colorbar(im, ax=ax, label=r"$\pi(\kappa\,|\,s)$")
+    return fig
+
+
+def show_policy_probs(policies: Sequence, P_pred: float = 1.0, innov: float = 0.0, x_pred: float = 5.0,
+                      k: int = 100) -> None:
+    """The widget body of chapter 5: :func:`plot_policy_probs` at :func:`ungm_state`."""
+    import matplotlib.pyplot as plt
+
+    plot_policy_probs(policies, ungm_state(P_pred, innov, x_pred, k), colorbar=True,
+                      title=f"tr P = {P_pred:.3g}, innovation = {innov:+.2f}, x_pred = {x_pred:g}, k = {k}")
+    plt.show()
+
+
+# ============================================================== chapter 9
+def seed_lines(results, groups: Sequence[str], baselines: Sequence[str] = (),
+               metrics: Sequence[str] = ("rmse", "anees", "objective")) -> str:
+    r"""Baselines one line each (value [run-level CI]), then each seed group: IQM over its
+    seeds [two-level 95 % CI] (range of the per-seed values)."""
+    rows = []
+    for n in baselines:
+        p = results[n]
+        cells = []
+        for m in metrics:
+            ci = getattr(p, m + "_ci", None)
+            cells.append(f"{m} {getattr(p, m):.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci is not None else ""))
+        rows.append((n, cells))
+    groups_all = seed_groups(results.names)
+    for g in groups:
+        names = groups_all[g]
+        cells = []
+        for m in metrics:
+            a = aggregate(results, names, m)
+            cells.append(f"{m} {a.iqm:.3g} [{a.iqm_ci[0]:.3g}, {a.iqm_ci[1]:.3g}] ({a.values.min():.3g}..{a.values.max():.3g})")
+        rows.append((f"{g} ({len(names)} seeds)", cells))
+    width = max((len(label) for label, _ in rows), default=0)
+    return "\n".join(f"{label:{width}s}  " + "   ".join(cells) for label, cells in rows)
+
+
+def plot_differences(diffs: Mapping[str, Mapping[str, tuple[float, float, float]]], ax=None, ylabel: str = "",
+                     title: str | None = None):
+    r"""Paired differences with intervals: ``diffs[condition][label] = (diff, lo, hi)``,
+    one x position per condition, one marker per label, a line at 0."""
+    from adaptfilt import style
+
+    fig, ax = _ax(ax)
+    conds = list(diffs)
+    labels = list(dict.fromkeys(lab for c in conds for lab in diffs[c]))
+    x = np.arange(len(conds))
+    off = np.linspace(-0.2, 0.2, len(labels)) if len(labels) > 1 else np.zeros(1)
+    for j, (lab, col) in enumerate(zip(labels, style.colors(len(labels)))):
+        d = np.array([diffs[c].get(lab, (np.nan,) * 3) for c in conds])
+        ax.errorbar(x + off[j], d[:, 0], yerr=[d[:, 0] - d[:, 1], d[:, 2] - d[:, 0]], fmt="o", color=col, capsize=3,
+                    label=style.policy_label(lab))
+    ax.axhline(0, color="black", lw=0.8)
+    ax.set_xticks(x, conds)
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title)
+    ax.legend()
+    return fig
+
+
+# ============================================================== chapter 10
+def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=None):
+    r"""Each seed of each group with its own run-level 95 % interval (the noise of one
+    evaluation), and beside them the group's IQM and mean with the two-level
+    (seeds x runs) intervals: what a single seed hides."""
+    from adaptfilt import style
+
+    fig, ax = _ax(ax)
+    all_groups = seed_groups(results.names)
+    y0 = 0
+    ticks, labels = [], []
+    for g, col in zip(groups, style.colors(len(groups))):
+        names = all_groups[g]
+        for i, n in enumerate(names):
+            p = results[n]
+            v, (lo, hi) = getattr(p, metric), getattr(p, metric + "_ci")
+            ax.errorbar(v, y0 + i, xerr=[[v - lo], [hi - v]], fmt="o", ms=4, color=col, capsize=2)
+            ticks.append(y0 + i)
+            labels.append(n)
+        a = aggregate(results, names, metric)
+        for j, (lab, v, (lo, hi), mk) in enumerate([("IQM", a.iqm, a.iqm_ci, "D"), ("mean", a.mean, a.mean_ci, "s")]):
+            yy = y0 + len(names) + j
+            ax.errorbar(v, yy, xerr=[[v - lo], [hi - v]], fmt=mk, ms=6, color=col, mec="black", capsize=4, lw=2)
+            ticks.append(yy)
+            labels.append(f"{g}: {lab} of {len(names)}")
+        y0 += len(names) + 3
+    ax.set_yticks(ticks, labels)
+    ax.invert_yaxis()
+    ax.set_xlabel(f"time-averaged {metric.upper() if metric in ('rmse', 'anees') else metric} (95 % intervals)")
+    return fig
+
+
+def seed_verdicts(results, group: str, other: str, metric: str = "rmse", better: str = "lower") -> dict:
+    r"""What each seed of ``group`` alone says about "``group`` is ``better`` than ``other``"
+    (its own paired run-level interval): ``{"per_seed": {name: (diff, lo, hi, verdict)},
+    "counts": {verdict: n}}``."""
+    names = seed_groups(results.names)[group]
+    per = {}
+    for n in names:
+        d = results.paired_difference(n, other, metric)
+        per[n] = (*d, seed_verdict(d, better))
+    counts: dict[str, int] = {}
+    for v in per.values():
+        counts[v[3]] = counts.get(v[3], 0) + 1
+    return {"per_seed": per, "counts": counts}
+
+
+def claims_table(claims: Mapping, experiment: str, keys: Sequence[str] = ("C1", "C2", "C4", "C6"),
+                 only_held: bool = True) -> str:
+    r"""A Markdown table of the stored claims (:func:`adaptfilt.artefacts.load_claims`) of one
+    experiment: the seed-level verdict beside the number of seeds that hold it *alone*
+    (each seed's own paired interval; defined where ``b`` is a single policy).
+    ``only_held``: only the rows where that count exists."""
+    rows = ["| claim | comparison | metric | a - b, IQM [seed-level 95 % CI] | seed-level verdict | seeds holding alone |",
+            "|---|---|---|---|---|---|"]
+    seen = set()
+    for k in keys:
+        for r in claims.get(k, []):
+            if r["experiment"] != experiment or (only_held and r.get("seeds_holding") is None):
+                continue
+            key = (r["claim"], r["metric"])
+            if key in seen:
+                continue
+            seen.add(key)
+            held = "" if r.get("seeds_holding") is None else f"{r['seeds_holding']}/{r['n_seeds']}"
+            rows.append(f"| {k} | {r['claim']} | {r['metric']} | {r['diff']:+.3g} [{r['ci'][0]:+.3g}, {r['ci'][1]:+.3g}] "
+                        f"| {r['verdict']} | {held} |")
+    return "\n".join(rows) + "\n"
+
+
+def timed(fn: Callable, *args, **kwargs) -> tuple[object, float]:
+    """``(fn(*args, **kwargs), CPU seconds it took)`` (process time: less sensitive to a
+    loaded machine than wall time; compare two such numbers from one run only)."""
+    c0 = time.process_time()
+    out = fn(*args, **kwargs)
+    return out, time.process_time() - c0

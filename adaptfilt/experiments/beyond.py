@@ -1,0 +1,259 @@
+r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick]``.
+
+Three studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
+into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json``):
+
+1. **Candidate-aware information state** (``cand``): the paper's information state cannot see what
+   the exhaustive greedy policy sees (on UNGM the innovation feature is the same for every kappa).
+   Policies that also see every grid value's one-step cost (``features=...+cand``,
+   :mod:`adaptfilt.features`) are trained with gamma 0.5 (``adaptive-cand``) and gamma 0
+   (``myopic-cand``, the control: it should land on greedy) on UNGM-UKF and CTM-UKF, and compared
+   with greedy and ML on the cost, the objective, RMSE and ANEES.
+2. **SIF policies and divergence** (``sif``): on the three Table I costs, policies trained with a
+   penalty on covariance repairs (``adaptive-penalised``), against the default n_it = 10, greedy,
+   the fixed values and the unpenalised policies of the reproduction; the fraction of divergent
+   runs beside each cost.
+3. **Out of distribution and retuning** (``ood``): the reproduction's adaptive UNGM-UKF policies
+   (8 seeds) on a 3 x 3 grid of mismatched process and measurement noise
+   (:mod:`adaptfilt.experiments.ood`), against default, best fixed in hindsight and greedy; then
+   retuned with 50 episodes on each condition; heat maps of the gain over the default.
+
+Every training is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or Dask).
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY"]
+
+#: The learner of the candidate study (chosen by the measurement reported in REPRODUCTION.md).
+CAND_ALGO = "a2c"
+#: Repair penalty (in units of the transformed cost) of the SIF study.
+PENALTY = 20.0
+CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
+SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
+
+
+@dataclass(frozen=True)
+class BeyondScale:
+    name: str
+    episodes: int
+    seeds: tuple[int, ...]
+    n_steps: int | None
+    eval_runs: int
+    retune_episodes: int
+
+
+FULL = BeyondScale("full", 1000, tuple(range(8)), None, 4000, 50)
+QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
+
+
+def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
+               features: str | None, algo: str, repair_penalty: float) -> dict:
+    from adaptfilt.trainers import train_policy
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    cmd = (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
+           + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
+           + (f" --horizon {scale.n_steps}" if scale.n_steps else "") + f" --out {out}")
+    train_policy(experiment, algo, gamma, scale.episodes, seed, features=features, n_steps=scale.n_steps,
+                 progress=False, out=out, command=cmd, repair_penalty=repair_penalty)
+    return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0, "command": cmd}
+
+
+def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tuple[str, ...] | None):
+    from adaptfilt.evaluation import evaluate, learned_name
+    from adaptfilt.experiments import get_experiment
+    from adaptfilt.learned import load_policy
+
+    exp = get_experiment(experiment)
+    base = [p for p in exp.baselines() if keep is None or p.name in keep or
+            (p.name.startswith("fixed-") and not p.name.startswith("fixed-both-"))]
+    pols = base + [load_policy(f, experiment=exp, name=learned_name(f, experiment)) for f in files]
+    target = exp if scale.n_steps is None else exp.make_env(n_steps=scale.n_steps)
+    res = evaluate(target, pols, n_runs=scale.eval_runs, seed=0, progress=False)
+    res.config.update(experiment=experiment)
+    return res
+
+
+def _ood_job(condition, files: list[str], scale: BeyondScale, retune_seed: int = 0):
+    """One condition: the stored policies, and each retuned there, on the same runs."""
+    from adaptfilt.experiments.ood import evaluate_condition, retune
+    from adaptfilt.learned import load_policy
+
+    pols = [load_policy(f, experiment="ungm-ukf", name=Path(f).stem.replace("ungm-ukf-", "")) for f in files]
+    tuned = [retune(p, "ungm-ukf", condition, episodes=scale.retune_episodes, seed=retune_seed, n_steps=scale.n_steps)
+             for p in pols]
+    for p, t in zip(pols, tuned):
+        t.name = p.name.replace("adaptive-", "retuned-")
+    return evaluate_condition("ungm-ukf", condition, pols + tuned, n_runs=scale.eval_runs, n_steps=scale.n_steps)
+
+
+def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cluster=None,
+        studies: tuple[str, ...] = ("cand", "sif", "ood"), progress: bool = True) -> dict:
+    """Run the studies (module docstring) into ``out_dir/beyond``; returns their summaries."""
+    import adaptfilt
+    from adaptfilt.artefacts import data_dir
+    from adaptfilt.experiments.ood import CONDITIONS, gain_table
+    from adaptfilt.experiments.seeds import aggregate, difference
+    from adaptfilt.experiments.sweep import run_jobs
+    from adaptfilt.reproduce import sha256
+
+    scale = QUICK if quick else FULL
+    root = Path(out_dir).resolve()
+    out = root / "beyond"
+    (out / "policies").mkdir(parents=True, exist_ok=True)
+    say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
+    entries: dict[str, dict] = {}
+    summary: dict = {"scale": scale.name, "version": adaptfilt.__version__}
+    jobs, metas = [], []
+    if "cand" in studies:
+        for e, feats in CAND_EXPERIMENTS.items():
+            for kind, g in (("adaptive-cand", 0.5), ("myopic-cand", 0.0)):
+                for s in scale.seeds:
+                    rel = f"policies/{e}-{kind}-s{s}.npz"
+                    jobs.append((e, kind, g, s, str(out / rel), scale, feats, CAND_ALGO, 0.0))
+                    metas.append(rel)
+    if "sif" in studies:
+        for e in SIF_EXPERIMENTS:
+            for s in scale.seeds:
+                rel = f"policies/{e}-adaptive-penalised-s{s}.npz"
+                jobs.append((e, "adaptive-penalised", 0.5, s, str(out / rel), scale, None, "a2c", PENALTY))
+                metas.append(rel)
+    todo = [(j, m) for j, m in zip(jobs, metas) if not (out / m).exists()]
+    say(f"[beyond] {len(todo)} policies to train")
+    times = run_jobs(_train_job, [j for j, _ in todo], workers=workers, cluster=cluster, progress=progress,
+                     desc="beyond: train")
+    for (_, rel), t in zip(todo, times):
+        entries[rel] = t
+
+    # ---- evaluations
+    ejobs, names = [], []
+    if "cand" in studies:
+        for e in CAND_EXPERIMENTS:
+            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-") and "cand" in m]
+            ejobs.append((e, files, scale, ("default", "ml", "greedy")))
+            names.append(("cand", e))
+    if "sif" in studies:
+        data = Path(data_dir()) if not quick else root
+        for e in SIF_EXPERIMENTS:
+            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-penalised")]
+            files += [str(data / f"policies/{e}-adaptive-s{s}.npz") for s in scale.seeds
+                      if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
+            ejobs.append((e, files, scale, ("default", "greedy")))
+            names.append(("sif", e))
+    results = run_jobs(_evaluate_job, ejobs, workers=workers, cluster=cluster, progress=progress,
+                       desc="beyond: evaluate") if ejobs else []
+    for (study, e), res in zip(names, results):
+        d = out / "results" / f"{study}-{e}"
+        res.save(d)
+        entries.update({f"results/{study}-{e}/{f}": {"command": f"adaptfilt beyond --out {out_dir}"}
+                        for f in ("results.json", "results.npz")})
+        rows = {}
+        groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
+                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive")}
+        for g, members in groups.items():
+            if not members:
+                continue
+            rows[g] = {m: aggregate(res, members, m).to_dict() for m in ("cost", "objective", "rmse", "anees")}
+            for ref in ("greedy", "default"):
+                rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"])
+                                           for m in ("cost", "objective", "rmse", "anees")}
+            rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
+        for ref in ("greedy", "default", "ml"):
+            if ref in res:
+                p = res[ref]
+                rows[ref] = {"cost": p.cost, "objective": p.objective, "rmse": p.rmse, "anees": p.anees,
+                             "divergent_frac": p.divergent_frac}
+        summary.setdefault(study, {})[e] = rows
+
+    if "ood" in studies:
+        data = Path(data_dir()) if not quick else root
+        files = [str(data / f"policies/ungm-ukf-adaptive-s{s}.npz") for s in scale.seeds
+                 if (data / f"policies/ungm-ukf-adaptive-s{s}.npz").exists()]
+        if files:
+            conds = CONDITIONS if not quick else CONDITIONS[:2]
+            ood_res = run_jobs(_ood_job, [(c, files, scale) for c in conds], workers=workers, cluster=cluster,
+                               progress=progress, desc="beyond: out of distribution")
+            tables = {}
+            for c, res in zip(conds, ood_res):
+                d = out / "results" / f"ood-{c.key}"
+                res.save(d)
+                entries.update({f"results/ood-{c.key}/{f}": {"command": f"adaptfilt beyond --out {out_dir}"}
+                                for f in ("results.json", "results.npz")})
+                tables[c.key] = res
+            groups = {"learned": [n for n in ood_res[0].names if n.startswith("adaptive-s")],
+                      "retuned": [n for n in ood_res[0].names if n.startswith("retuned-s")]}
+            summary["ood"] = {m: gain_table(tables, groups, m) for m in ("objective", "rmse")}
+            _ood_figures(summary["ood"], out / "figures")
+            for f in (out / "figures").glob("*.png"):
+                entries[str(f.relative_to(out))] = {"command": f"adaptfilt beyond --out {out_dir}"}
+
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    entries["summary.json"] = {"command": f"adaptfilt beyond --out {out_dir}" + (" --quick" if quick else "")}
+    files = []
+    for rel in sorted(entries):
+        e = entries[rel]
+        files.append({"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
+                      "seed": 0, "version": adaptfilt.__version__,
+                      "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")})
+    (out / "manifest.json").write_text(json.dumps({"scale": scale.name, "files": files}, indent=1) + "\n")
+    return summary
+
+
+def _ood_figures(tables: dict, fig_dir: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from adaptfilt.experiments.ood import plot_gain
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    for metric, table in tables.items():
+        fig, axes = plt.subplots(1, 4, figsize=(17, 3.8), layout="constrained")
+        for ax, col in zip(axes, ("greedy", "best fixed", "learned", "retuned")):
+            plot_gain(table, col, metric, ax=ax, title=f"{col}: {metric} gain over default")
+        fig.savefig(fig_dir / f"ood-gain-{metric}.png", dpi=100)
+        plt.close(fig)
+
+
+def summary_md(summary: dict) -> str:
+    """The studies' tables for REPRODUCTION.md (IQM over seeds [seed-level CI], differences to greedy)."""
+    f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
+    d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
+    parts = []
+    for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies with a repair penalty")):
+        if study not in summary:
+            continue
+        lines = [f"**{title}** (IQM over seeds [two-level 95 % CI]; differences to greedy)", "",
+                 "| experiment | policy | cost | log(1+L) | RMSE | ANEES | cost - greedy | RMSE - greedy | "
+                 "divergent runs (worst seed) |", "|---|---|---|---|---|---|---|---|---|"]
+        for e, rows in summary[study].items():
+            for ref in ("greedy", "default", "ml"):
+                if ref in rows:
+                    r = rows[ref]
+                    lines.append(f"| {e} | {ref} | {r['cost']:.4g} | {r['objective']:.4g} | {r['rmse']:.4g} | "
+                                 f"{r['anees']:.4g} | | | {100 * r['divergent_frac']:.2g} % |")
+            for g, r in rows.items():
+                if g in ("greedy", "default", "ml"):
+                    continue
+                lines.append(f"| {e} | {g} | {f(r['cost'])} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
+                             f"| {d(r['minus_greedy']['cost'])} | {d(r['minus_greedy']['rmse'])} "
+                             f"| {100 * r['divergent_frac_max']:.2g} % |")
+        parts.append("\n".join(lines) + "\n")
+    if "ood" in summary:
+        lines = ["**Out of distribution** (UNGM-UKF; gain over the default in mean log(1+L), positive is better; "
+                 "learned and retuned: IQM over seeds [CI])", "",
+                 "| truth | greedy | best fixed (in hindsight) | learned | retuned (50 episodes) |", "|---|---|---|---|---|"]
+        for key, row in summary["ood"]["objective"].items():
+            cells = []
+            for col in ("greedy", "best fixed", "learned", "retuned"):
+                c = row.get(col)
+                cells.append("" if c is None else f"{c['gain']:+.3g} [{c['ci'][0]:+.3g}, {c['ci'][1]:+.3g}]"
+                             + (f" ({c['policy']})" if col == "best fixed" else ""))
+            lines.append(f"| {key} | " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines) + "\n")
+    return "\n".join(parts)

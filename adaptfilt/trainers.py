@@ -1,0 +1,271 @@
+r"""Training a parameter policy by name of algorithm: ``adaptfilt train NAME --algo ALGO``.
+
+=============  ==========================================================================
+``algo``       what trains the policy
+=============  ==========================================================================
+``faithful``   our Algorithm 2 as printed (:func:`adaptfilt.actor_critic.train`,
+               ``parallel=1``): one episode at a time, one Adam step per time step.
+               The reference; about 11 CPU-minutes per UNGM policy.
+``batched``    the same code with ``parallel`` episodes per Adam step
+               (:func:`adaptfilt.actor_critic.train`): faster, measurably worse.
+``a2c``        Stable-Baselines3's A2C on the same MDP through :mod:`adaptfilt.gym`:
+               the fast mode (see :data:`FAST` and ``REPRODUCTION.md`` for the
+               measurement that chose it).
+``ppo``        Stable-Baselines3's PPO on the same MDP (peer comparison).
+=============  ==========================================================================
+
+Every algorithm sees the same MDP: the experiment's feature set (UNGM
+``paper+time``, CTM ``paper+circ``), the feature scaler fitted on a seeded mix of
+grid values with ``asinh`` squashing, the reward ``-log(1 + L)`` and the horizon as
+a time limit with a bootstrap there. The budget is counted in episodes as in the
+paper (``N_MC = 1000`` episodes of ``T`` steps, i.e. ``1000 T`` transitions).
+
+**The fast mode deviates from Algorithm 2** (the deviations are SB3's A2C):
+``n_envs`` runs step together (one batched filter) and each update uses
+``n_steps``-step returns of all of them (``n_steps = 1`` would be batched TD(0)),
+the actor and critic are trained jointly by one RMSprop optimiser (learning
+rate 7e-4, the critic's loss weighted 0.5, gradients clipped at norm 0.5)
+instead of two Adam optimisers, and there is no target critic (no Polyak
+averaging). The networks are the paper's (two hidden layers of 64 ReLU units,
+separate actor and critic), the entropy bonus is the paper's 1e-3 and the
+discount the paper's gamma.
+
+All trainers return a :class:`~adaptfilt.learned.LearnedPolicy` whose file is
+byte-identical for the same command (one torch thread, seeded everything).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ALGOS", "SB3Config", "FAST", "PPO_DEFAULTS", "train_policy", "train_sb3", "seed_path"]
+
+ALGOS = ("faithful", "batched", "a2c", "ppo")
+
+
+@dataclass(frozen=True)
+class SB3Config:
+    """A Stable-Baselines3 learner: class name, environments per batch, keyword arguments."""
+
+    algo: str = "a2c"
+    n_envs: int = 64
+    kwargs: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"algo": self.algo, "n_envs": self.n_envs, "kwargs": dict(self.kwargs)}
+
+
+#: The fast mode: A2C with 5-step returns over 64 runs, the paper's networks and entropy bonus.
+FAST = SB3Config("a2c", 64, {"n_steps": 5, "ent_coef": 1e-3})
+#: PPO with Stable-Baselines3's defaults (gamma and the networks set as for every learner).
+PPO_DEFAULTS = SB3Config("ppo", 16, {})
+
+
+def seed_path(out: str | Path, seed: int) -> Path:
+    """``policy.npz`` -> ``policy-s3.npz``; an ``{seed}`` in ``out`` is filled in instead."""
+    out = str(out)
+    if "{seed}" in out:
+        return Path(out.format(seed=seed))
+    p = Path(out)
+    stem = p.name[:-4] if p.name.endswith(".npz") else p.name
+    return p.with_name(f"{stem}-s{seed}.npz")
+
+
+class _Progress:
+    """A tqdm bar over transitions for SB3's ``learn`` (a ``BaseCallback``)."""
+
+    def __new__(cls, total: int, desc: str):
+        from stable_baselines3.common.callbacks import BaseCallback
+        from tqdm.auto import tqdm
+
+        class Bar(BaseCallback):
+            def _on_training_start(self):
+                self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True)
+
+            def _on_step(self) -> bool:
+                self.bar.update(self.training_env.num_envs)
+                return True
+
+            def _on_training_end(self):
+                self.bar.close()
+
+        return Bar()
+
+
+def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 0,
+              config: SB3Config = FAST, *, features: str | None = None, n_steps: int | None = None,
+              progress: bool = True, command: str | None = None, name: str | None = None,
+              max_seconds: float | None = None, repair_penalty: float = 0.0):
+    """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
+
+    ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
+    or a :class:`~adaptfilt.mdp.FilterEnv` of your own (features default to the
+    experiment's recommended set, ``"paper"`` for an environment; ``n_steps`` is
+    the environment's own horizon and cannot be changed here).
+    ``episodes * T`` transitions (``T`` the horizon), ``config.n_envs`` runs per
+    batch; returns the :class:`~adaptfilt.learned.LearnedPolicy` (actor copied
+    from the SB3 model) with its learning curve (mean transformed cost per
+    batch of episodes) and metadata (algorithm, hyperparameters, seed, command).
+    ``max_seconds`` stops training after that much wall time (for comparisons
+    at equal wall time; such a policy depends on the machine, not only its seed).
+    """
+    import torch
+    from stable_baselines3 import A2C, PPO
+
+    import adaptfilt
+    from adaptfilt.gym import make_vec, to_learned_policy
+    from adaptfilt.learned import one_torch_thread
+
+    classes = {"a2c": A2C, "ppo": PPO}
+    if config.algo not in classes:
+        raise ValueError(f"unknown SB3 algorithm {config.algo!r}; choose one of {sorted(classes)}")
+    _check(gamma, episodes)
+    target, label, recommended = _target(experiment, n_steps)
+    features = features or recommended
+    venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
+                    repair_penalty=repair_penalty)
+    T = venv.venv.env.n_steps
+    total = int(episodes) * T
+    kwargs = {"policy_kwargs": {"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
+              **config.kwargs}
+    curve: list[float] = []
+    with one_torch_thread(), torch.random.fork_rng(devices=[]):
+        venv.seed(seed)
+        model = classes[config.algo]("MlpPolicy", venv, gamma=float(gamma), seed=int(seed), device="cpu",
+                                     verbose=0, **kwargs)
+        callbacks = [_curve_callback(curve, config.n_envs)]
+        if max_seconds is not None:
+            callbacks.append(_deadline(float(max_seconds)))
+        if progress:
+            callbacks.append(_Progress(total, f"{config.algo} {label} gamma={gamma:g} seed={seed}"))
+        model.learn(total_timesteps=total, callback=callbacks)
+    c = np.asarray(curve, dtype=float)
+    meta = {"seed": int(seed), "episodes": int(episodes), "n_steps": int(T), "parallel": int(config.n_envs),
+            "trainer": config.to_dict(), "transitions": int(model.num_timesteps), "version": adaptfilt.__version__,
+            "command": command, "torch_version": torch.__version__.split("+")[0],
+            "curve_summary": {"episodes": int(episodes), "train_cost_first10pct": _frac(c, 0), "train_cost_last10pct": _frac(c, 1)}}
+    if repair_penalty:  # recorded only when set: files made before the option existed stay reproducible
+        meta["repair_penalty"] = float(repair_penalty)
+    pol = to_learned_policy(model, venv, gamma=gamma, name=name, metadata=meta)
+    pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
+    return pol
+
+
+def _target(experiment, n_steps: int | None):
+    """(what the MDP is built from, a label, the recommended feature set) for a name, an
+    Experiment or an environment of one's own (whose horizon is its own)."""
+    from adaptfilt.experiments import Experiment, get_experiment
+
+    if isinstance(experiment, str):
+        experiment = get_experiment(experiment)
+    if isinstance(experiment, Experiment):
+        return experiment, experiment.name, experiment.features
+    if not (hasattr(experiment, "grid") and hasattr(experiment, "step") and hasattr(experiment, "reset")):
+        raise TypeError(f"expected an experiment name, an Experiment or a FilterEnv, got {type(experiment).__name__}")
+    if n_steps is not None and n_steps != experiment.n_steps:
+        raise ValueError(f"n_steps={n_steps} for an environment with horizon {experiment.n_steps}: "
+                         "build the environment with the horizon you want (FilterEnv(..., n_steps=...))")
+    model = getattr(experiment, "model", None)
+    return experiment, getattr(model, "name", None) or "env", "paper"
+
+
+def _frac(c: np.ndarray, last: int) -> float:
+    if c.size == 0:
+        return float("nan")
+    w = max(1, c.size // 10)
+    return float(c[-w:].mean() if last else c[:w].mean())
+
+
+def _curve_callback(curve: list, n_envs: int):
+    """Mean transformed cost of each finished batch of episodes (SB3 rewards are minus it)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Curve(BaseCallback):
+        def _on_training_start(self):
+            self.acc, self.n = 0.0, 0
+
+        def _on_step(self) -> bool:
+            self.acc += float(-np.mean(self.locals["rewards"]))
+            self.n += 1
+            if np.any(self.locals["dones"]):
+                curve.append(self.acc / self.n)
+                self.acc, self.n = 0.0, 0
+            return True
+
+    return Curve()
+
+
+def _deadline(seconds: float):
+    """Stop SB3's ``learn`` once ``seconds`` of wall time have passed."""
+    import time
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Deadline(BaseCallback):
+        def _on_training_start(self):
+            self.t0 = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            return time.perf_counter() - self.t0 < seconds
+
+    return Deadline()
+
+
+def _check(gamma: float, episodes: int) -> None:
+    if not (0.0 <= float(gamma) < 1.0):
+        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+
+
+def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episodes: int = 1000, seed: int = 0,
+                 *, parallel: int | None = None, features: str | None = None, n_steps: int | None = None,
+                 progress: bool = True, command: str | None = None, out: str | Path | None = None,
+                 resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
+                 repair_penalty: float = 0.0):
+    """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
+
+    ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
+    environment of your own (a :class:`~adaptfilt.mdp.FilterEnv`).
+    ``parallel``: episodes per update of the ``batched`` mode (default 50) or runs per
+    batch of an SB3 algorithm (default: its config's). ``sb3``: extra keyword
+    arguments for the SB3 algorithm. ``resume`` (faithful and batched) continues
+    from the checkpoint next to ``out``. ``name``: the policy's name (default:
+    ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0).
+
+    >>> import adaptfilt as af                                        # doctest: +SKIP
+    >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
+    >>> pols = [train_policy(env, "a2c", seed=s, name=f"a2c-s{s}") for s in range(4)]  # doctest: +SKIP
+    """
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGOS)}")
+    if algo in ("faithful", "batched"):
+        from adaptfilt.actor_critic import train_experiment
+
+        B = 1 if algo == "faithful" else (parallel or 50)
+        if algo == "faithful" and parallel not in (None, 1):
+            raise ValueError("the faithful algorithm learns from one episode at a time (parallel = 1)")
+        kw = {} if features is None else {"features": features}
+        if repair_penalty:
+            kw["repair_penalty"] = repair_penalty
+        if n_steps is not None:
+            kw["n_steps"] = n_steps
+        if out is None:
+            from adaptfilt.actor_critic import train
+
+            if not isinstance(experiment, str):
+                _target(experiment, n_steps)  # an environment's horizon is its own
+            return train(experiment, gamma=gamma, episodes=episodes, parallel=B, seed=seed, progress=progress,
+                         command=command, name=name, **kw)[0]
+        return train_experiment(experiment, out=out, gamma=gamma, episodes=episodes, parallel=B, seed=seed,
+                                resume=resume, progress=progress, command=command, policy_name=name, **kw)
+    base = FAST if algo == "a2c" else PPO_DEFAULTS
+    cfg = SB3Config(base.algo, parallel or base.n_envs, {**base.kwargs, **(sb3 or {})})
+    pol = train_sb3(experiment, gamma, episodes, seed, cfg, features=features, n_steps=n_steps, progress=progress,
+                    command=command, name=name, repair_penalty=repair_penalty)
+    if out is not None:
+        pol.save(out)
+    return pol
