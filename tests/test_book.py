@@ -3,15 +3,24 @@
 The fixture notebooks live in tests/fixtures/book-notebooks as ``*.ipynb.json`` so that a
 notebook test run (nbval) never collects them; the tests copy them to
 ``NN-*.ipynb`` in a temporary directory.
+
+The browser tests drive one headless Chromium over the DevTools protocol
+(tests/browser_cdp.py) through *every* page of the repository's book, at a phone's
+width: no console error, MathJax finished without errors, every image loaded, no
+text cut off. Chromium is required under CI=true and skipped without it elsewhere;
+screenshots and Chromium's log go to build/book-test (a CI artefact).
 """
 from __future__ import annotations
 
+import functools
 import html
+import http.server
 import json
 import os
 import re
 import shutil
-import subprocess
+import threading
+import time
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -22,11 +31,13 @@ from adaptfilt.book import (
     build_book,
     escape_math,
     notebook_chapters,
+    notebook_title,
     notebook_to_markdown,
     rewrite_links,
     rewrite_math,
 )
 from adaptfilt.cli import main as cli_main
+from browser_cdp import Browser  # tests/browser_cdp.py
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "tests" / "fixtures" / "book-notebooks"
@@ -197,7 +208,7 @@ def _parse(page: Path) -> _Pages:
 
 
 def _expected_pages(out: Path, notebooks: list[Path]) -> list[Path]:
-    pages = [out / "index.html", out / "introduction.html"]
+    pages = [out / "index.html", out / "course-map.html", out / "introduction.html"]
     pages += [out / f"{nb.stem}.html" for nb in notebooks]
     if (ROOT / "REPRODUCTION.md").is_file():
         pages.append(out / "reproduction.html")
@@ -243,12 +254,39 @@ def repo_book(tmp_path_factory) -> tuple[Path, list[Path]]:
 
 def test_fixture_book_pages_and_images(fixture_book, fixture_notebooks):
     _check_built_book(fixture_book, fixture_notebooks)
-    assert len(list((fixture_book / "figures").iterdir())) == 2
+    figures = sorted(p.name for p in (fixture_book / "figures").iterdir())
+    assert len(figures) == 3 and "course-map.svg" in figures  # the fixture's PNG and SVG, and the map
 
 
 def test_repo_book_pages_and_images(repo_book):
     out, notebooks = repo_book
     _check_built_book(out, notebooks)
+
+
+def test_landing_page_is_the_first_page_with_the_course_map(repo_book):
+    out, notebooks = repo_book
+    src = out.with_name(out.name + "-src")
+    summary = (src / "SUMMARY.md").read_text(encoding="utf-8")
+    # The landing page and the introduction come before the numbered chapters.
+    assert summary.split("\n")[2:5] == ["[Course map](course-map.md)", "[Introduction](introduction.md)", ""]
+    landing = (src / "course-map.md").read_text(encoding="utf-8")
+    assert "](figures/course-map.svg)" in landing
+    assert (out / "figures" / "course-map.svg").read_bytes().lstrip().startswith(b"<?xml")
+    rows = [ln for ln in landing.splitlines() if ln.startswith("| [")]
+    assert [re.search(r"\]\(([^)]+)\.md\)", r).group(1) for r in rows] == [nb.stem for nb in notebooks]
+    for row in rows:  # every chapter builds or uses some part of the library
+        assert "`" in row, row
+    index = (out / "index.html").read_text(encoding="utf-8")
+    assert "figures/course-map.svg" in index and "The course has" in index
+
+
+def test_landing_page_without_notebooks(tmp_path):
+    (tmp_path / "repo").mkdir()
+    (tmp_path / "repo" / "book.toml").write_text((ROOT / "book.toml").read_text(encoding="utf-8"))
+    build_book(tmp_path / "out", root=tmp_path / "repo", notebooks=[])
+    page = (tmp_path / "out" / "index.html").read_text(encoding="utf-8")
+    assert "No course notebooks" in page and "course-map.svg" not in page
+    assert (tmp_path / "out" / "introduction.html").is_file()
 
 
 def test_maths_reaches_the_html_exactly(fixture_book):
@@ -276,33 +314,96 @@ def test_top_level_config_disables_the_cdn_mathjax():
 
 # ---------------------------------------------------------------- a real browser
 
-# Injected into a copy of a chapter page: after MathJax's queue has run,
-# write what the page shows into <pre id="book-probe"> for --dump-dom.
+# One headless Chromium (tests/browser_cdp.py) visits every page of the built book
+# in one tab. The probe waits until MathJax has typeset the page, every image has
+# loaded or failed and (print.html) the print call has happened, then reports
+# what a reader would see. Console errors are collected by the DevTools protocol.
 _PROBE = r"""
-<script>
-window.addEventListener("load", function () {
-  function report() {
-    var main = document.querySelector("main");
-    var visible = main.cloneNode(true);
-    visible.querySelectorAll("pre, code, script, .MathJax, .MathJax_Display, .MathJax_Preview, mjx-container")
-      .forEach(function (e) { e.remove(); });
-    var out = document.createElement("pre");
-    out.id = "book-probe";
-    out.textContent = JSON.stringify({
-      typeset: document.documentElement.getAttribute("data-mathjax"),
-      rendered: main.querySelectorAll(".MathJax, .MathJax_Display, mjx-container").length,
-      errors: main.querySelectorAll(".MathJax_Error, .noError, merror, [data-mjx-error]").length,
-      text: visible.innerText,
-      images: Array.prototype.map.call(main.querySelectorAll("img"), function (i) {
-        return {src: i.getAttribute("src"), width: i.naturalWidth};
-      })
-    });
-    document.body.appendChild(out);
+(function () {
+  var root = document.documentElement, started = Date.now();
+  var mathjax = !!document.querySelector('script[src*="MathJax.js"]');
+  var printPage = /\/print\.html$/.test(location.pathname);
+  function ready() {
+    return (!mathjax || root.getAttribute("data-mathjax") === "done")
+      && Array.prototype.every.call(document.images, function (i) { return i.complete; })
+      && (!printPage || root.hasAttribute("data-printed"));
   }
-  if (window.MathJax && MathJax.Hub) { MathJax.Hub.Queue(report); } else { report(); }
-});
-</script>
+  function describe(e) {
+    var text = (e.textContent || "").trim().replace(/\s+/g, " ").slice(0, 50).replace(/[\ud800-\udfff]/g, "?");
+    var cls = typeof e.className === "string" && e.className ? "." + e.className.trim().split(/\s+/).join(".") : "";
+    return "<" + e.tagName.toLowerCase() + cls + "> \"" + text + "\"";
+  }
+  // Text a reader cannot see or scroll to: content larger than a box that hides its
+  // overflow, or anything reaching past the right edge of <main> outside a box that
+  // scrolls sideways (mdBook's page clips it).
+  var scrollers = [];
+  function clipped(main) {
+    var found = [], edge = main.getBoundingClientRect().right + 1;
+    function check(e, inScroller) {
+      // MathJax's screen-reader copy is hidden by design; a formula is checked as one box.
+      if (e.matches(".MJX_Assistive_MathML, script, style")) return;
+      var s = getComputedStyle(e);
+      if (s.display === "none" || s.visibility === "hidden" || e.getClientRects().length === 0) return;
+      var hidesX = s.overflowX === "hidden" || s.overflowX === "clip";
+      var hidesY = s.overflowY === "hidden" || s.overflowY === "clip";
+      var scrolls = s.overflowX === "auto" || s.overflowX === "scroll";
+      if (hidesX && e.scrollWidth > e.clientWidth + 1)
+        found.push(describe(e) + " cuts off content " + e.scrollWidth + " px wide at " + e.clientWidth + " px");
+      if (hidesY && e.scrollHeight > e.clientHeight + 1)
+        found.push(describe(e) + " cuts off content " + e.scrollHeight + " px high at " + e.clientHeight + " px");
+      if (scrolls && e.scrollWidth > e.clientWidth + 1) scrollers.push(e);
+      if (!inScroller) {
+        // Text is no element: a box whose overflow shows reaches as far as its scrollWidth.
+        var box = e.getBoundingClientRect();
+        var right = scrolls || hidesX ? box.right : Math.max(box.right, box.left + e.scrollWidth);
+        if (right > edge) {
+          found.push(describe(e) + " runs past the column (" + Math.round(right) + " > " + Math.round(edge) + " px)");
+          return;  // the outermost box that runs past is enough
+        }
+      }
+      if (e.matches(".MathJax, .MathJax_Display")) return;
+      for (var c = e.firstElementChild; c; c = c.nextElementSibling) check(c, inScroller || scrolls);
+    }
+    for (var c = main.firstElementChild; c; c = c.nextElementSibling) check(c, false);
+    return found;
+  }
+  function report() {
+    var main = document.querySelector("main") || document.body;
+    var visible = main.cloneNode(true);
+    visible.querySelectorAll("pre, code, script, style, .MathJax, .MathJax_Display, .MathJax_Preview, .MJX_Assistive_MathML")
+      .forEach(function (e) { e.remove(); });
+    return {
+      waited: Date.now() - started,
+      mathjax: mathjax,
+      typeset: root.getAttribute("data-mathjax"),
+      printed: root.getAttribute("data-printed"),
+      rendered: main.querySelectorAll(".MathJax, .MathJax_Display").length,
+      errors: main.querySelectorAll(".MathJax_Error, .noError, merror").length,
+      text: visible.innerText,
+      images: Array.prototype.map.call(document.images, function (i) {
+        return {src: i.getAttribute("src"), width: i.naturalWidth};
+      }),
+      clipped: clipped(main),
+      scrolls: scrollers.map(describe)  // boxes wider than the column that scroll sideways
+    };
+  }
+  return new Promise(function (resolve) {
+    (function poll() {
+      if (ready() || Date.now() - started > 90000) { resolve(report()); } else { setTimeout(poll, 50); }
+    })();
+  });
+})()
 """
+# print.html calls window.print(): record when instead of opening a dialog. The
+# book's MathJax configuration wraps this stand-in, as it wraps the real one.
+_PRINT_SPY = """
+window.print = function () {
+  var root = document.documentElement;
+  root.setAttribute("data-printed", root.getAttribute("data-mathjax") || "before MathJax had typeset the page");
+};
+"""
+PHONE = (412, 915)  # CSS pixels: where text is cut off first, so every page is checked at this width
+DESKTOP = (1280, 1600)  # the screenshots
 
 
 def _chromium() -> str:
@@ -320,64 +421,150 @@ def _chromium_args(user_dir: Path) -> list[str]:
         _chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
         "--disable-quic", "--no-first-run", "--disable-background-networking",
         "--disable-component-update", "--disable-sync", f"--user-data-dir={user_dir}",
-        # No name resolves: the page can only use what the book ships.
-        "--host-resolver-rules=MAP * ~NOTFOUND", "--virtual-time-budget=15000",
+        # No name resolves: the page can only use what the book ships (404.html is served from 127.0.0.1).
+        "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
     ]
 
 
-def _probe(page: Path, tmp: Path) -> dict:
-    """Open ``page`` in headless Chromium and return what the probe saw."""
-    probe = page.with_name(f"probe-{page.name}")
-    probe.write_text(page.read_text(encoding="utf-8").replace("</body>", _PROBE + "</body>"), encoding="utf-8")
-    proc = subprocess.run(
-        [*_chromium_args(tmp / "chromium-dom"), "--dump-dom", probe.as_uri()],
-        capture_output=True, text=True, timeout=180, check=False,
-    )
-    m = re.search(r'<pre id="book-probe">(.*?)</pre>', proc.stdout, flags=re.S)
-    assert m, f"probe did not report (exit {proc.returncode}):\n{proc.stderr[-3000:]}"
-    return json.loads(html.unescape(m.group(1)))
-
-
-def _screenshot(page: Path, tmp: Path, name: str) -> Path:
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    """One headless Chromium for the module's browser tests (its log goes to the test artefacts)."""
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
-    target = ARTEFACTS / name
-    subprocess.run(
-        [*_chromium_args(tmp / "chromium-shot"), "--window-size=1280,1600", f"--screenshot={target}", page.as_uri()],
-        capture_output=True, timeout=180, check=False,
-    )
-    return target
+    with Browser(_chromium_args(tmp_path_factory.mktemp("chromium")), log=ARTEFACTS / "chromium.log",
+                 timeout=180) as b:
+        b.add_init_script(_PRINT_SPY)
+        b.set_viewport(*PHONE)
+        yield b
 
 
-def _assert_rendered(seen: dict, page: str) -> None:
-    assert seen["typeset"] == "done", f"{page}: MathJax did not finish"
-    assert seen["errors"] == 0, f"{page}: MathJax errors"
+@pytest.fixture(scope="module")
+def served_book(repo_book):
+    """The repository's book over HTTP at the server root, as a web host serves it."""
+    out, _ = repo_book
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(out)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+    server.server_close()
+
+
+def _problems(page: str, visit: dict) -> list[str]:
+    """What is wrong with a page as the browser showed it (empty: nothing)."""
+    seen, problems = visit["value"], [f"{page}: console: {e}" for e in visit["errors"]]
+    if not seen["mathjax"]:
+        problems.append(f"{page}: does not load the book's MathJax")
+    elif seen["typeset"] != "done":
+        problems.append(f"{page}: MathJax did not finish in {seen['waited']} ms")
+    if seen["errors"]:
+        problems.append(f"{page}: {seen['errors']} MathJax errors")
     text = seen["text"]
-    for raw in ("\\(", "\\)", "\\[", "\\]", "\\begin{", "$$"):
-        assert raw not in text, f"{page}: raw {raw!r} left in the visible text"
-    assert not re.search(r"\$[^$\s][^$\n]*[^$\s]\$", text), f"{page}: raw $..$ maths left"
-    assert "Math Processing Error" not in text
-    for image in seen["images"]:
-        assert image["width"] > 0, f"{page}: figure {image['src']} did not load"
+    for raw in ("\\(", "\\)", "\\[", "\\]", "\\begin{", "$$", "Math Processing Error"):
+        if raw in text:
+            problems.append(f"{page}: raw {raw!r} left in the visible text")
+    if re.search(r"\$[^$\s][^$\n]*[^$\s]\$", text):
+        problems.append(f"{page}: raw $..$ maths left in the visible text")
+    problems += [f"{page}: image {i['src']} did not load" for i in seen["images"] if not i["width"]]
+    problems += [f"{page}: {c}" for c in seen["clipped"]]
+    if page == "print.html" and seen["printed"] != "done":
+        problems.append(f"print.html: printed when MathJax was {seen['printed']!r}, not done")
+    return problems
 
 
-def test_browser_renders_fixture_maths_and_figures(fixture_book, tmp_path):
+def _visit(browser: Browser, url: str, screenshot: str | None = None) -> dict:
+    shot = None
+    if screenshot:
+        ARTEFACTS.mkdir(parents=True, exist_ok=True)
+        shot = ARTEFACTS / screenshot
+    return browser.visit(url, _PROBE, screenshot=shot)
+
+
+def test_browser_renders_fixture_maths_and_figures(browser, fixture_book):
     page = fixture_book / "01-fixture.html"
-    seen = _probe(page, tmp_path)
-    _assert_rendered(seen, page.name)
+    browser.set_viewport(*DESKTOP)
+    try:
+        visit = _visit(browser, page.as_uri(), screenshot="fixture-chapter.png")
+    finally:
+        browser.set_viewport(*PHONE)
+    assert _problems(page.name, visit) == []
+    seen = visit["value"]
     assert seen["rendered"] >= 7  # title, five inline formulas, the aligned display
     assert len(seen["images"]) >= 2
     assert "A price of $5" in seen["text"]
-    shot = _screenshot(page, tmp_path, "fixture-chapter.png")
-    assert shot.is_file() and shot.stat().st_size > 10_000
+    assert (ARTEFACTS / "fixture-chapter.png").stat().st_size > 10_000
 
 
-def test_browser_renders_repo_chapters(repo_book, tmp_path):
+def test_browser_wide_content_scrolls_or_wraps(browser, fixture_book):
+    # The second fixture chapter holds a long code line, a wide text output, a wide
+    # table, a wide display formula and a long inline one: all must stay readable.
+    visit = _visit(browser, (fixture_book / "02-second.html").as_uri())
+    assert _problems("02-second.html", visit) == []
+    scrolls = visit["value"]["scrolls"]
+    # Each wide thing is wider than the phone's column and scrolls (else this test proves nothing).
+    for box in ("<div.MathJax_Display>", "<code.language-python", "<code.language-text", "<div.nb-output"):
+        assert any(s.startswith(box) for s in scrolls), (box, scrolls)
+
+
+def test_browser_probe_sees_clipped_text(browser, tmp_path):
+    # The check itself: a box that hides its overflow and a line that runs past the page are found.
+    page = tmp_path / "clipped.html"
+    page.write_text(
+        "<html><body><main style='width:300px'>"
+        "<pre style='overflow:hidden;width:100px'>" + "x" * 200 + "</pre>"
+        "<p style='white-space:nowrap'>" + "word " * 200 + "</p>"
+        "<div style='overflow-x:auto'><p style='white-space:nowrap'>" + "fine " * 200 + "</p></div>"
+        "<img src='missing.png' alt='gone'>"
+        "<script>console.error('deliberate error'); undefinedFunction();</script>"
+        "</main></body></html>", encoding="utf-8")
+    visit = _visit(browser, page.as_uri())
+    problems = _problems(page.name, visit)
+    clipped = visit["value"]["clipped"]
+    assert len(clipped) == 2, clipped
+    assert "cuts off content" in clipped[0] and "<pre>" in clipped[0]
+    assert "runs past the column" in clipped[1] and "<p>" in clipped[1]
+    assert any("deliberate error" in p for p in problems)
+    assert any("undefinedFunction" in p for p in problems)
+    assert any("missing.png" in p and "console" in p for p in problems)  # the failed request
+    assert any("image missing.png did not load" in p for p in problems)
+
+
+def test_browser_every_page_of_the_book(browser, repo_book, served_book):
+    """Every page: no console error, MathJax done, every image loaded, no text cut off."""
     out, notebooks = repo_book
-    pages = [out / f"{nb.stem}.html" for nb in notebooks] or [out / "introduction.html"]
-    for page in pages:
-        seen = _probe(page, tmp_path)
-        _assert_rendered(seen, page.name)
-    _screenshot(pages[0], tmp_path, "repo-first-chapter.png")
+    pages = sorted(p.name for p in out.glob("*.html"))
+    assert set(p.name for p in _expected_pages(out, notebooks)) <= set(pages)
+    problems, timings = [], []
+    for name in pages:
+        # 404.html is written for a web server (its links start at the site root).
+        url = f"{served_book}/{name}" if name == "404.html" else (out / name).as_uri()
+        started = time.monotonic()
+        problems += _problems(name, _visit(browser, url))
+        timings.append(f"{time.monotonic() - started:6.1f} s  {name}")
+    ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTEFACTS / "browser-pages.txt").write_text("\n".join(timings) + "\n", encoding="utf-8")
+    assert problems == []
+
+
+def test_browser_landing_page_shows_the_course_map(browser, repo_book):
+    out, notebooks = repo_book
+    browser.set_viewport(*DESKTOP)
+    try:
+        visit = _visit(browser, (out / "index.html").as_uri(), screenshot="repo-landing.png")
+    finally:
+        browser.set_viewport(*PHONE)
+    seen = visit["value"]
+    assert _problems("index.html", visit) == []
+    # mdBook shows each image twice (the page and its click-to-zoom copy)
+    assert {i["src"] for i in seen["images"]} == {"figures/course-map.svg"}
+    assert seen["images"][0]["width"] > 300
+    for nb in notebooks:  # every chapter, under its title, in the map's table
+        title = notebook_title(json.loads(nb.read_text(encoding="utf-8")), nb.stem)
+        assert title in seen["text"], title
 
 
 def test_out_dir_that_is_not_a_book_is_refused(tmp_path):

@@ -380,3 +380,147 @@ def test_defaults_and_repr():
     assert (run.n_runs, run.n_steps) == (2, 7)
     assert run.mean.shape == (2, 7, 1) and run.cov.shape == (2, 7, 1, 1) and run.nis.shape == (2, 7)
     assert run.x_pred is None
+
+
+# ------------------------------------------------- SIF variants, modified UKF
+SIF_VARIANTS = [
+    dict(order=5),
+    dict(order=3, passes=2),
+    dict(order=5, passes=2, integration_error="diag"),
+    dict(order=3, integration_error="full"),
+    dict(order=5, passes=2, integration_error="diag", tol=1e-6, n_min=2),
+]
+
+
+@pytest.mark.parametrize("seed,nx,nz", [(2, 1, 2), (3, 2, 2), (4, 3, 3), (6, 4, 1)])
+def test_sif_variants_and_modified_ukf_equal_kalman_filter_on_linear_models(seed, nx, nz):
+    """Degree 3 and 5 are exact for linear functions in every draw, so the mean of every draw is
+    the same and the integration-error term is zero (to round-off): every variant, any pass
+    structure or stopping rule, is the Kalman filter. So is the modified UT (its bias term
+    (E[g] - g(m)) vanishes for linear g)."""
+    F, H, Q, R, m0, P0 = random_linear(seed, nx, nz)
+    traj = af.models.linear_gaussian(F, H, Q, R, m0, P0).simulate(n_runs=6, n_steps=20, rng=seed)
+    gen = generic_model(F, H, Q, R, m0, P0)
+    kf = af.KalmanFilter(gen, F=F, H=H).run(traj.z)
+    for opts in SIF_VARIANTS:
+        for n_iter in (1, 3):
+            run = af.SIF(gen, n_iter=n_iter, seed=seed, **opts).run(traj.z)
+            assert_runs_equal(run, kf, what=f"SIF {opts} n_iter={n_iter}")
+    for kappa in (-0.5 * nx, 0.0, 2.0):
+        if nx + kappa > 0:
+            for form in ("modified", "auto"):
+                assert_runs_equal(af.UKF(gen, kappa=kappa, form=form).run(traj.z), kf, what=f"UKF {form} kappa={kappa}")
+    # order 1 (antithetic Monte Carlo) gets the mean of a linear map right but not its covariance
+    one = af.SIF(gen, n_iter=3, seed=seed, order=1, on_indefinite="clip").run(traj.z)  # its Pxz, Pzz need not fit P
+    assert np.abs(one.cov - kf.cov).max() > 1e-3 * np.abs(kf.cov).max()
+
+
+def test_sif_integration_error_enters_p_pred_and_pzz():
+    """P_pred = Cov[f] + Q + Vx and Pzz = Cov[h] + R + Vz, with V the rule's mean_var."""
+    model = dataclasses.replace(af.models.coordinated_turn(), F=None)  # generic (stochastic) predict
+    rng = np.random.default_rng(0)
+    M = 4
+    m = (model.m0 + rng.standard_normal((M, 4)) * 5).T.copy()
+    P = np.repeat(model.P0[:, :, None] / 10, M, axis=2)
+    with_v = af.SIF(model, n_iter=3, integration_error="diag")
+    without = af.SIF(model, n_iter=3)
+    rule = af.rules.StochasticIntegrationRule(order=3, integration_error="diag")
+    f = with_v._wrap(model.f, 1)
+    mo = rule.moments(f, m, P, 3, rng=np.random.default_rng(5), cross=False)
+    _, Pv = with_v.predict_rl(m, P, 0, rng=np.random.default_rng(5))
+    _, P0 = without.predict_rl(m, P, 0, rng=np.random.default_rng(5))
+    np.testing.assert_allclose(Pv - P0, mo.mean_var, rtol=1e-9, atol=1e-12)
+    assert np.all(np.diagonal(mo.mean_var) > 0)
+    z = rng.uniform(-0.5, 0.5, (1, M))
+    uv = with_v.update_rl(m, P, z, 0, rng=np.random.default_rng(6))
+    u0 = without.update_rl(m, P, z, 0, rng=np.random.default_rng(6))
+    h = with_v._wrap(model.h, 1)
+    mo = rule.moments(h, m, P, 3, residual=with_v._residual_rl(), rng=np.random.default_rng(6))
+    np.testing.assert_allclose(uv.Pzz - u0.Pzz, mo.mean_var, rtol=1e-9, atol=1e-15)
+    np.testing.assert_array_equal(uv.Pxz, u0.Pxz)  # no cross term
+    np.testing.assert_array_equal(uv.z_pred, u0.z_pred)
+
+
+def test_sif_reports_iterations_spent():
+    model = af.models.coordinated_turn()
+    traj = model.simulate(8, 25, rng=9)
+    run = af.SIF(model, n_iter=4, seed=1, on_indefinite="clip").run(traj.z, keep_pred=True)
+    np.testing.assert_array_equal(run.info["n_iter_spent"], 4)
+    np.testing.assert_array_equal(run.info["n_iter_spent_predict"], 0)  # CTM predicts exactly (F)
+    sched = np.random.default_rng(0).choice([1, 2, 7], size=(8, 25))
+    spent = af.SIF(model, seed=1, on_indefinite="clip").run(traj.z, params=sched).info["n_iter_spent"]
+    np.testing.assert_array_equal(spent, sched)
+    ref = af.SIF.reference(model, seed=1, on_indefinite="clip").run(traj.z)
+    spent = ref.info["n_iter_spent"]
+    assert spent.shape == (8, 25) and spent.min() >= 10 and spent.max() <= 20 and len(np.unique(spent)) > 1
+    gen = dataclasses.replace(model, F=None)
+    g = af.SIF(gen, n_iter=3, seed=1, passes=2, on_indefinite="clip").run(traj.z[:, :6])
+    np.testing.assert_array_equal(g.info["n_iter_spent_predict"][:, 1:], 6)
+    np.testing.assert_array_equal(g.info["n_iter_spent_predict"][:, 0], 0)
+    assert af.UKF(model).run(traj.z[:, :3]).info == {}
+    # the public update step reports it too (0 for a deterministic rule)
+    u = af.SIF(model, n_iter=5, seed=1, tol=1e-3, n_min=2).update(run.x_pred[:, 2], run.P_pred[:, 2], traj.z[:, 2], 2)
+    assert u.n_iter_spent.shape == (8,) and np.all((u.n_iter_spent >= 2) & (u.n_iter_spent <= 5))
+    np.testing.assert_array_equal(af.UKF(model).update(run.x_pred[:, 2], run.P_pred[:, 2], traj.z[:, 2], 2).n_iter_spent, 0)
+
+
+def test_sif_reference_preset_and_repr():
+    model = af.models.coordinated_turn()
+    ref = af.SIF.reference(model, seed=3)
+    assert (ref.rule.order, ref.rule.passes, ref.rule.integration_error, ref.rule.tol, ref.rule.n_min) == (5, 2, "diag", 5e-4, 5)
+    assert ref.predict_rule.tol == 5e-3 and ref.n_iter == 10
+    assert repr(ref) == ("SIF(model='ctm', n_iter=10, order=5, passes=2, integration_error='diag', tol=0.0005, n_min=5, "
+                         "tol_predict=0.005)")
+    assert repr(af.SIF(model)) == "SIF(model='ctm', n_iter=10)"  # the default filter's name is unchanged
+    assert repr(af.UKF(model, kappa=-1.0, form="auto")) == "UKF(model='ctm', kappa=-1, form='auto')"
+    with pytest.raises(ValueError, match="form must be one of"):
+        af.UKF(model, form="mod")
+    with pytest.raises(ValueError, match="order must be one of"):
+        af.SIF(model, order=7)
+
+
+def test_update_rl_tile_gives_every_candidate_the_same_draws():
+    """The MDP's tiled evaluation of all grid values: with tile=G the candidate of grid value g
+    for run j is exactly the update the filter makes when run j takes g (same rng)."""
+    model = af.models.coordinated_turn()
+    traj = model.simulate(5, 4, rng=12)
+    for sif in (af.SIF(model, seed=4), af.SIF.reference(model, seed=4)):
+        run = sif.run(traj.z[:, :3], keep_pred=True)
+        m, P = run.x_pred[:, 2].T.copy(), np.moveaxis(run.P_pred[:, 2], 0, -1).copy()
+        z = traj.z[:, 2].T.copy()
+        grid = np.array([1.0, 3.0, 10.0])
+        G, M = grid.size, m.shape[1]
+        tile = lambda a: np.concatenate([a] * G, axis=-1)
+        theta = np.repeat(grid, M)
+        cand = sif.update_rl(tile(m), tile(P), tile(z), 2, theta, rng=sif.rng(1, 2, 7), tile=G)
+        indep = sif.update_rl(tile(m), tile(P), tile(z), 2, theta, rng=sif.rng(1, 2, 7))
+        for g, th in enumerate(grid):
+            one = sif.update_rl(m, P, z, 2, th, rng=sif.rng(1, 2, 7))
+            sl = slice(g * M, (g + 1) * M)
+            for name in ("z_pred", "Pzz", "Pxz", "x_filt", "P_filt", "nis", "n_iter_spent"):
+                np.testing.assert_allclose(getattr(cand, name)[..., sl], getattr(one, name), rtol=1e-12, atol=1e-300, err_msg=name)
+        assert np.all(indep.nis[M:] != cand.nis[M:])  # without tile every copy draws afresh
+    # a deterministic rule ignores tile (but checks it)
+    ukf = af.UKF(model)
+    u1 = ukf.update_rl(np.tile(m, 2), np.tile(P, 2), np.tile(z, 2), 2, 0.0, tile=2)
+    np.testing.assert_array_equal(u1.x_filt, ukf.update_rl(np.tile(m, 2), np.tile(P, 2), np.tile(z, 2), 2, 0.0).x_filt)
+    with pytest.raises(ValueError, match="must divide"):
+        ukf.update_rl(np.tile(m, 2), np.tile(P, 2), np.tile(z, 2), 2, 0.0, tile=3)
+
+
+def test_modified_ukf_on_ctm_with_negative_kappa():
+    """kappa = -2 on the CTM: the standard form loses definiteness (FilterError, or repairs with
+    clip); the modified form ("auto") never does and stays finite; kappa >= 0 is unchanged."""
+    model = af.models.coordinated_turn()
+    traj = model.simulate(200, 150, rng=13)
+    with pytest.raises(af.FilterError, match="not positive definite"):
+        af.UKF(model, kappa=-2.0).run(traj.z)
+    std = af.UKF(model, kappa=-2.0, on_indefinite="clip").run(traj.z)
+    auto = af.UKF(model, kappa=-2.0, form="auto").run(traj.z)
+    assert std.n_repairs > 0 and auto.n_repairs == 0
+    assert np.isfinite(auto.mean).all() and np.all(np.linalg.eigvalsh(auto.cov) > 0)
+    anees = lambda r: af.metrics.anees(traj.x, r.mean, r.cov, on_indefinite="solve").mean()  # noqa: E731  (clipped runs store indefinite P)
+    assert anees(auto) < anees(std)
+    for kappa in (0.0, 1.0):
+        np.testing.assert_array_equal(af.UKF(model, kappa=kappa, form="auto").run(traj.z[:20]).cov,
+                                      af.UKF(model, kappa=kappa).run(traj.z[:20]).cov)

@@ -47,7 +47,7 @@ def test_features_are_lazy_and_stay_with_their_decision():
     env = FilterEnv(af.UKF(model), [0.0, 2.0, 10.0], cost=Cost("nis"), n_steps=5)
     d0 = env.reset(traj=traj_of(model, 6, 5))
     d1, *_ = env.step(np.zeros(6, dtype=int))
-    assert d0._feat is None  # nobody asked: no extra default-parameter update was run
+    assert d0._obs == {} and d0.extra_spent == 0  # nobody asked: no extra default-parameter update was run
     f0 = d0.features  # read after the env moved on: still the state of step 0
     np.testing.assert_array_equal(f0[:, 0], model.m0[0])
     np.testing.assert_array_equal(f0[:, 1], model.P0[0, 0])

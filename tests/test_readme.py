@@ -43,3 +43,13 @@ def test_readme_adaptation_example_runs_as_written():
     adaptive = ns["adaptive"]
     assert adaptive.mean.shape == (1000, 100, 1)
     assert set(np.unique(adaptive.params)) <= {0.0, 1.0, 2.0, 5.0, 10.0, 50.0}
+
+
+def test_readme_sb3_example_trains_and_evaluates_ppo():
+    pytest.importorskip("stable_baselines3")
+    block = next(b for b in _python_blocks() if "stable_baselines3" in b)
+    ns: dict = {}
+    exec(compile(block, "README-example-sb3", "exec"), ns)
+    res = ns["res"]
+    assert "ppo" in res and "greedy" in res and res.config["n_runs"] == 1000
+    assert np.isfinite(res["ppo"].rmse) and res["ppo"].rmse < res["default"].rmse

@@ -344,3 +344,321 @@ def test_si_param_validation():
         SI.moments(g_nonpoly, mb, Pb, 2)
     assert SI.default_param(4) == 10.0
     np.testing.assert_array_equal(SI.n_points(4, np.array([1, 10])), [9, 81])
+
+
+# ------------------------------------------------------ modified unscented form
+def textbook_ut_about_centre(g, m, P, kappa):
+    """Julier and Uhlmann's modified form written out: Pyy = sum_i W_i (Y_i - Y_0)(Y_i - Y_0)^T."""
+    n = len(m)
+    S = np.linalg.cholesky((n + kappa) * P)
+    X = np.vstack([m, m + S.T, m - S.T])
+    W = np.full(2 * n + 1, 0.5 / (n + kappa))
+    W[0] = kappa / (n + kappa)
+    G = g(X)
+    D = G - G[0]
+    return W @ G, (W[:, None] * D).T @ D, (W[:, None] * (X - m)).T @ (G - W @ G)
+
+
+@pytest.mark.parametrize("m,P", [(0.0, 1.0), (1.3, 0.2), (-4.0, 7.5)])
+@pytest.mark.parametrize("kappa", [-0.9, -0.5, -0.1])
+def test_modified_ut_scalar_square_closed_form(m, P, kappa):
+    """g = x^2, n = 1: points m +- s sqrt(P), s^2 = 1 + kappa. About g(m): sum_i W_i D_i^2 =
+    4 m^2 P + (1 + kappa) P^2 >= 0; the standard form subtracts (E[g] - g(m))^2 = P^2 and gives
+    4 m^2 P + kappa P^2, negative at m = 0."""
+    g = lambda X: X * X
+    args = (g, np.full((1, 1), m), np.full((1, 1, 1), P), kappa)
+    std, mod, auto = (UnscentedRule(form=f).moments(*args) for f in ("standard", "modified", "auto"))
+    np.testing.assert_allclose(mod.cov[0, 0, 0], 4 * m * m * P + (1 + kappa) * P * P, rtol=1e-12)
+    np.testing.assert_allclose(std.cov[0, 0, 0], 4 * m * m * P + kappa * P * P, rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(auto.cov, mod.cov)  # kappa < 0: auto is modified
+    assert mod.cov[0, 0, 0] > 0
+    if m == 0.0:
+        assert std.cov[0, 0, 0] < 0  # what the modified form repairs
+    for a in (mod, auto):  # the mean and cross-covariance are the standard ones
+        np.testing.assert_array_equal(a.mean, std.mean)
+        np.testing.assert_allclose(a.cross, std.cross, rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(a.mean[0, 0], m * m + P, rtol=1e-12)
+
+
+def test_modified_ut_matches_written_out_form_and_is_psd():
+    rng = np.random.default_rng(21)
+    n = 3
+    g_rows = lambda X: np.stack([np.exp(np.sin(X[:, 0])) * X[:, 1], X[:, 2] ** 2 - X[:, 0], np.arctan2(X[:, 2], 3 + X[:, 0])], axis=1)
+    g = lambda X: np.stack([np.exp(np.sin(X[0])) * X[1], X[2] ** 2 - X[0], np.arctan2(X[2], 3 + X[0])])
+    worst_std = np.inf
+    for kappa in (-2.9, -2.5, -1.5, -0.5, 0.0, 2.0):
+        for _ in range(20):
+            m, P = rng.standard_normal(n) * 2, random_spd(rng, n, rng.uniform(0.5, 5))
+            mo = UnscentedRule(form="modified").moments(g, m[:, None], P[:, :, None], kappa)
+            zm, Pyy, Pxy = textbook_ut_about_centre(g_rows, m, P, kappa)
+            np.testing.assert_allclose(mo.mean[:, 0], zm, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(mo.cov[:, :, 0], Pyy, rtol=1e-9, atol=1e-11)
+            np.testing.assert_allclose(mo.cross[:, :, 0], Pxy, rtol=1e-10, atol=1e-11)
+            assert np.linalg.eigvalsh(mo.cov[:, :, 0])[0] > -1e-12 * np.abs(Pyy).max()
+            worst_std = min(worst_std, np.linalg.eigvalsh(UT.moments(g, m[:, None], P[:, :, None], kappa).cov[:, :, 0])[0])
+    assert worst_std < -1e-3  # the standard form does go indefinite on these problems
+
+
+def test_modified_ut_auto_leaves_nonnegative_kappa_unchanged():
+    rng = np.random.default_rng(22)
+    n, M = 2, 6
+    m, P = rng.standard_normal((n, M)), np.moveaxis(np.stack([random_spd(rng, n) for _ in range(M)]), 0, -1)
+    g = lambda X: np.stack([np.cos(X[0]) * X[1] ** 2, X[0] * X[1]])
+    kappas = np.array([-1.5, -0.5, 0.0, 1.0, 3.0, 20.0])
+    std = UT.moments(g, m, P, kappas)
+    auto = UnscentedRule(form="auto").moments(g, m, P, kappas)
+    mod = UnscentedRule(form="modified").moments(g, m, P, kappas)
+    pos = kappas >= 0
+    np.testing.assert_array_equal(auto.cov[:, :, pos], std.cov[:, :, pos])  # bit for bit
+    np.testing.assert_array_equal(auto.cov[:, :, ~pos], mod.cov[:, :, ~pos])
+    for k in (0.0, 2.0):
+        np.testing.assert_array_equal(UnscentedRule(form="auto").moments(g, m, P, k).cov, UT.moments(g, m, P, k).cov)
+    # modified = standard + (E[g] - g(m))(E[g] - g(m))^T everywhere
+    bias = mod.mean - g(m[:, None, :])[:, 0, :]
+    np.testing.assert_allclose(mod.cov, std.cov + bias[:, None] * bias[None], rtol=1e-10, atol=1e-12)
+    assert np.abs(bias).max() > 1e-3
+    with pytest.raises(ValueError, match="form must be one of"):
+        UnscentedRule(form="centre")
+
+
+# ------------------------------------------------ stochastic integration options
+def si_moments(rule, g, m, P, n_iter, seed, **kw):
+    return rule.moments(g, m, P, n_iter, rng=np.random.default_rng(seed), **kw)
+
+
+def test_si_degree5_single_draw_exact_to_degree_5():
+    """Degree 5 integrates quartics and quintics exactly in every draw: the mean of (c.x)^5 and
+    x^T A x (c.x)^2, and the variance of a quadratic; degree 3 gets the variance wrong."""
+    rng = np.random.default_rng(30)
+    n, M = 4, 100  # one draw per run
+    m, P = rng.standard_normal(n) * 0.5, random_spd(rng, n)
+    A, c = random_spd(rng, n), rng.standard_normal(n)
+    mb, Pb = batch(m, P, M)
+    mu, s2 = c @ m, c @ P @ c
+    quintic = lambda X: (np.einsum("i,isM->sM", c, X) ** 5)[None]
+    E5 = mu**5 + 10 * mu**3 * s2 + 15 * mu * s2**2
+    mo5 = si_moments(StochasticIntegrationRule(order=5), quintic, mb, Pb, 1, 0)
+    np.testing.assert_allclose(mo5.mean[0], E5, rtol=1e-9)
+    var = 2 * np.trace(A @ P @ A @ P) + 4 * m @ A @ P @ A @ m
+    mo5 = si_moments(StochasticIntegrationRule(order=5), quad_fn(A), mb, Pb, 1, 1)
+    np.testing.assert_allclose(mo5.cov[0, 0], var, rtol=1e-9)
+    np.testing.assert_allclose(mo5.cross[:, 0], (2 * P @ A @ m)[:, None] * np.ones(M), rtol=1e-9, atol=1e-12)
+    mo3 = si_moments(StochasticIntegrationRule(order=3), quad_fn(A), mb, Pb, 1, 1)
+    assert np.abs(mo3.cov[0, 0] / var - 1).max() > 0.1
+    # and linear maps, covariance included, in every draw, for orders 3 and 5 (not order 1)
+    B = rng.standard_normal((2, n))
+    lin = lambda X: np.einsum("ij,jsM->isM", B, X)
+    for order in (3, 5):
+        mo = si_moments(StochasticIntegrationRule(order=order), lin, mb, Pb, 1, 2)
+        np.testing.assert_allclose(mo.cov, np.broadcast_to((B @ P @ B.T)[:, :, None], mo.cov.shape), rtol=1e-10)
+        np.testing.assert_allclose(mo.mean, np.broadcast_to((B @ m)[:, None], mo.mean.shape), rtol=1e-12, atol=1e-12)
+    mo1 = si_moments(StochasticIntegrationRule(order=1), lin, mb, Pb, 1, 2)
+    np.testing.assert_allclose(mo1.mean, np.broadcast_to((B @ m)[:, None], mo1.mean.shape), rtol=1e-12, atol=1e-12)
+    assert np.abs(mo1.cov[0, 0] / (B @ P @ B.T)[0, 0] - 1).max() > 0.1
+
+
+@pytest.mark.parametrize("order,passes", [(5, 1), (5, 2), (3, 2), (1, 1)])
+def test_si_orders_and_passes_unbiased(reference, order, passes):
+    """Single draws (per pass) of every order are unbiased for the mean and the cross-covariance
+    of a non-polynomial integrand (>= 1000 draws against Gauss-Hermite)."""
+    mean_ref, _, cross_ref = reference
+    M = 20000
+    mb, Pb = batch(M0, P0, M)
+    mo = si_moments(StochasticIntegrationRule(order=order, passes=passes), g_nonpoly, mb, Pb, 1, 40 + order)
+    for est, ref in ((mo.mean, mean_ref), (mo.cross.reshape(4, M), cross_ref.ravel())):
+        se = est.std(axis=-1, ddof=1) / np.sqrt(M)
+        z = (est.mean(axis=-1) - ref) / se
+        assert np.all(np.abs(z) < 4.5), z
+
+
+def test_si_degree5_more_accurate_than_degree3(reference):
+    """The reported effect: one degree-5 draw is about as accurate as ten degree-3 draws here."""
+    mean_ref, cov_ref, cross_ref = reference
+    M = 4000
+    mb, Pb = batch(M0, P0, M)
+
+    def rms(order, n_iter):
+        mo = si_moments(StochasticIntegrationRule(order=order), g_nonpoly, mb, Pb, n_iter, 7)
+        e = np.concatenate([mo.mean - mean_ref[:, None], (mo.cov - cov_ref[:, :, None]).reshape(4, M)])
+        return np.sqrt((e**2).mean())
+
+    assert rms(5, 1) < 1.5 * rms(3, 10)
+    assert rms(5, 1) < 0.5 * rms(3, 1)
+
+
+@pytest.mark.parametrize("order,passes", [(3, 1), (5, 1), (3, 2), (5, 2)])
+def test_si_integration_error_is_variance_of_the_averaged_mean(order, passes):
+    """mean_var = s^2 / N of the per-draw means. The per-draw means are recovered independently
+    from the common random numbers: with the same seed, run j's mean after k draws is I_k, so
+    S_k = k I_k - (k - 1) I_{k-1}."""
+    rng = np.random.default_rng(31)
+    n, M, N = 2, 5, 6
+    m, P = rng.standard_normal((n, M)), np.moveaxis(np.stack([random_spd(rng, n) for _ in range(M)]), 0, -1)
+    rule = StochasticIntegrationRule(order=order, passes=passes, integration_error="full")
+    I = np.array([si_moments(rule, g_nonpoly, m, P, k, 9).mean for k in range(1, N + 1)])  # (N, 2, M)
+    S = np.array([I[0]] + [k * I[k - 1] - (k - 1) * I[k - 2] for k in range(2, N + 1)])
+    D = S - S.mean(axis=0)
+    V = np.einsum("kiM,kjM->ijM", D, D) / (N - 1) / N
+    full = si_moments(rule, g_nonpoly, m, P, N, 9)
+    np.testing.assert_allclose(full.mean_var, V, rtol=1e-7, atol=1e-12 * np.abs(V).max())
+    diag = si_moments(StochasticIntegrationRule(order=order, passes=passes, integration_error="diag"), g_nonpoly, m, P, N, 9)
+    np.testing.assert_allclose(diag.mean_var, V * np.eye(2)[:, :, None], rtol=1e-7, atol=1e-12 * np.abs(V).max())
+    assert np.all(np.diagonal(V) > 0) and np.abs(V[0, 1]).max() > 0
+    # the term changes nothing else; N = 1 adds nothing (one draw says nothing about the spread)
+    plain = si_moments(StochasticIntegrationRule(order=order, passes=passes), g_nonpoly, m, P, N, 9)
+    for name in ("mean", "cov", "cross"):
+        np.testing.assert_array_equal(getattr(plain, name), getattr(full, name))
+    assert plain.mean_var is None
+    np.testing.assert_array_equal(si_moments(rule, g_nonpoly, m, P, 1, 9).mean_var, 0.0)
+    # per-run n_iter: each run's term is that of its own count
+    its = np.array([1, 2, 6, 3, 6])
+    per_run = si_moments(rule, g_nonpoly, m, P, its, 9)
+    for r, k in enumerate(its):
+        np.testing.assert_allclose(per_run.mean_var[:, :, r], si_moments(rule, g_nonpoly, m, P, int(k), 9).mean_var[:, :, r], rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("order,passes,ie", [(5, 1, False), (5, 2, "diag"), (3, 2, "full"), (1, 1, "diag")])
+def test_si_new_variants_per_run_n_iter_use_common_random_numbers(order, passes, ie):
+    rng = np.random.default_rng(14)
+    n, M = 2, 6
+    m, P = rng.standard_normal((n, M)), np.moveaxis(np.stack([random_spd(rng, n) for _ in range(M)]), 0, -1)
+    rule = StochasticIntegrationRule(order=order, passes=passes, integration_error=ie)
+    its = np.array([1, 2, 5, 5, 2, 1])
+    per_run = si_moments(rule, g_nonpoly, m, P, its, 7)
+    np.testing.assert_array_equal(per_run.n_iter, its * passes)
+    for N in (1, 2, 5):
+        scalar = si_moments(rule, g_nonpoly, m, P, N, 7)
+        sel = its == N
+        for name in ("mean", "cov", "cross") + (("mean_var",) if ie else ()):
+            np.testing.assert_allclose(getattr(per_run, name)[..., sel], getattr(scalar, name)[..., sel], rtol=1e-12, atol=1e-15)
+    assert np.all(si_moments(rule, g_nonpoly, m, P, 1, 7).mean != si_moments(rule, g_nonpoly, m, P, 5, 7).mean)
+
+
+@pytest.mark.parametrize("passes", [1, 2])
+def test_si_tolerance_stopping(passes):
+    """Each run iterates until its estimated error is below tol (between n_min and n_max); a run
+    that stopped after k draws equals the fixed-count rule at k (common random numbers)."""
+    rng = np.random.default_rng(32)
+    n, M = 2, 40
+    m = rng.standard_normal((n, M)) + np.array([[5.0], [1.0]])
+    P = np.moveaxis(np.stack([random_spd(rng, n, s) for s in np.geomspace(0.01, 3, M)]), 0, -1)
+    n_max, n_min, tol = 15, 3, 2e-4
+    rule = StochasticIntegrationRule(order=3, passes=passes, integration_error="diag", tol=tol, n_min=n_min)
+    mo = si_moments(rule, g_nonpoly, m, P, n_max, 11)
+    spent = mo.n_iter
+    lo, hi = passes * n_min, passes * n_max
+    assert np.all((spent >= lo) & (spent <= hi))
+    assert (spent == lo).any() and (spent == hi).any() and ((spent > lo) & (spent < hi)).any(), spent
+    # narrow P needs fewer iterations than wide P
+    assert spent[: M // 4].mean() < spent[-M // 4 :].mean()
+    if passes == 1:
+        fixed = {k: si_moments(StochasticIntegrationRule(order=3, integration_error="diag"), g_nonpoly, m, P, k, 11)
+                 for k in np.unique(spent)}
+        for r, k in enumerate(spent):
+            for name in ("mean", "cov", "cross", "mean_var"):
+                np.testing.assert_allclose(getattr(mo, name)[..., r], getattr(fixed[k], name)[..., r], rtol=1e-12, atol=1e-300)
+    # a huge tolerance stops at max(n_min, 2), a tiny one runs to n_max; n_min wins over n_iter
+    big = StochasticIntegrationRule(order=3, passes=passes, tol=1e9, n_min=1)
+    np.testing.assert_array_equal(si_moments(big, g_nonpoly, m, P, n_max, 11).n_iter, 2 * passes)
+    tiny = StochasticIntegrationRule(order=3, passes=passes, tol=1e-300, n_min=1)
+    np.testing.assert_array_equal(si_moments(tiny, g_nonpoly, m, P, n_max, 11).n_iter, n_max * passes)
+    floor = StochasticIntegrationRule(order=3, passes=passes, tol=1e9, n_min=8)
+    np.testing.assert_array_equal(si_moments(floor, g_nonpoly, m, P, 4, 11).n_iter, 8 * passes)
+
+
+def test_si_tolerance_stops_where_the_error_estimate_crosses_tol():
+    """passes=1 watches the mean, Pzz and Pxz: the stopped count k is the first k >= 2 with
+    every element-wise variance norm <= tol, recomputed from fixed-count runs."""
+    rng = np.random.default_rng(33)
+    n, M = 2, 12
+    m, P = rng.standard_normal((n, M)) + np.array([[5.0], [1.0]]), np.moveaxis(np.stack([random_spd(rng, n, 0.5) for _ in range(M)]), 0, -1)
+    tol, n_max = 1e-3, 20
+    mo = si_moments(StochasticIntegrationRule(order=3, integration_error="diag", tol=tol), g_nonpoly, m, P, n_max, 5)
+    # the per-draw sums, recovered from fixed counts: S_k = k I_k - (k-1) I_{k-1} for the mean
+    # and likewise for the averaged second moments EDD and EXD (about g0 = g(m))
+    g0 = g_nonpoly(m[:, None, :])[:, 0, :]
+    fixed = [si_moments(StochasticIntegrationRule(order=3), g_nonpoly, m, P, k, 5) for k in range(1, n_max + 1)]
+    ED = np.array([f.mean - g0 for f in fixed])
+    EDD = np.array([f.cov + ED[k][:, None] * ED[k][None] for k, f in enumerate(fixed)])
+    EXD = np.array([f.cross for f in fixed])
+    for r in range(M):
+        expected = n_max
+        for k in range(2, n_max + 1):
+            norms = []
+            for A in (ED, EDD, EXD):
+                S = np.array([A[0][..., r]] + [j * A[j - 1][..., r] - (j - 1) * A[j - 2][..., r] for j in range(2, k + 1)])
+                V = S.var(axis=0, ddof=1) / k
+                norms.append(np.sqrt((V**2).sum()))
+            if max(norms) <= tol:
+                expected = k
+                break
+        assert mo.n_iter[r] == expected, (r, mo.n_iter[r], expected)
+    assert len(set(mo.n_iter.tolist())) > 1
+
+
+def test_si_tiled_call_shares_draws_between_tiles():
+    """tile = G: a call on G copies of M runs gives run j of copy g exactly what an untiled call
+    of the M runs with the same Generator and copy g's n_iter gives it."""
+    rng = np.random.default_rng(34)
+    n, M, G = 2, 5, 3
+    m, P = rng.standard_normal((n, M)), np.moveaxis(np.stack([random_spd(rng, n) for _ in range(M)]), 0, -1)
+    tile = lambda a: np.concatenate([a] * G, axis=-1)
+    grid = np.array([1.0, 3.0, 6.0])
+    theta = np.repeat(grid, M)
+    for rule in (SI, StochasticIntegrationRule(order=5, passes=2, integration_error="diag"),
+                 StochasticIntegrationRule(order=3, integration_error="full", tol=1e-3, n_min=2)):
+        tiled = si_moments(rule, g_nonpoly, tile(m), tile(P), theta, 8, tile=G)
+        plain = si_moments(rule, g_nonpoly, tile(m), tile(P), theta, 8)  # tile = 1: independent draws
+        for gi, th in enumerate(grid):
+            one = si_moments(rule, g_nonpoly, m, P, th, 8)
+            sl = slice(gi * M, (gi + 1) * M)
+            for name in ("mean", "cov", "cross", "mean_var", "n_iter"):
+                a, b = getattr(tiled, name), getattr(one, name)
+                if b is not None:
+                    np.testing.assert_allclose(a[..., sl], b, rtol=1e-12, atol=1e-300, err_msg=name)
+            if gi:
+                assert np.all(plain.mean[:, sl] != tiled.mean[:, sl])
+    # tile = 1 is the untiled rule, bit for bit
+    np.testing.assert_array_equal(si_moments(SI, g_nonpoly, m, P, 4, 8, tile=1).cov, si_moments(SI, g_nonpoly, m, P, 4, 8).cov)
+    for bad, msg in ((4, "must divide the number of runs"), (0, "positive integer"), (1.5, "positive integer")):
+        with pytest.raises(ValueError, match=msg):
+            si_moments(SI, g_nonpoly, tile(m), tile(P), 2, 8, tile=bad)
+
+
+def test_si_option_validation_and_counts():
+    for kw, msg in (({"order": 4}, "order must be one of"), ({"passes": 3}, "passes must be 1 or 2"),
+                    ({"integration_error": "yes"}, "integration_error must be"), ({"tol": 0.0}, "tol must be"),
+                    ({"tol": -1.0}, "tol must be"), ({"n_min": 0}, "n_min must be")):
+        with pytest.raises(ValueError, match=msg):
+            StochasticIntegrationRule(**kw)
+    assert StochasticIntegrationRule(order=5).points_per_draw(4) == 60
+    assert StochasticIntegrationRule(order=5).points_per_draw(1) == 8
+    assert StochasticIntegrationRule(order=1).points_per_draw(4) == 2
+    np.testing.assert_array_equal(StochasticIntegrationRule(order=5, passes=2).n_points(4, np.array([1, 10])), [121, 1201])
+    np.testing.assert_array_equal(StochasticIntegrationRule(tol=1e-3, n_min=5).n_points(4, 2), 41)
+    mb, Pb = batch(M0, P0, 3)
+
+    class NoSeedSequence:  # a Generator without spawn
+        def __getattr__(self, name):
+            return getattr(np.random.default_rng(0), name)
+
+        spawn = None
+
+    with pytest.raises(ValueError, match="passes=2 needs a numpy Generator with a SeedSequence"):
+        StochasticIntegrationRule(passes=2).moments(g_nonpoly, mb, Pb, 2, rng=NoSeedSequence())
+
+
+@pytest.mark.parametrize("order", [1, 3, 5])
+def test_si_integration_error_vanishes_for_linear_maps(order):
+    """Every draw of every order integrates the mean of a linear map exactly (points in +- pairs),
+    so the per-draw means agree and V = 0 to round-off; order 1's covariance is still random, so
+    the zero V says nothing about the covariance's error."""
+    rng = np.random.default_rng(35)
+    n, M = 3, 50
+    m, P = rng.standard_normal(n), random_spd(rng, n)
+    B, b = rng.standard_normal((2, n)), rng.standard_normal(2)
+    lin = lambda X: np.einsum("ij,jsM->isM", B, X) + b[:, None, None]
+    mo = si_moments(StochasticIntegrationRule(order=order, integration_error="full"), lin, *batch(m, P, M), 4, 3)
+    assert np.abs(mo.mean_var).max() < 1e-24 * np.abs(B @ P @ B.T).max()
+    nonlin = si_moments(StochasticIntegrationRule(order=order, integration_error="full"), g_nonpoly, *batch(M0, P0, M), 4, 3)
+    assert np.all(np.diagonal(nonlin.mean_var, axis1=0, axis2=1) > 1e-12)

@@ -1,0 +1,317 @@
+"""The analyses behind chapters 6-8 (adaptfilt.analysis), the claim and Table I renderers of
+adaptfilt.experiments.report, and the bootstrap particle filter, against independent references."""
+from __future__ import annotations
+
+import copy
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import adaptfilt as af  # noqa: E402
+from adaptfilt import analysis, artefacts  # noqa: E402
+from adaptfilt.experiments import claims, get_experiment, report  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
+
+from scipy import stats  # noqa: E402
+
+from adaptfilt.experiments.history import CTM_UKF_BEFORE, SIF_FIXED_BEFORE, TABLE1_BEFORE  # noqa: E402
+from adaptfilt.experiments.seeds import aggregate  # noqa: E402
+from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
+from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
+from adaptfilt.policies import FixedPolicy, GreedyPolicy  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    plt.close("all")
+
+
+@pytest.fixture(scope="module")
+def ungm_res():
+    return artefacts.load_results("ungm-ukf")
+
+
+@pytest.fixture(scope="module")
+def sif_results():
+    return {e: artefacts.load_results(e) for e in claims.SIF_EXPERIMENTS}
+
+
+# ---------------------------------------------------------------- claims as Markdown
+
+
+def test_claim_rows_filter_by_claim_experiment_and_metric():
+    cl = artefacts.load_claims()
+    rows = report.claim_rows(cl, ["C4", "C6"], experiments=["ungm-ukf"], metrics=["rmse"])
+    assert rows and {r["key"] for r in rows} == {"C4", "C6"}
+    assert all(r["experiment"] == "ungm-ukf" and r["metric"] == "rmse" for r in rows)
+    assert len(report.claim_rows(cl, "C6")) == len(cl["C6"])
+    with pytest.raises(ValueError, match="unknown claim 'C9'"):
+        report.claim_rows(cl, ["C9"])
+
+
+def test_claims_subset_md_rederives_every_row_and_catches_a_changed_one(ungm_res):
+    cl = artefacts.load_claims()
+    md = report.claims_subset_md(cl, ["C1", "C2"], experiments=["ungm-ukf"], results={"ungm-ukf": ungm_res})
+    lines = md.strip().splitlines()
+    assert len(lines) == 2 + len(cl["C1"]) + len(cl["C2"])  # header, rule, one line per row
+    assert "experiment" not in lines[0]  # one experiment: no experiment column
+    assert "adaptive equal to fixed-both-kappa=500" in md and "**contradicted (higher)**" in md
+    bad = copy.deepcopy(cl)
+    bad["C1"][0]["diff"] += 0.1
+    with pytest.raises(ValueError, match="C1 adaptive lower than myopic on anees"):
+        report.claims_subset_md(bad, ["C1"], ["ungm-ukf"], results={"ungm-ukf": ungm_res})
+    with pytest.raises(ValueError, match="no results given"):
+        report.claims_subset_md(cl, ["C3a"], results={"ungm-ukf": ungm_res})
+    with pytest.raises(ValueError, match="no claim rows"):
+        report.claims_subset_md(cl, ["C5"], experiments=["ungm-ukf"])
+    assert "| experiment |" in report.claims_subset_md(cl, ["C4"])  # two experiments: the column is there
+
+
+# ---------------------------------------------------------------- Table I
+
+
+def test_table1_renderers_show_paper_ours_and_what_was_spent(sif_results):
+    t1 = claims.table1(sif_results)
+    md = report.table1_columns_md(t1, "ctm-sif-nis")
+    assert md.count("\n") == 2 + len(t1["ctm-sif-nis"]["ours"])
+    assert "6.14e+07" in md and "| fixed (default) |" in md  # the paper's adaptive cost, our default column
+    comp = report.table1_compute_md(t1)
+    g = t1["ctm-sif-stateinnov"]["ours"]["greedy"]
+    grid = sif_results["ctm-sif-stateinnov"].grid
+    # greedy's candidates share one pass of draws (prefix averages): it spends the largest, not the sum
+    assert g["n_iter_spent"] == pytest.approx(max(grid))
+    assert g["n_iter_spent"] > g["mean_n_iter"]
+    assert f"| {g['mean_n_iter']:.3g} | {g['n_iter_spent']:.3g} |" in comp
+    assert report.table1_compute_md(artefacts.load_table1()) == comp  # the stored table is these results'
+    old = copy.deepcopy(t1)
+    for row in old["ctm-sif-stateinnov"]["ours"].values():
+        row.pop("n_iter_spent", None)
+    assert "n/a" in report.table1_compute_md(old)  # a table from before "spent" was recorded
+    with pytest.raises(ValueError, match="no experiment 'ungm-ukf'"):
+        report.table1_columns_md(t1, "ungm-ukf")
+
+
+def test_history_has_the_columns_of_table1_and_every_fixed_count(sif_results):
+    t1 = claims.table1(sif_results)
+    for e, cols in TABLE1_BEFORE.items():
+        assert set(cols) == set(t1[e]["ours"])
+        assert cols["fixed"]["policy"] == "default" and cols["fixed"]["mean_n_iter"] == 10
+    assert set(SIF_FIXED_BEFORE) == {int(v) for v in sif_results["ctm-sif-nis"].grid}
+    for u in CTM_UKF_BEFORE["usage"].values():
+        assert len(u) == len(CTM_UKF_BEFORE["grid"]) and sum(u) == pytest.approx(1.0, abs=2e-3)
+
+
+def test_table1_before_after_pairs_the_releases(sif_results):
+    t1 = claims.table1(sif_results)
+    md = analysis.table1_before_after_md(t1, TABLE1_BEFORE, ["rmse", "cost"], columns=["fixed", "greedy"])
+    assert md.count("\n") == 2 + 2 * 3
+    now = t1["ctm-sif-nis"]["ours"]["greedy"]["cost"]
+    assert f"| L_NIS + N_it/50 | greedy | 32 → {t1['ctm-sif-nis']['ours']['greedy']['rmse']:.4g} | 3.561 → {now:.4g} |" in md
+    with pytest.raises(ValueError, match="no experiment"):
+        analysis.table1_before_after_md(t1, {"ungm-ukf": {}})
+
+
+def test_figure_policies_keep_one_line_of_fixed_values(ungm_res):
+    shown = report.figure_policies(ungm_res)
+    both = [n for n in shown if n.startswith("fixed-both-")]
+    assert both == [ungm_res.best_fixed("rmse", both_steps=True)]
+    assert all(n in shown for n in ungm_res.names if n.startswith("fixed-kappa="))
+
+
+# ---------------------------------------------------------------- seed-level tables
+
+
+def test_seed_table_lists_every_seed_and_the_iqm(ungm_res):
+    md = analysis.seed_table_md(ungm_res, ["adaptive", "no-such-group"], ["rmse"])
+    row = next(line for line in md.splitlines() if line.startswith("| adaptive | rmse"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    names = [f"adaptive-s{i}" for i in range(8)]
+    assert [float(c) for c in cells[4:]] == pytest.approx([ungm_res[n].rmse for n in names], rel=2e-3)
+    assert cells[2].startswith(f"{aggregate(ungm_res, names, 'rmse').iqm:.3g} [")
+    with pytest.raises(ValueError, match="none of the groups"):
+        analysis.seed_table_md(ungm_res, ["no-such-group"])
+
+
+def test_differences_md_marks_the_interval(ungm_res):
+    md = analysis.differences_md(ungm_res, [("fixed-kappa=0", "fixed-kappa=200"), ("greedy", "ml")], ["rmse"])
+    assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| a > b |")
+    d, lo, hi = ungm_res.paired_difference("greedy", "ml", "rmse")  # one policy each: the run-level paired CI
+    assert f"{d:+.3g} [{lo:+.3g}, {hi:+.3g}]" in md
+
+
+def test_usage_shares_and_table(ungm_res):
+    shares = analysis.usage_shares(ungm_res, ["greedy", "adaptive"])
+    assert len(shares) == 9 and all(s.sum() == pytest.approx(1.0) for s in shares.values())
+    md = analysis.usage_md(ungm_res, ["fixed-kappa=200", "fixed-kappa=5"])
+    assert md.splitlines()[0] == "| policy | κ = 5 | κ = 200 |" and "| fixed-kappa=200 | . | 100 % |" in md
+
+
+# ---------------------------------------------------------------- UNGM: the gate
+
+
+def test_ungm_nis_is_the_ukfs_nis_for_every_kappa():
+    env = get_experiment("ungm-ukf").make_env(n_steps=6)
+    d = env.reset(n_runs=7, rng=np.random.default_rng(4))
+    for _ in range(5):  # a few steps in, away from the prior
+        d, *_ = env.step(np.full(d.n_runs, env.default_index))
+    want = d.candidates()["nis"]  # (G, M) from the filter's own unscented update
+    got = analysis.ungm_nis(env.grid[:, None], d.x_pred[:, 0], d.P_pred[:, 0, 0], d.z[:, 0],
+                            R=float(env.filt.model.R[0, 0]))
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    with pytest.raises(ValueError, match="P_pred must be positive"):
+        analysis.ungm_nis(0.0, 1.0, 0.0, 1.0)
+
+
+def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
+    # NIS falls with kappa, so with NIS(kappa_min) < 1 every kappa gives NIS < 1 and the NIS
+    # cost (NIS - 1)^2 is smallest at kappa_min: greedy must choose it there, and only there.
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=60)
+    traj = exp.make_model().simulate(n_runs=40, n_steps=61, rng=np.random.default_rng(5))
+    g = analysis.gate_anatomy(env, GreedyPolicy(grid=env.grid), traj)
+    s = g.summary()
+    assert s["open_kappa"] == 0.0 and s["open_share"] == 1.0
+    assert (g.kappa[g.nis0 >= 1] > 0).mean() > 0.95
+    f = analysis.gate_anatomy(env, FixedPolicy(200, "kappa", grid=env.grid), traj)
+    assert f.summary()["open_kappa"] == 200 and (f.kappa == 200).all()
+    assert "greedy" in analysis.gate_table([g, f]) and analysis.plot_gate([g, f]).axes
+    with pytest.raises(ValueError, match="UNGM UKF"):
+        analysis.gate_anatomy(get_experiment("ctm-ukf").make_env(), GreedyPolicy(), traj)
+
+
+def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_ends():
+    # a linear measurement: every kappa gives the Kalman Pzz, so the grid reaches nothing
+    lin = af.models.linear_gaussian(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[2.0]], n_steps=20)
+    grid = (0.0, 2.0, 5.0)  # the default kappa (2 for nx = 1) must be in the grid
+    env = FilterEnv(af.UKF(lin), grid, Cost("nis"))
+    traj = lin.simulate(n_runs=30, n_steps=21, rng=np.random.default_rng(1))
+    a = analysis.reach_anatomy(env, FixedPolicy(5.0, "kappa", grid=grid), traj)
+    np.testing.assert_allclose(a.pzz_hi / a.pzz_lo, 1.0, rtol=1e-9)
+    assert a.choice.shape == (30, 20) and (a.choice == 5.0).all() and a.inside.mean() < 0.01
+    # UNGM: Pzz grows with kappa, so greedy takes the smallest kappa whenever the default NIS is below 1
+    # at kappa_min (chapter 6's gate) and the largest when even kappa_max leaves the NIS above 1
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=40)
+    traj = exp.make_model().simulate(n_runs=30, n_steps=41, rng=np.random.default_rng(2))
+    g = analysis.reach_anatomy(env, GreedyPolicy(grid=env.grid), traj)
+    assert (g.pzz_hi > g.pzz_lo).all()
+    assert (g.choice[g.nu2 <= g.pzz_lo] == env.grid.min()).all() and (g.choice[g.nu2 >= g.pzz_hi] == env.grid.max()).all()
+    assert "reachable at" in analysis.reach_table([g])
+    with pytest.raises(ValueError, match="scalar measurement"):
+        two = af.models.linear_gaussian(F=[[1.0]], H=[[1.0], [2.0]], Q=[[1.0]], R=np.eye(2), m0=[0.0], P0=[[1.0]])
+        analysis.reach_anatomy(FilterEnv(af.UKF(two), grid, Cost("nis"), n_steps=3), FixedPolicy(5.0, "kappa", grid=grid),
+                               two.simulate(2, 4, rng=0))
+
+
+# ---------------------------------------------------------------- figures
+
+
+def test_fixed_conventions_and_cost_time_figures(ungm_res):
+    fig = analysis.plot_fixed_conventions(ungm_res, refs=("greedy", "adaptive"), unit="m")
+    ax = fig.axes[0]
+    assert ax.get_ylabel() == "time-averaged RMSE (m)" and len(ax.containers) == 2  # two error-bar lines
+    assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"greedy", "adaptive (IQM over seeds)"}
+    fig = analysis.plot_cost_time(ungm_res, ["greedy", "adaptive"], window=50)
+    assert len(fig.axes[0].lines) == 2 and fig.axes[0].lines[0].get_xdata().size == 10
+    none = copy.copy(ungm_res)
+    none.policies = {n: ungm_res[n] for n in ("greedy", "ml")}
+    with pytest.raises(ValueError, match="no fixed-kappa"):
+        analysis.plot_fixed_conventions(none, refs=())
+
+
+def test_plain_log_labels_plain_numbers():
+    fig, ax = plt.subplots()
+    ax.plot([1, 30], [2, 40])
+    analysis.plain_log(ax, "both")
+    fig.canvas.draw()
+    assert ax.get_xscale() == ax.get_yscale() == "log"
+    labels = {t.get_text() for t in ax.get_yticklabels()}
+    assert {"3", "10", "20"} <= labels and not any("times" in t or "^" in t for t in labels)
+    with pytest.raises(ValueError, match="axis must be"):
+        analysis.plain_log(ax, "z")
+
+
+def test_rmse_axes_take_a_unit(ungm_res):
+    names = ["default", "greedy"]
+    assert af.plots.plot_rmse_bars(ungm_res, names, unit="m").axes[0].get_xlabel() == "time-averaged RMSE (m)"
+    assert af.plots.plot_tradeoff(ungm_res, names, unit="m").axes[0].get_xlabel() == "time-averaged RMSE (m)"
+    assert af.plots.plot_rmse_time(ungm_res, names, unit="m").axes[0].get_ylabel() == "RMSE$_k$ (m)"
+
+
+# ---------------------------------------------------------------- CTM: line of sight
+
+
+def test_line_of_sight_of_a_consistent_filter_is_chi_square():
+    # errors drawn from the claimed covariance: each normalised direction is chi2(1), the NEES chi2(4)
+    rng = np.random.default_rng(7)
+    M, T = 4000, 3
+    x = rng.normal(0.0, 50.0, size=(M, T, 4)) + np.array([80.0, 0.0, 40.0, 0.0])
+    A = rng.normal(size=(M, T, 4, 4))
+    cov = A @ np.swapaxes(A, -1, -2) + 0.5 * np.eye(4)
+    mean = x - (np.linalg.cholesky(cov) @ rng.standard_normal((M, T, 4, 1)))[..., 0]
+    run = SimpleNamespace(mean=mean, cov=cov)
+    los = analysis.line_of_sight(x, run)
+    p = x[..., [0, 2]]
+    u = p / np.linalg.norm(p, axis=-1, keepdims=True)
+    np.testing.assert_allclose(los.err_range, ((p - mean[..., [0, 2]]) * u).sum(-1))
+    np.testing.assert_allclose(los.sd_range ** 2, np.einsum("...i,...ij,...j->...", u, cov[..., [0, 2], :][..., [0, 2]], u))
+    for e, sd in ((los.err_range, los.sd_range), (los.err_cross, los.sd_cross)):
+        assert np.median((e / sd) ** 2) == pytest.approx(stats.chi2.median(1), abs=0.04)
+    line = analysis.line_of_sight_table(x, {"consistent": run}).splitlines()[1]
+    assert float(line.rsplit("|", 1)[1]) == pytest.approx(stats.chi2.median(4), abs=0.15)
+    assert analysis.plot_line_of_sight(x, {"consistent": run}).axes[0].get_ylabel() == "position error (m)"
+
+
+# ---------------------------------------------------------------- SIF integration noise
+
+
+def test_sif_spread_vanishes_for_a_deterministic_rule_and_shrinks_with_iterations():
+    model = af.models.coordinated_turn(n_steps=4)
+    traj = model.simulate(n_runs=1, rng=np.random.default_rng(1))
+    ukf = analysis.sif_spread(lambda n: af.UKF(model), [1, 5], traj, n_filters=50)
+    assert np.all(ukf["spread"] < 1e-9) and np.all(ukf["claimed"] > 0)
+    sif = analysis.sif_spread(lambda n: af.SIF(model, n_iter=n, seed=0, on_indefinite="clip"), [2, 32], traj,
+                              n_filters=400)
+    ratio = sif["spread"][0] / sif["spread"][1]  # 1/sqrt(N): about 4 for 16 times the iterations
+    assert 2.5 < ratio < 6.5
+
+
+# ---------------------------------------------------------------- particle filter
+
+
+def test_particle_filter_converges_to_the_kalman_filter_on_a_linear_model():
+    model = af.models.linear_gaussian(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=[[0.5, 0.5], [0.5, 1.0]],
+                                      R=[[4.0]], m0=[0.0, 1.0], P0=np.diag([10.0, 2.0]))
+    traj = model.simulate(n_runs=20, n_steps=15, rng=np.random.default_rng(0))
+    kf = KalmanFilter(model).run(traj.z)
+    pf = BootstrapParticleFilter(model, n_particles=20000, seed=1).run(traj.z)
+    sd = np.sqrt(np.diagonal(kf.cov, axis1=-2, axis2=-1))
+    err = np.abs(pf.mean - kf.mean) / sd  # Monte-Carlo error of the particle mean, in posterior sds
+    assert err.max() < 0.2 and err.mean() < 0.03
+    scale = sd[..., :, None] * sd[..., None, :]
+    rel = np.abs((pf.cov - kf.cov) / scale)  # covariance error in units of the posterior's (MC sd ~ 0.015)
+    assert rel.max() < 0.15 and rel.mean() < 0.03
+    dll = np.abs(pf.loglik - kf.loglik)  # the likelihood estimate too (noisier in the tails)
+    assert dll.max() < 0.15 and dll.mean() < 0.02
+    again = BootstrapParticleFilter(model, n_particles=20000, seed=1).run(traj.z)
+    assert np.array_equal(again.mean, pf.mean)
+
+
+def test_particle_filter_wraps_bearings_and_rejects_bad_input():
+    model = af.models.coordinated_turn(n_steps=10)
+    traj = model.simulate(n_runs=3, rng=np.random.default_rng(2))
+    a = BootstrapParticleFilter(model, n_particles=300, seed=0).run(traj.z)
+    b = BootstrapParticleFilter(model, n_particles=300, seed=0).run(traj.z + 2 * np.pi)  # the same bearings
+    np.testing.assert_allclose(a.mean, b.mean)
+    with pytest.raises(ValueError, match="n_particles"):
+        BootstrapParticleFilter(model, n_particles=1)
+    with pytest.raises(ValueError, match="ess_threshold"):
+        BootstrapParticleFilter(model, ess_threshold=2.0)
+    with pytest.raises(ValueError, match=r"z must have shape \(M, T, 1\)"):
+        BootstrapParticleFilter(model).run(np.zeros((2, 3, 2)))

@@ -1,0 +1,162 @@
+"""The helpers of the learning chapters (adaptfilt.course_rl), against direct computations."""
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+import pytest
+
+from adaptfilt import course_rl as crl
+from adaptfilt.evaluation import evaluate
+from adaptfilt.experiments import get_experiment, seeds as sd
+from adaptfilt.features import FeatureSet, fit_scaler, observe, visited_states
+from adaptfilt.policies import FixedPolicy, GreedyPolicy, default_policy
+
+
+@pytest.fixture(scope="module")
+def ungm_results():
+    """A tiny UNGM evaluation with two seed groups of fixed policies standing in for learned ones."""
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=20)
+    g = exp.grid
+    pols = [default_policy(2.0, grid=g), FixedPolicy(200, "kappa", grid=g), GreedyPolicy(grid=g)]
+    pols += [FixedPolicy(v, "kappa", grid=g, name=f"a-s{i}") for i, v in enumerate((1.0, 5.0, 20.0, 1000.0))]
+    pols += [FixedPolicy(v, "kappa", grid=g, name=f"b-s{i}") for i, v in enumerate((2.0, 10.0, 500.0))]
+    return evaluate(env, pols, n_runs=60, seed=1, progress=False, n_boot=200)
+
+
+class SigmoidPolicy:
+    """pi(large kappa | s) = sigmoid(|innovation| - c): a policy with a known switch."""
+
+    def __init__(self, c: float, name: str, grid=(1.0, 1000.0)):
+        self.c, self.name, self.grid = c, name, np.asarray(grid)
+
+    def probs(self, s):
+        p = 1.0 / (1.0 + np.exp(-(np.abs(s[:, 4]) - self.c)))
+        return np.stack([1.0 - p, p], axis=1)
+
+
+def test_ungm_state_is_the_environments_information_state():
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=30)
+    d = env.reset(n_runs=4, rng=np.random.default_rng(3))
+    for _ in range(17):
+        d, *_ = env.step(np.full(4, d.default_index))
+    f = observe(d, exp.features)
+    for i in range(4):
+        mine = crl.ungm_state(P_pred=f[i, 1], innov=f[i, 4], x_pred=f[i, 0], k=d.t + 1)
+        assert np.allclose(mine, f[i], rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="P_pred"):
+        crl.ungm_state(0.0, 1.0)
+
+
+def test_candidate_cost_range_matches_a_direct_rollout():
+    env = get_experiment("ungm-ukf").make_env(n_steps=15)
+    out = crl.candidate_cost_range(env, n_runs=7, seed=2)
+    d, all_costs = env.reset(n_runs=7, rng=np.random.default_rng(2)), []
+    while d is not None:
+        all_costs.append(d.candidates()["cost"])
+        d, *_ = env.step(np.full(7, d.default_index))
+    c = np.concatenate([x.ravel() for x in all_costs])
+    assert out["decisions"] == 7 * 15
+    assert out["max"] == c.max() and out["median"] == np.median(c)
+    assert np.isclose(out["max_log1p"], np.log1p(c.max()))
+    assert out["share_above_1e3"] == (c > 1e3).mean()
+
+
+def test_scaler_saturation_counts_the_old_clip():
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=60)
+    sat = crl.scaler_saturation(env, "paper+time", seed=0, runs=32)
+    names = FeatureSet.parse("paper+time").names(env.model, env.grid)
+    assert list(sat) == names
+    old = fit_scaler(env, "paper+time", runs=32, seed=0, visit="default", squash="clip")
+    s = visited_states(env, "paper+time", runs=32, seed=1)
+    s = s[np.isfinite(s).all(axis=1)]
+    assert np.isclose(sat["tr P_pred"]["clipped"], (np.abs(old(s)[:, 1]) >= 10).mean())
+    assert sat["tr P_pred"]["clipped"] > 0.05            # the tail that motivated the new scaler
+    assert sat["time[cos 0.05k]"]["clipped"] == 0.0      # a bounded feature never clips
+    assert all(v["asinh_max"] < 10 for v in sat.values())
+
+
+def test_usage_lines_and_share_over_time(ungm_results):
+    lines = crl.usage_lines(ungm_results, ["fixed-kappa=200", "a-s0"], split=50).splitlines()
+    assert "50 or less:   0%" in lines[0] and "200: 100%" in lines[0]
+    assert "50 or less: 100%" in lines[1] and "1: 100%" in lines[1]
+    fig = crl.plot_share_over_time(ungm_results, ["a", "fixed-kappa=200"], 100)
+    y_group, y_fixed = (line.get_ydata() for line in fig.axes[0].get_lines()[:2])
+    assert np.allclose(y_group, 0.25) and np.allclose(y_fixed, 1.0)   # one of four seeds at 1000
+
+
+def test_switch_off_curves_follow_the_policy():
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(4000, 7)) * np.array([1, 1, 1, 1, 3, 1, 1])
+    pols = [SigmoidPolicy(1.0, "early"), SigmoidPolicy(3.0, "late")]
+    fig = crl.plot_switch_off(pols, states, {"innovation": 4}, at_least=100, n_bins=8)
+    early, late = (line.get_ydata() for line in fig.axes[0].get_lines())
+    assert np.all(np.diff(early) > 0) and np.all(early > late)
+    x = np.abs(states[:, 4])
+    top = x >= np.quantile(x, 7 / 8)
+    assert np.isclose(early[-1], pols[0].probs(states)[top, 1].mean(), atol=1e-3)
+
+
+def test_policy_probs_heat_map():
+    pols = [SigmoidPolicy(1.0, "a"), SigmoidPolicy(8.0, "b")]
+    s = crl.ungm_state(1.0, 4.0)
+    fig = crl.plot_policy_probs(pols, s)
+    ax = fig.axes[0]
+    img = ax.get_images()[0].get_array()
+    assert np.allclose(img, np.concatenate([p.probs(s) for p in pols]))
+    assert list(ax.get_lines()[0].get_xdata()) == [1, 0]      # argmax: large kappa for "a", small for "b"
+
+
+def test_seed_lines_and_verdicts(ungm_results):
+    text = crl.seed_lines(ungm_results, ["a", "b"], ["default"], metrics=("rmse",))
+    agg = sd.aggregate(ungm_results, sd.seed_groups(ungm_results.names)["a"], "rmse")
+    assert f"rmse {agg.iqm:.3g} [{agg.iqm_ci[0]:.3g}, {agg.iqm_ci[1]:.3g}]" in text.splitlines()[1]
+    assert text.splitlines()[1].startswith("a (4 seeds)")
+    v = crl.seed_verdicts(ungm_results, "a", "fixed-kappa=200", "rmse")
+    assert sum(v["counts"].values()) == 4
+    for n, (d, lo, hi, verdict) in v["per_seed"].items():
+        assert (d, lo, hi) == ungm_results.paired_difference(n, "fixed-kappa=200", "rmse")
+        assert verdict == sd.seed_verdict((d, lo, hi))
+
+
+def test_claims_table_keeps_rows_with_per_seed_counts():
+    claims = {"C2": [
+        {"experiment": "e", "claim": "adaptive lower than ml", "metric": "rmse", "diff": 0.5, "ci": [0.1, 0.9],
+         "verdict": "contradicted", "seeds_holding": 0, "n_seeds": 8},
+        {"experiment": "e", "claim": "adaptive lower than myopic", "metric": "rmse", "diff": 0.1, "ci": [-0.1, 0.3],
+         "verdict": "not confirmed (n.s.)", "seeds_holding": None, "n_seeds": 8},
+        {"experiment": "other", "claim": "adaptive lower than ml", "metric": "rmse", "diff": 0.5, "ci": [0.1, 0.9],
+         "verdict": "contradicted", "seeds_holding": 3, "n_seeds": 8}]}
+    rows = crl.claims_table(claims, "e").strip().splitlines()[2:]
+    assert len(rows) == 1 and "0/8" in rows[0] and "contradicted" in rows[0]
+    assert len(crl.claims_table(claims, "e", only_held=False).strip().splitlines()) == 4
+
+
+def test_seed_spread_and_differences_figures(ungm_results):
+    fig = crl.plot_seed_spread(ungm_results, ["a", "b"], "rmse")
+    labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
+    assert labels[:4] == ["a-s0", "a-s1", "a-s2", "a-s3"] and "a: IQM of 4" in labels and "b: mean of 3" in labels
+    fig = crl.plot_differences({"c1": {"x": (1.0, 0.5, 1.5)}, "c2": {"x": (-1.0, -2.0, 0.0), "y": (0.0, -1, 1)}})
+    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["c1", "c2"]
+
+
+def test_timed_returns_the_result():
+    out, cpu = crl.timed(sum, [1, 2, 3])
+    assert out == 6 and cpu >= 0.0
+
+
+def test_sign_demo_and_training_figures():
+    from adaptfilt.actor_critic import train
+    from adaptfilt.toy import BanditEnv
+
+    pol, curve = train(BanditEnv(n_steps=3), gamma=0.0, episodes=8, parallel=4, seed=0, cost_transform="none",
+                       progress=False)
+    fig = crl.plot_sign_demo(np.linspace(-1, 1, 5), {"a": pol, "b": pol}, {"a": curve}, window=4)
+    assert len(fig.axes) == 3
+    env = get_experiment("ungm-ukf").make_env(n_steps=5)
+    pol, curve = train(env, gamma=0.5, episodes=4, parallel=2, seed=0, progress=False)
+    fig = crl.plot_training(curve, env.grid, batch=2)
+    assert len(fig.axes) == 3

@@ -1,0 +1,237 @@
+"""The writing rules of the course, checked on the committed (executed) notebooks.
+
+A chapter that meets the rules is listed in ``CHAPTERS``; extend the list as
+chapters are rewritten (06-08 are still to do). The rules (issue 13):
+
+* prose first: the code of a chapter is at most half its prose, by characters
+  (``MAX_CODE_TO_PROSE``), and no code cell is longer than ``MAX_CODE_LINES``;
+* the chapter ends with a ``## Summary`` of 4-6 bullets, ``## Exercises`` with
+  at least three exercises, each with a worked solution folded in a
+  ``<details>`` block whose code runs in the notebook, and ``## References``;
+* a widget (``ipywidgets.interact``) is dropped from the static book
+  (``remove-cell``) and followed by a static stand-in cell that draws a figure;
+* nothing machine-specific or private in what a reader sees (wall times,
+  files the reader does not have), and every "Section N-X" exists in the paper.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+NOTEBOOKS = ROOT / "notebooks"
+PAPER = Path("/work/shared/paper/paper.tex")  # where the project keeps the paper, if present
+
+#: Chapters that meet the rules (file stems). Add 06-08 here once they are rewritten.
+CHAPTERS = [
+    "01-bayesian-recursion",
+    "02-gaussian-assumed-filters",
+    "03-estimation-is-myopic",
+    "04-parameter-adaptation-mdp",
+    "05-actor-critic",
+    "06-ukf-ungm",
+    "07-ukf-ctm",
+    "08-sif-ctm",
+    "09-your-own-model",
+    "10-rl-in-practice",
+]
+#: Chapters that must have at least this many widgets (with static stand-ins).
+MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "05-actor-critic": 1}
+
+MAX_CODE_TO_PROSE = 0.5
+MAX_CODE_LINES = 12
+MIN_EXERCISES = 3
+SUMMARY_BULLETS = (4, 6)
+
+#: The paper's sections (numbered as LaTeX numbers them) and their subsections.
+PAPER_SECTIONS = {
+    "I": "Introduction",
+    "II": "State estimation problem",
+    "II-A": "System model",
+    "II-B": "Bayesian state estimation",
+    "II-C": "State estimation as an optimization problem",
+    "II-D": "Approximate solutions",
+    "III": "State estimation as a Markov decision problem",
+    "IV": "Parameter Adaptation as MDP",
+    "IV-A": "Specification of information state, parameters, and cost",
+    "IV-B": "Reinforcement learning solution to MDP",
+    "V": "Algorithm for Parameter Adaptation",
+    "VI": "Numerical illustration",
+    "VI-A": "Univariate Nonstationary Growth Model",
+    "VI-B": "Coordinated Turn Model",
+    "VI-C": "Actor critic RL parameters",
+    "VI-D": "Algorithms",
+    "VI-E": "Performance criteria",
+    "VI-F": "Results",
+    "VII": "Conclusion",
+}
+
+
+def load(stem: str) -> dict:
+    return json.loads((NOTEBOOKS / f"{stem}.ipynb").read_text(encoding="utf-8"))
+
+
+def text(cell: dict) -> str:
+    src = cell.get("source", "")
+    return src if isinstance(src, str) else "".join(src)
+
+
+def code_cells(nb: dict) -> list[dict]:
+    return [c for c in nb["cells"] if c["cell_type"] == "code"]
+
+
+def markdown(nb: dict) -> list[str]:
+    return [text(c) for c in nb["cells"] if c["cell_type"] == "markdown"]
+
+
+def section(nb: dict, heading: str) -> str:
+    """The Markdown from ``## heading`` up to the next ``## `` heading (across cells)."""
+    md = "\n\n".join(markdown(nb))
+    m = re.search(rf"^## {re.escape(heading)}[ \t]*$(.*?)(?=^## |\Z)", md, flags=re.M | re.S)
+    assert m, f"no '## {heading}' section"
+    return m.group(1)
+
+
+def outputs_text(cell: dict) -> str:
+    parts = []
+    for o in cell.get("outputs", []):
+        if o.get("output_type") == "stream":
+            parts.append(text({"source": o.get("text", "")}))
+        for mime in ("text/plain", "text/markdown", "text/html"):
+            if mime in o.get("data", {}):
+                parts.append(text({"source": o["data"][mime]}))
+    return "\n".join(parts)
+
+
+def has_figure(cell: dict) -> bool:
+    return any("image/png" in o.get("data", {}) or "image/svg+xml" in o.get("data", {}) for o in cell.get("outputs", []))
+
+
+def tags(cell: dict) -> set[str]:
+    return set((cell.get("metadata") or {}).get("tags") or [])
+
+
+# ---------------------------------------------------------------- the rules
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_code_is_at_most_half_the_prose(stem):
+    nb = load(stem)
+    code = sum(len(text(c)) for c in code_cells(nb))
+    prose = sum(len(t) for t in markdown(nb))
+    assert code <= MAX_CODE_TO_PROSE * prose, f"{stem}: code/prose = {code / prose:.2f} > {MAX_CODE_TO_PROSE}"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_no_long_code_cell(stem):
+    for i, c in enumerate(load(stem)["cells"]):
+        if c["cell_type"] == "code":
+            n = len(text(c).strip("\n").splitlines())
+            assert n <= MAX_CODE_LINES, f"{stem} cell {i}: {n} lines > {MAX_CODE_LINES}"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_executed_without_errors(stem):
+    for i, c in enumerate(code_cells(load(stem))):
+        assert c.get("execution_count") is not None, f"{stem}: code cell {i} was not executed"
+        assert not [o for o in c.get("outputs", []) if o.get("output_type") == "error"], f"{stem}: code cell {i} failed"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_ends_with_summary_exercises_references(stem):
+    nb = load(stem)
+    md = "\n\n".join(markdown(nb))
+    heads = re.findall(r"^## (.+?)[ \t]*$", md, flags=re.M)
+    assert heads[-3:] == ["Summary", "Exercises", "References"], f"{stem}: last sections are {heads[-3:]}"
+    bullets = re.findall(r"^[*-] ", section(nb, "Summary"), flags=re.M)
+    lo, hi = SUMMARY_BULLETS
+    assert lo <= len(bullets) <= hi, f"{stem}: {len(bullets)} summary bullets"
+    refs = re.findall(r"^[*-] ", section(nb, "References"), flags=re.M)
+    assert len(refs) >= 2, f"{stem}: {len(refs)} references"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_exercises_have_folded_worked_solutions_with_code(stem):
+    """Each exercise opens ``<details><summary>Solution</summary>`` in its own cell; the
+    block closes (``</details>``) in a later Markdown cell, and the code cells in between
+    ran and printed or drew something."""
+    cells = load(stem)["cells"]
+    start = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown" and re.search(r"^## Exercises", text(c), re.M)), None)
+    assert start is not None, f"{stem}: no '## Exercises' section"
+    exercises, i = [], start
+    while i < len(cells):
+        c = cells[i]
+        if c["cell_type"] == "markdown" and re.search(r"\*\*Exercise \d+", text(c)):
+            src = text(c)
+            assert src.count("<details>") == 1 and "<summary>Solution</summary>" in src, \
+                f"{stem} cell {i}: an exercise without a folded solution"
+            solution_text = src.split("<summary>Solution</summary>", 1)[1]
+            assert len(solution_text.strip()) > 100, f"{stem} cell {i}: the worked solution has no explanation"
+            j = i + 1
+            while j < len(cells) and not (cells[j]["cell_type"] == "markdown" and text(cells[j]).lstrip().startswith("</details>")):
+                j += 1
+            assert j < len(cells), f"{stem} cell {i}: <details> is never closed"
+            code = [cells[k] for k in range(i + 1, j) if cells[k]["cell_type"] == "code"]
+            assert code, f"{stem} cell {i}: the solution has no code"
+            assert all(outputs_text(k).strip() or has_figure(k) for k in code), f"{stem} cell {i}: solution code shows nothing"
+            exercises.append(i)
+            i = j
+        else:
+            i += 1
+    assert len(exercises) >= MIN_EXERCISES, f"{stem}: {len(exercises)} exercises with solutions"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_widgets_are_dropped_from_the_book_and_have_static_stand_ins(stem):
+    cells = load(stem)["cells"]
+    widgets = [i for i, c in enumerate(cells) if c["cell_type"] == "code" and re.search(r"\binteract(ive)?\(", text(c))]
+    assert len(widgets) >= MIN_WIDGETS.get(stem, 0), f"{stem}: {len(widgets)} widgets"
+    for i in widgets:
+        assert "remove-cell" in tags(cells[i]), f"{stem} cell {i}: a widget must be tagged remove-cell"
+        nxt = next(c for c in cells[i + 1:] if c["cell_type"] == "code")
+        assert "remove-cell" not in tags(nxt) and has_figure(nxt), f"{stem} cell {i}: no static stand-in figure after it"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_nothing_machine_specific_or_private(stem):
+    nb = load(stem)
+    shown = "\n".join(markdown(nb) + [text(c) + "\n" + outputs_text(c) for c in code_cells(nb)])
+    for bad in ("time (s)", "wall time", "DESIGN.md", "colleague", "on two cores", "/work/", "/tmp/"):
+        assert bad not in shown, f"{stem}: shows {bad!r}"
+    assert not re.search(r"\bfontsize\s*=\s*[1-7]\b", shown), f"{stem}: a font smaller than 8 pt"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_section_references_exist_in_the_paper(stem):
+    md = "\n".join(markdown(load(stem)))
+    refs = re.findall(r"Sections? ((?:[IVX]+(?:-[A-F])?)(?:(?:, | and )[IVX]+(?:-[A-F])?)*)", md)
+    cited = {r for group in refs for r in re.split(r", | and ", group)}
+    assert cited, f"{stem}: cites no section of the paper"
+    assert cited <= set(PAPER_SECTIONS), f"{stem}: no such section in the paper: {sorted(cited - set(PAPER_SECTIONS))}"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_nbval_checks_two_to_four_outputs(stem):
+    checked = [c for c in code_cells(load(stem)) if re.search(r"^#\s*NBVAL_CHECK_OUTPUT", text(c), re.M)]
+    assert 2 <= len(checked) <= 4, f"{stem}: {len(checked)} NBVAL_CHECK_OUTPUT cells"
+
+
+@pytest.mark.skipif(not PAPER.is_file(), reason="the paper's source is not on this machine")
+def test_section_outline_matches_the_paper():
+    """PAPER_SECTIONS is the paper's outline: sections and subsections in order, numbered as LaTeX does."""
+    tex = PAPER.read_text(encoding="utf-8")
+    romans = ["I", "II", "III", "IV", "V", "VI", "VII", "VIII", "IX", "X"]
+    found, sec, sub = {}, 0, 0
+    for kind, title in re.findall(r"\\(section|subsection)\{\s*((?:[^{}]|\{[^{}]*\})*)\}", tex):
+        title = re.sub(r"\\ac\{(\w+)\}", lambda m: m.group(1).upper(), title).strip()
+        if kind == "section":
+            sec, sub = sec + 1, 0
+            found[romans[sec - 1]] = title
+        else:
+            sub += 1
+            found[f"{romans[sec - 1]}-{'ABCDEFGH'[sub - 1]}"] = title
+    norm = lambda s: re.sub(r"\W+", " ", s).strip().lower()
+    assert {k: norm(v) for k, v in found.items()} == {k: norm(v) for k, v in PAPER_SECTIONS.items()}

@@ -1,0 +1,53 @@
+"""The package's import graph: eager (module-level) imports are acyclic, and the filter does not
+import the MDP built on it (the MDP registers its episode loop with the filter instead)."""
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "adaptfilt"
+
+
+def _imports(path: Path, top_level_only: bool) -> set[str]:
+    tree = ast.parse(path.read_text())
+    nodes = tree.body if top_level_only else list(ast.walk(tree))
+    out = set()
+    for node in nodes:
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("adaptfilt"):
+            out.add(node.module)
+            out.update(f"{node.module}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.startswith("adaptfilt"))
+    return out
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for p in PKG.rglob("*.py"):
+        rel = p.relative_to(PKG.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        mods[name] = p
+    return mods
+
+
+def test_eager_imports_are_acyclic():
+    mods = _modules()
+    graph = {m: {i for i in _imports(p, True) if i in mods and i != m} for m, p in mods.items()}
+    graph["adaptfilt"] = set()  # the package namespace re-exports; its submodules never need it eagerly
+    state: dict[str, int] = {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for n in graph.get(m, ()):
+            if state.get(n) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(stack + [m, n]))
+            if not state.get(n):
+                visit(n, stack + [m])
+        state[m] = 2
+
+    for m in graph:
+        if not state.get(m):
+            visit(m, [])
+
+
+def test_filter_does_not_import_the_mdp():
+    assert not any(i.startswith("adaptfilt.mdp") for i in _imports(PKG / "gaf.py", top_level_only=False))
+    assert not any(i.startswith(("adaptfilt.mdp", "adaptfilt.gaf")) for i in _imports(PKG / "rules.py", False))

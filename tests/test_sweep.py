@@ -1,0 +1,54 @@
+"""The sweep runner: the same results bit for bit on one process, a process pool and a Dask cluster."""
+import hashlib
+
+import numpy as np
+import pytest
+
+
+def train_job(algo: str, seed: int) -> str:
+    """A tiny training: a digest of the policy's arrays."""
+    from adaptfilt.trainers import train_policy
+
+    pol = train_policy("ungm-ukf", algo, 0.5, episodes=12, seed=seed, progress=False, n_steps=20,
+                       **({"parallel": 4} if algo == "batched" else {}))
+    arrays, _ = pol.to_arrays()
+    return hashlib.sha256(b"".join(arrays[k].tobytes() for k in sorted(arrays))).hexdigest()
+
+
+def failing_job(x: int) -> int:
+    if x == 2:
+        raise ValueError("two is not allowed")
+    return x
+
+
+JOBS = [("batched", 0), ("a2c", 0), ("batched", 1), ("a2c", 1)]
+
+
+def test_process_pool_equals_serial():
+    from adaptfilt.experiments.sweep import run_jobs
+
+    serial = run_jobs(train_job, JOBS, workers=1, progress=False)
+    assert len(set(serial)) == len(JOBS)  # different seeds and algorithms: different policies
+    assert run_jobs(train_job, JOBS, workers=2, progress=False) == serial
+
+
+def test_dask_in_process_cluster_equals_serial():
+    distributed = pytest.importorskip("distributed")
+    from adaptfilt.experiments.sweep import run_jobs
+
+    serial = run_jobs(train_job, JOBS, workers=1, progress=False)
+    # two threads in one worker process: jobs must not draw from each other's global generators
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as client:
+        assert run_jobs(train_job, JOBS, cluster=client, progress=False) == serial
+
+
+def test_errors_name_the_job():
+    from adaptfilt.experiments.sweep import run_jobs
+
+    for workers in (1, 2):
+        with pytest.raises(RuntimeError, match=r"job 2 failing_job\(2,\) failed: two is not allowed"):
+            run_jobs(failing_job, [(1,), (3,), (2,)], workers=workers, progress=False)
+    with pytest.raises(ValueError, match="workers"):
+        run_jobs(failing_job, [(1,), (3,)], workers=0, progress=False)
+    assert run_jobs(failing_job, [], progress=False) == []
+    assert np.array_equal(run_jobs(failing_job, [(1,), (3,)], workers=1, progress=False), [1, 3])

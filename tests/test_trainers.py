@@ -1,0 +1,58 @@
+"""adaptfilt.trainers on an environment of one's own: the same policy as through the experiment's name."""
+import numpy as np
+import pytest
+
+import adaptfilt as af
+from adaptfilt.experiments import get_experiment
+from adaptfilt.mdp import Cost, FilterEnv
+from adaptfilt.trainers import train_policy
+
+
+def digest(pol) -> bytes:
+    arrays, _ = pol.to_arrays()
+    return b"".join(arrays[k].tobytes() for k in sorted(arrays) if not k.startswith("curve"))
+
+
+@pytest.mark.parametrize("algo", ["a2c", "batched"])
+def test_an_environment_trains_the_same_policy_as_the_experiment_name(algo):
+    kw = dict(episodes=8, progress=False, parallel=4, features="paper+time")
+    by_name = train_policy("ungm-ukf", algo, 0.5, seed=1, n_steps=10, **kw)
+    env = get_experiment("ungm-ukf").make_env(n_steps=10)
+    by_env = train_policy(env, algo, 0.5, seed=1, name="mine", **kw)
+    assert by_env.name == "mine"
+    assert digest(by_env) == digest(by_name)
+    other = train_policy(env, algo, 0.5, seed=2, **kw)
+    assert digest(other) != digest(by_env)
+
+
+def test_own_model_defaults_to_the_papers_features_and_acts_on_its_grid():
+    model = af.StateSpaceModel(f=lambda x, k: 0.9 * x, h=lambda x, k: np.sin(x), Q=[[0.5]], R=[[0.1]],
+                               m0=[0.0], P0=[[1.0]], name="sine", n_steps=12)
+    grid = [0.0, 2.0, 10.0]
+    env = FilterEnv(af.UKF(model, on_indefinite="clip"), grid, cost=Cost("nis"))
+    pol = train_policy(env, "a2c", 0.0, episodes=8, seed=0, parallel=4, progress=False)
+    assert pol.metadata["feature_set"] == "paper" and pol.metadata["experiment"] is None
+    assert pol.gamma == 0.0 and np.array_equal(pol.grid, grid)
+    d = env.reset(n_runs=5, rng=np.random.default_rng(0))
+    a = pol.act(d)
+    assert a.shape == (5,) and set(a.tolist()) <= {0, 1, 2}
+
+
+def test_a_named_policy_file(tmp_path):
+    for algo in ("batched", "a2c"):
+        out = tmp_path / f"{algo}.npz"
+        train_policy("ungm-ukf", algo, 0.5, episodes=4, seed=0, parallel=2, n_steps=5, progress=False, out=out,
+                     name=f"{algo}-mine")
+        assert af.learned.load_policy(out, "ungm-ukf").name == f"{algo}-mine"
+
+
+def test_bad_targets_are_named():
+    env = get_experiment("ungm-ukf").make_env(n_steps=10)
+    with pytest.raises(ValueError, match="horizon 10"):
+        train_policy(env, "a2c", episodes=2, n_steps=20, progress=False)
+    with pytest.raises(ValueError, match="horizon 10"):
+        train_policy(env, "batched", episodes=2, n_steps=20, progress=False)
+    with pytest.raises(TypeError, match="FilterEnv"):
+        train_policy(3.5, "a2c", episodes=2, progress=False)
+    with pytest.raises(KeyError, match="unknown experiment"):
+        train_policy("no-such", "a2c", episodes=2, progress=False)
