@@ -33,8 +33,11 @@ def test_data_manifest_files_exist_match_and_load():
     for rel in ("results/ungm-floor.json", "results/table1.json", "results/table1.md", "results/claims.json",
                 "results/ctm-reconciliation.json"):
         assert rel in files
-    if any(artefacts.seeds(e, "adaptive-faithful") for e in EXPERIMENTS):
-        assert "results/fast-vs-faithful.json" in files
+    for e in ("ungm-ukf", "ctm-ukf"):  # the fast-vs-faithful comparison needs 8 faithful seeds of each
+        assert artefacts.seeds(e, "adaptive-faithful") == list(SEEDS), e
+        assert seed_groups(artefacts.load_results(e).names)["adaptive-faithful"] == [
+            f"adaptive-faithful-s{s}" for s in SEEDS]
+    assert "results/fast-vs-faithful.json" in files
     for e in man["files"]:
         assert {"path", "sha256", "command", "seed", "version", "wall_time_s"} <= set(e)
         assert sha256(DATA / e["path"]) == e["sha256"], e["path"]
