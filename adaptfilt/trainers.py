@@ -31,7 +31,9 @@ separate actor and critic), the entropy bonus is the paper's 1e-3 and the
 discount the paper's gamma.
 
 All trainers return a :class:`~adaptfilt.learned.LearnedPolicy` whose file is
-byte-identical for the same command (one torch thread, seeded everything).
+byte-identical for the same command (one torch thread, seeded everything) on the
+same kind of CPU; on another instruction set the floating-point kernels round
+differently and training amplifies that into a different policy (README, Conventions).
 """
 from __future__ import annotations
 
