@@ -247,12 +247,14 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         """A policy file in data/ that no manifest lists yet, made by the expected command."""
         if quick or retrain or not (data / rel).exists():
             return False
-        recorded = " ".join(w for w in str(read_npz(data / rel)[1].get("command", "")).split() if w != "--no-progress")
+        meta = read_npz(data / rel)[1]
+        recorded = " ".join(w for w in str(meta.get("command", "")).split() if w != "--no-progress")
         if recorded != command:
             return False
         if not same:
             shutil.copy2(data / rel, out / rel)
-        entries[rel] = {"command": command, "wall_time_s": None, "cpu_time_s": None}
+        # the training seed is the file's own, not the evaluation seed; its time was not recorded
+        entries[rel] = {"command": command, "seed": int(meta["seed"]), "wall_time_s": None, "cpu_time_s": None}
         return True
 
     # ---- 1. train

@@ -29,7 +29,9 @@ def test_data_manifest_files_exist_match_and_load():
     for kind, (_, exps) in FAITHFUL.items():
         for e in exps:
             for s in artefacts.seeds(e, kind):
-                assert "--algo faithful" in files[f"policies/{e}-{kind}-s{s}.npz"]["command"]
+                entry = files[f"policies/{e}-{kind}-s{s}.npz"]
+                assert "--algo faithful" in entry["command"] and f"--seed {s} " in entry["command"]
+                assert entry["seed"] == s
     for rel in ("results/ungm-floor.json", "results/table1.json", "results/table1.md", "results/claims.json",
                 "results/ctm-reconciliation.json"):
         assert rel in files
