@@ -16,7 +16,7 @@ wall time, on --seeds seeds, evaluated with every baseline on the same M paired 
 IQM over seeds [two-level 95 % CI] of cost, objective (mean log(1+L)), RMSE and ANEES, the difference to the
 faithful trainer, and the mean training wall/CPU time measured in this run (faithful: from data/'s manifest).
 
-    python benchmarks/bench_peers.py [--experiments ungm-ukf ctm-ukf] [--seeds 8] [--runs 10000] [--out bench-out/peers]
+    python benchmarks/bench_peers.py [--experiments ungm-ukf ctm-ukf] [--seeds 8] [--seeds-ppo 4] [--runs 10000] [--out bench-out/peers]
 
 Trained policies are cached in --out (delete it to retrain); this takes about an hour of CPU.
 --train-only trains (and caches) without evaluating, e.g. before data/ holds the faithful policies.
@@ -52,6 +52,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiments", nargs="+", default=["ungm-ukf", "ctm-ukf"])
     ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--seeds-ppo", type=int, default=None,
+                    help="seeds for ppo-default only (its 5x10^5 UNGM transitions cost about 750 CPU-s each); default --seeds")
     ap.add_argument("--runs", type=int, default=10_000)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--out", default="bench-out/peers")
@@ -71,8 +73,9 @@ def main() -> None:
         fast_walls = [man[f"policies/{exp_name}-adaptive-s{s}.npz"]["wall_time_s"] for s in range(args.seeds)
                       if man.get(f"policies/{exp_name}-adaptive-s{s}.npz", {}).get("wall_time_s")]
         budget = sum(fast_walls) / len(fast_walls) if fast_walls else 15.0
+        n_seeds = {lr: args.seeds_ppo if lr == "ppo-default" and args.seeds_ppo else args.seeds for lr in LEARNERS}
         jobs = [(exp_name, lr, s, str(out / f"{exp_name}-{lr}-s{s}.npz"), budget)
-                for lr in LEARNERS for s in range(args.seeds) if not (out / f"{exp_name}-{lr}-s{s}.npz").exists()]
+                for lr in LEARNERS for s in range(n_seeds[lr]) if not (out / f"{exp_name}-{lr}-s{s}.npz").exists()]
         run_jobs(train_one, jobs, workers=args.workers, desc=f"train peers on {exp_name}")
         if args.train_only:
             continue
@@ -86,7 +89,7 @@ def main() -> None:
         times = {}
         for lr in LEARNERS:
             groups[lr] = []
-            for s in range(args.seeds):
+            for s in range(n_seeds[lr]):
                 f = out / f"{exp_name}-{lr}-s{s}.npz"
                 pols.append(load_policy(f, experiment=exp_name, name=f"{lr}-s{s}"))
                 groups[lr].append(pols[-1].name)
@@ -96,7 +99,7 @@ def main() -> None:
                  if man.get(f"policies/{exp_name}-{kind}-s{s}.npz", {}).get("cpu_time_s")]
             times[g] = [{"wall_time_s": e["wall_time_s"], "cpu_time_s": e["cpu_time_s"]} for e in t]
         res = evaluate(exp, pols, n_runs=args.runs, seed=0, progress=True)
-        print(f"\n### {exp_name}: M = {args.runs} paired runs, {args.seeds} seeds per learner; "
+        print(f"\n### {exp_name}: M = {args.runs} paired runs, seeds per learner {n_seeds} (faithful, fast: {args.seeds}); "
               f"PPO wall budget {budget:.1f} s\n")
         print("| learner | cost | objective log(1+L) | RMSE | ANEES | minus faithful: objective [95% CI] | "
               "train wall / CPU s | transitions |")
