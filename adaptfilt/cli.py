@@ -5,7 +5,7 @@ Sub-commands (their names and flags are a contract the course, the README and
 
     adaptfilt experiments
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
-    adaptfilt train NAME [--algo faithful|batched|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
+    adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
                          [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--quick] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
@@ -298,13 +298,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
     p.add_argument("--algo", choices=ALGOS, default="faithful",
                    help="faithful: Algorithm 2, one episode at a time (the reference, minutes); batched: the "
-                        "same, --parallel episodes per update; a2c: the fast mode (Stable-Baselines3 A2C, seconds); "
-                        "ppo: Stable-Baselines3 PPO")
+                        "same, --parallel episodes per update; fast: the fast mode (Stable-Baselines3 PPO with large "
+                        "batches, seconds); a2c: the first fast mode (SB3 A2C); ppo: SB3 PPO with its defaults")
     p.add_argument("--gamma", type=_gamma, default=0.5, help="discount factor in [0, 1) (0 = myopic)")
     p.add_argument("--episodes", type=_int_at_least(1), default=1000,
                    help="training budget N_MC in episodes of T steps (default 1000)")
     p.add_argument("--parallel", type=_int_at_least(1), default=None,
-                   help="batched: episodes per update (default 50); a2c/ppo: runs per batch (default 64/16)")
+                   help="batched: episodes per update (default 50); fast/a2c/ppo: runs per batch (default 256/64/16)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--seed", type=_int_at_least(0), default=0)
     g.add_argument("--seeds", type=_seeds, default=None,

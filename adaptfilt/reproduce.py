@@ -18,7 +18,7 @@ Learned policies (``kind``):
 
 * ``adaptive`` (gamma = 0.5) and ``myopic`` (gamma = 0), every experiment,
   :data:`SEEDS` training seeds each, trained by the fast mode
-  (:mod:`adaptfilt.trainers`, ``--algo a2c``);
+  (:mod:`adaptfilt.trainers`, ``--algo fast``);
 * ``adaptive-faithful``, on UNGM-UKF and CTM-UKF, the same seeds trained by
   Algorithm 2 as printed (``--algo faithful``): the reference the fast mode is
   measured against. About 11 CPU-minutes each, so trained only with
@@ -65,7 +65,7 @@ SEED = 0
 KINDS = {"adaptive": 0.5, "myopic": 0.0}
 #: Learned kinds trained paper-faithfully: kind -> (gamma, experiments).
 FAITHFUL = {"adaptive-faithful": (0.5, ("ungm-ukf", "ctm-ukf"))}
-ALGO = {"adaptive": "a2c", "myopic": "a2c", "adaptive-faithful": "faithful"}
+ALGO = {"adaptive": "fast", "myopic": "fast", "adaptive-faithful": "faithful"}
 GAMMA = {**KINDS, **{k: g for k, (g, _) in FAITHFUL.items()}}
 
 

@@ -1,15 +1,17 @@
-"""Why the fast mode learns less than Algorithm 2, and which SB3 A2C setting closes the gap, at the seed level.
+"""Which SB3 setting makes a fast trainer as good as Algorithm 2, at the seed level.
 
 Algorithm 2 as printed takes one Adam step per transition (5x10^5 steps of lr 1e-4 / 5e-4 for a UNGM
-policy); the fast mode (:data:`adaptfilt.trainers.FAST`: 64 runs x 5-step returns per update) takes
-about 1600 RMSprop steps of lr 7e-4 for the same transitions. This trains variants that change how many
-updates, how large, and how much exploration, --seeds seeds each, on one experiment; evaluates them with
+policy); the first fast mode (:data:`adaptfilt.trainers.A2C_FAST`: 64 runs x 5-step returns per update)
+takes about 1600 RMSprop steps of lr 7e-4 for the same transitions and learns less; PPO with its
+defaults learns more but takes about 700 s. This trains variants of both (how many updates, how large,
+how much exploration; ``ppo-fast`` is today's fast mode, :data:`adaptfilt.trainers.FAST`), --seeds
+seeds each, on one experiment; evaluates them with
 the stored paper-faithful policies (``data/policies/<exp>-adaptive-faithful-s*.npz``) and the baselines
 on the same M paired runs; and prints the IQM over seeds [two-level 95 % CI] of the objective (mean
 log(1 + L)), cost, RMSE and ANEES, each variant minus faithful, and the mean training wall time per
 policy measured in this run (one torch thread per worker; compare times of one run only):
 
-    python benchmarks/bench_fast_tuning.py --exp ungm-ukf [--seeds 8] [--runs 2000] [--variants fast,envs16]
+    python benchmarks/bench_fast_tuning.py --exp ungm-ukf [--seeds 8] [--runs 2000] [--variants a2c,ppo-fast]
 """
 from __future__ import annotations
 
@@ -19,13 +21,21 @@ import time
 from pathlib import Path
 
 VARIANTS = {
-    "fast": ("a2c", 64, {"n_steps": 5, "ent_coef": 1e-3}),            # the current fast mode
+    "a2c": ("a2c", 64, {"n_steps": 5, "ent_coef": 1e-3}),             # the first fast mode (A2C_FAST)
     "envs16": ("a2c", 16, {"n_steps": 5, "ent_coef": 1e-3}),          # 4x the updates, 1/4 the batch
     "envs16-lr2e-3": ("a2c", 16, {"n_steps": 5, "ent_coef": 1e-3, "learning_rate": 2e-3}),
     "lr3e-3": ("a2c", 64, {"n_steps": 5, "ent_coef": 1e-3, "learning_rate": 3e-3}),
     "envs8": ("a2c", 8, {"n_steps": 5, "ent_coef": 1e-3}),
     "ent1e-2": ("a2c", 64, {"n_steps": 5, "ent_coef": 1e-2}),
     "envs16-ent1e-2": ("a2c", 16, {"n_steps": 5, "ent_coef": 1e-2}),
+    # PPO: its defaults (16 runs x 2048 steps, 10 epochs of minibatches of 64, lr 3e-4) learn best but
+    # take about 700 s; these trade epochs and minibatch size for time (the chosen one is "ppo-fast").
+    "ppo-fast": ("ppo", 256, {"n_steps": 64, "batch_size": 2048, "n_epochs": 5, "learning_rate": 2e-3}),
+    "ppo-e10": ("ppo", 256, {"n_steps": 64, "batch_size": 2048, "n_epochs": 10, "learning_rate": 1e-3}),
+    "ppo-b4096": ("ppo", 256, {"n_steps": 64, "batch_size": 4096, "n_epochs": 5, "learning_rate": 1e-3}),
+    "ppo-roll32": ("ppo", 256, {"n_steps": 32, "batch_size": 2048, "n_epochs": 5, "learning_rate": 1e-3}),
+    "ppo-envs128": ("ppo", 128, {"n_steps": 64, "batch_size": 1024, "n_epochs": 5, "learning_rate": 2e-3}),
+    "ppo-envs64-e3": ("ppo", 64, {"n_steps": 64, "batch_size": 1024, "n_epochs": 3, "learning_rate": 1e-3}),
 }
 
 

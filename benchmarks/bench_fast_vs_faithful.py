@@ -1,4 +1,4 @@
-"""Fast trainer (SB3 A2C through adaptfilt.gym) vs Algorithm 2 as printed, at the seed level.
+"""Fast trainer (SB3 PPO with large batches, through adaptfilt.gym) vs Algorithm 2 as printed, at the seed level.
 
 Prints, from the stored evaluation in data/ (``adaptfilt reproduce``): for UNGM-UKF and CTM-UKF, the
 8 fast-mode policies (``adaptive-s*``) against the 8 paper-faithful ones (``adaptive-faithful-s*``) on the
@@ -27,13 +27,13 @@ def timing(faithful_episodes: int) -> None:
     load = os.getloadavg()[0]
     for exp in ("ungm-ukf", "ctm-ukf"):
         t, c = time.perf_counter(), time.process_time()
-        train_policy(exp, "a2c", 0.5, episodes=1000, seed=0, progress=False)
+        train_policy(exp, "fast", 0.5, episodes=1000, seed=0, progress=False)
         fw, fc = time.perf_counter() - t, time.process_time() - c
         t, c = time.perf_counter(), time.process_time()
         train_policy(exp, "faithful", 0.5, episodes=faithful_episodes, seed=0, progress=False)
         scale = 1000 / faithful_episodes
         aw, ac = (time.perf_counter() - t) * scale, (time.process_time() - c) * scale
-        print(f"{exp}: fast (a2c, 1000 episodes) {fw:.1f} s wall, {fc:.1f} s CPU | faithful (1000 episodes, "
+        print(f"{exp}: fast (1000 episodes) {fw:.1f} s wall, {fc:.1f} s CPU | faithful (1000 episodes, "
               f"scaled from {faithful_episodes}) {aw:.0f} s wall, {ac:.0f} s CPU | CPU ratio {ac / fc:.0f}x")
     print(f"(load average at the start: {load:.2f}, one torch thread)")
 

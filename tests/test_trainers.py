@@ -13,7 +13,7 @@ def digest(pol) -> bytes:
     return b"".join(arrays[k].tobytes() for k in sorted(arrays) if not k.startswith("curve"))
 
 
-@pytest.mark.parametrize("algo", ["a2c", "batched"])
+@pytest.mark.parametrize("algo", ["fast", "a2c", "batched"])
 def test_an_environment_trains_the_same_policy_as_the_experiment_name(algo):
     kw = dict(episodes=8, progress=False, parallel=4, features="paper+time")
     by_name = train_policy("ungm-ukf", algo, 0.5, seed=1, n_steps=10, **kw)
@@ -39,7 +39,7 @@ def test_own_model_defaults_to_the_papers_features_and_acts_on_its_grid():
 
 
 def test_a_named_policy_file(tmp_path):
-    for algo in ("batched", "a2c"):
+    for algo in ("batched", "fast", "a2c"):
         out = tmp_path / f"{algo}.npz"
         train_policy("ungm-ukf", algo, 0.5, episodes=4, seed=0, parallel=2, n_steps=5, progress=False, out=out,
                      name=f"{algo}-mine")
@@ -56,3 +56,12 @@ def test_bad_targets_are_named():
         train_policy(3.5, "a2c", episodes=2, progress=False)
     with pytest.raises(KeyError, match="unknown experiment"):
         train_policy("no-such", "a2c", episodes=2, progress=False)
+
+
+def test_the_fast_mode_is_ppo_with_large_batches_and_scales_its_minibatch_with_the_runs():
+    pol = train_policy("ungm-ukf", "fast", 0.5, episodes=8, seed=0, parallel=4, n_steps=10, progress=False)
+    tr = pol.metadata["trainer"]
+    assert tr["algo"] == "ppo" and tr["n_envs"] == 4
+    assert tr["kwargs"]["batch_size"] == 4 * 64 // 8 and tr["kwargs"]["n_epochs"] == 5
+    default = train_policy("ungm-ukf", "fast", 0.5, episodes=8, seed=0, n_steps=10, progress=False)
+    assert default.metadata["trainer"]["n_envs"] == 256 and default.metadata["trainer"]["kwargs"]["batch_size"] == 2048

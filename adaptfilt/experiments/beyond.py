@@ -32,7 +32,7 @@ import numpy as np
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY"]
 
 #: The learner of the candidate study (chosen by the measurement reported in REPRODUCTION.md).
-CAND_ALGO = "a2c"
+CAND_ALGO = "fast"
 #: Repair penalty (in units of the transformed cost) of the SIF study.
 PENALTY = 20.0
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
@@ -123,7 +123,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         for e in SIF_EXPERIMENTS:
             for s in scale.seeds:
                 rel = f"policies/{e}-adaptive-penalised-s{s}.npz"
-                jobs.append((e, "adaptive-penalised", 0.5, s, str(out / rel), scale, None, "a2c", PENALTY))
+                jobs.append((e, "adaptive-penalised", 0.5, s, str(out / rel), scale, None, "fast", PENALTY))
                 metas.append(rel)
     todo = [(j, m) for j, m in zip(jobs, metas) if not (out / m).exists()]
     say(f"[beyond] {len(todo)} policies to train")
