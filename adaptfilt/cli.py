@@ -326,7 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="train + evaluate + figures + tables of the paper")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory")
     p.add_argument("--quick", action="store_true", help="toy scale, about a minute")
-    p.add_argument("--retrain", action="store_true", help="retrain even where data/ has the artefact")
+    p.add_argument("--retrain", action="store_true", help="retrain the fast-mode policies and recompute every result even where data/ has them (the paper-faithful policies in data/ are reused)")
     p.add_argument("--faithful", action="store_true",
                    help="also train the paper-faithful policies data/ lacks (slow: about 11 CPU-minutes each)")
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
