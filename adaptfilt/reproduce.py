@@ -268,8 +268,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         for s in scale.seeds:
             rel = policy_rel(e, k, s)
             cmd = policy_command(e, k, s, scale)
-            slow = k in FAITHFUL and not quick
-            if reuse(rel) or adopt(rel, cmd) or (slow and (reuse(rel, kept) or adopt(rel, cmd, keep=True))):
+            keep = k in FAITHFUL  # hours each: reused even by --retrain
+            if reuse(rel, kept if keep else None) or adopt(rel, cmd, keep):
                 n_reused += 1
                 learned[e].append(rel)
             elif k in KINDS or faithful:
