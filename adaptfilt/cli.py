@@ -25,6 +25,7 @@ exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
@@ -66,6 +67,8 @@ def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
         words += ["--repair-penalty", f"{args.repair_penalty:g}"]
     if args.horizon is not None:
         words += ["--horizon", str(args.horizon)]
+    if args.actions is not None:
+        words += ["--actions", ",".join(f"{v:g}" for v in args.actions)]
     return " ".join(words + ["--out", out])
 
 
@@ -76,7 +79,7 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
     command = args.command_line or _train_command(args, seed, out)
     train_policy(args.name, args.algo, args.gamma, args.episodes, seed, parallel=args.parallel,
                  features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
-                 out=out, resume=args.resume, repair_penalty=args.repair_penalty)
+                 out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions)
     return out
 
 
@@ -113,6 +116,16 @@ def _beyond(args: argparse.Namespace) -> int:
     (Path(args.out) / "beyond" / "summary.md").write_text(text)
     print(text)
     return 0
+
+
+def _values(text: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, e.g. 5,7,10; got {text!r}") from None
+    if not all(math.isfinite(v) for v in vals):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
+    return vals
 
 
 def _studies(text: str) -> str:
@@ -314,6 +327,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
     p.add_argument("--repair-penalty", type=_nonnegative, default=0.0,
                    help="added to the learner's cost of a run whose covariance was repaired (default 0)")
+    p.add_argument("--actions", type=_values, default=None,
+                   help="the grid values the policy may choose, e.g. 5,7,10,15,20,30 (a safe subset of the "
+                        "experiment's grid holding its default; fast/a2c/ppo only)")
     p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,

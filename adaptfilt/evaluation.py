@@ -327,7 +327,11 @@ def _check_policy(policy, grid: np.ndarray) -> None:
     if not hasattr(policy, "act") or not hasattr(policy, "name"):
         raise TypeError(f"a policy needs .name and .act(decision); got {type(policy).__name__}")
     g = getattr(policy, "grid", None)
-    if g is not None and (np.shape(g) != grid.shape or not np.allclose(g, grid)):
+    if g is not None and getattr(policy, "acts_on_subset", False):
+        from adaptfilt.learned import grid_indices
+
+        grid_indices(np.asarray(g, dtype=float), grid, policy.name)  # ValueError unless g is a subset of grid
+    elif g is not None and (np.shape(g) != grid.shape or not np.allclose(g, grid)):
         raise ValueError(f"policy {policy.name!r} was made for the grid {np.asarray(g).tolist()}, "
                          f"the environment's grid is {grid.tolist()}")
 

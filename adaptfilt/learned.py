@@ -50,7 +50,7 @@ from torch import nn
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
-           "POLICY_FORMAT", "check_compatible"]
+           "POLICY_FORMAT", "check_compatible", "grid_indices"]
 
 POLICY_FORMAT = "adaptfilt-policy/1"
 HIDDEN = (64, 64)
@@ -230,6 +230,9 @@ class LearnedPolicy:
         ``True``: draws from ``pi`` with ``rng`` (as during training).
     """
 
+    #: acts on its own grid, which may be a subset of the environment's (:func:`grid_indices`)
+    acts_on_subset = True
+
     def __init__(self, actor: Actor, scaler: FeatureScaler, grid: Sequence[float], gamma: float = 0.5,
                  name: str | None = None, metadata: dict | None = None, sample: bool = False,
                  rng: np.random.Generator | int | None = None, curve: Mapping[str, np.ndarray] | None = None):
@@ -263,15 +266,13 @@ class LearnedPolicy:
 
     def act(self, decision) -> np.ndarray:
         """Grid indices ``(M,)``: ``argmax pi`` (or a draw from ``pi`` if ``sample``)."""
-        if decision.grid.shape != self.grid.shape or not np.allclose(decision.grid, self.grid):
-            raise ValueError(f"policy {self.name!r} was trained on the grid {self.grid.tolist()}, "
-                             f"the environment uses {np.asarray(decision.grid).tolist()}")
+        to_env = grid_indices(self.grid, decision.grid, self.name)
         s = observe(decision, self.feature_set)
         if not self.sample:
-            return np.argmax(self.logits(s), axis=1)
+            return to_env[np.argmax(self.logits(s), axis=1)]
         p = self.probs(s)
         u = self.rng.random(p.shape[0])
-        return np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)
+        return to_env[np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)]
 
     def __repr__(self) -> str:
         e = self.metadata.get("experiment")
@@ -347,6 +348,20 @@ def describe_env(env, features=None) -> dict:
     }
 
 
+def grid_indices(own: np.ndarray, env_grid, name: str = "policy") -> np.ndarray:
+    """Where each of a policy's grid values sits in the environment's grid. A policy trained on a
+    subset of the grid (``train_policy(..., actions=...)``: e.g. only SIF iteration counts that do not
+    diverge) acts in the full environment; any other grid is a ValueError naming both."""
+    env_grid = np.asarray(env_grid, dtype=float)
+    if own.shape == env_grid.shape and np.allclose(own, env_grid):
+        return np.arange(own.size)
+    hit = np.isclose(own[:, None], env_grid[None, :])
+    if not hit.any(axis=1).all():
+        raise ValueError(f"policy {name!r} was trained on the grid {own.tolist()}, which is not a subset of the "
+                         f"environment's grid {env_grid.tolist()}")
+    return hit.argmax(axis=1)
+
+
 def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> None:
     """ValueError naming the first field in which ``meta`` and ``target`` disagree."""
     for key in ("experiment", "model", "param_name", "feature_names", "grid", "cost"):
@@ -354,8 +369,8 @@ def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> No
         have = meta.get(key)
         if want is None or (have is None and key != "experiment"):
             continue  # the experiment is strict: a policy trained on a bare env is not "for" any experiment
-        if key == "grid":
-            same = len(want) == len(have) and np.allclose(want, have)
+        if key == "grid":  # a policy may act on a subset of the grid (grid_indices)
+            same = np.isclose(np.asarray(have, float)[:, None], np.asarray(want, float)[None, :]).any(axis=1).all()
         else:
             same = (list(want) == list(have)) if isinstance(want, (list, tuple)) else want == have
         if not same:

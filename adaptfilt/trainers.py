@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -113,7 +114,8 @@ class _Progress:
 def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 0,
               config: SB3Config = FAST, *, features: str | None = None, n_steps: int | None = None,
               progress: bool = True, command: str | None = None, name: str | None = None,
-              max_seconds: float | None = None, repair_penalty: float = 0.0):
+              max_seconds: float | None = None, repair_penalty: float = 0.0,
+              actions: Sequence[float] | None = None):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
@@ -126,6 +128,9 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     batch of episodes) and metadata (algorithm, hyperparameters, seed, command).
     ``max_seconds`` stops training after that much wall time (for comparisons
     at equal wall time; such a policy depends on the machine, not only its seed).
+    ``actions``: the grid values the policy may choose, a subset of the experiment's
+    grid holding its default (a *safe action set*: e.g. no SIF iteration count that
+    can diverge); the policy still acts in the full experiment (named experiments only).
     """
     import torch
     from stable_baselines3 import A2C, PPO
@@ -140,6 +145,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     _check(gamma, episodes)
     target, label, recommended = _target(experiment, n_steps)
     features = features or recommended
+    if actions is not None:
+        target, n_steps = _restricted(target, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
                     repair_penalty=repair_penalty)
     T = venv.venv.env.n_steps
@@ -167,6 +174,24 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     pol = to_learned_policy(model, venv, gamma=gamma, name=name, metadata=meta)
     pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
     return pol
+
+
+def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None):
+    """The experiment's environment with its grid cut to ``actions`` (ValueError naming what is wrong)."""
+    from adaptfilt.experiments import Experiment
+    from adaptfilt.mdp import FilterEnv
+
+    if not isinstance(target, Experiment):
+        raise ValueError("actions= restricts a named experiment's grid; for an environment of your own, "
+                         "build it with the grid you want")
+    a = np.asarray(actions, dtype=float).ravel()
+    full = np.asarray(target.grid, dtype=float)
+    off = [v for v in a if not np.isclose(v, full).any()]
+    if a.size == 0 or off:
+        raise ValueError(f"actions must be values of the {target.name} grid {full.tolist()}; not on it: {[float(v) for v in off] or 'none given'}")
+    env = FilterEnv(target.make_filter(seed), np.unique(a), cost=target.cost, n_steps=n_steps)
+    env.experiment = target.name  # the policy is still "for" the experiment (it acts on a subset of its grid)
+    return env
 
 
 def _target(experiment, n_steps: int | None):
@@ -240,7 +265,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  *, parallel: int | None = None, features: str | None = None, n_steps: int | None = None,
                  progress: bool = True, command: str | None = None, out: str | Path | None = None,
                  resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
-                 repair_penalty: float = 0.0):
+                 repair_penalty: float = 0.0, actions: Sequence[float] | None = None):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
     ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
@@ -259,6 +284,9 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         raise ValueError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGOS)}")
     if algo in ("faithful", "batched"):
         from adaptfilt.actor_critic import train_experiment
+
+        if actions is not None:
+            raise ValueError("actions= (a restricted grid) needs an SB3 trainer (fast, a2c or ppo)")
 
         B = 1 if algo == "faithful" else (parallel or 50)
         if algo == "faithful" and parallel not in (None, 1):
@@ -284,7 +312,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         kwargs["batch_size"] = max(2, parallel * kwargs["n_steps"] // 8)
     cfg = SB3Config(base.algo, parallel or base.n_envs, kwargs)
     pol = train_sb3(experiment, gamma, episodes, seed, cfg, features=features, n_steps=n_steps, progress=progress,
-                    command=command, name=name, repair_penalty=repair_penalty)
+                    command=command, name=name, repair_penalty=repair_penalty, actions=actions)
     if out is not None:
         pol.save(out)
     return pol

@@ -261,6 +261,8 @@ OUT = "--out"
     (["train", "ungm-ukf", "--gamma", "nan", OUT, "{tmp}/p.npz"], "must be in [0, 1), got nan"),
     (["train", "ungm-ukf", OUT, "{tmp}"], "argument --out: {tmp}: is a folder, expected a file name"),
     (["train", "ungm-ukf", OUT, "{tmp}/afile/p.npz"], "{tmp}/afile is not a folder"),
+    (["train", "ungm-ukf", "--actions", "1,x", OUT, "{tmp}/p.npz"], "argument --actions: expected comma-separated numbers"),
+    (["train", "ungm-ukf", "--actions", "1,inf", OUT, "{tmp}/p.npz"], "argument --actions: expected finite numbers"),
     (["reproduce", OUT, "{tmp}/afile"], "exists and is not a folder"),
     (["book", OUT, "{tmp}/afile/book"], "{tmp}/afile is not a folder"),
 ])
@@ -287,6 +289,11 @@ def test_cli_library_errors_are_one_line(capsys, tmp_path):
     write_npz(tmp_path / "p.ckpt.npz", {"a": np.zeros(1)}, {"config": {"gamma": 0.0}, "episode": 1})
     line = cli_error(capsys, ["train", "ungm-ukf", "--episodes", "1", OUT, str(out), "--resume", "--no-progress"])
     assert "was written by a different training" in line
+    # a restricted grid with a value off the experiment's grid, and with the faithful trainer
+    line = cli_error(capsys, ["train", "ctm-sif-nis", "--algo", "fast", "--actions", "4,10", OUT, str(out), "--no-progress"])
+    assert "actions must be values of the ctm-sif-nis grid" in line and "not on it: [4.0]" in line
+    line = cli_error(capsys, ["train", "ctm-sif-nis", "--actions", "5,10", OUT, str(out), "--no-progress"])
+    assert "needs an SB3 trainer" in line
     assert not (tmp_path / "o").exists() and not out.exists()  # nothing was written before the error
 
 

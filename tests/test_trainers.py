@@ -65,3 +65,35 @@ def test_the_fast_mode_is_ppo_with_large_batches_and_scales_its_minibatch_with_t
     assert tr["kwargs"]["batch_size"] == 4 * 64 // 8 and tr["kwargs"]["n_epochs"] == 5
     default = train_policy("ungm-ukf", "fast", 0.5, episodes=8, seed=0, n_steps=10, progress=False)
     assert default.metadata["trainer"]["n_envs"] == 256 and default.metadata["trainer"]["kwargs"]["batch_size"] == 2048
+
+
+def test_a_policy_trained_on_a_safe_subset_of_the_grid_acts_in_the_full_experiment(tmp_path):
+    """actions=: the policy only ever picks the allowed values, in the experiment's own grid indices,
+    through evaluate and through a saved file; a value off the grid, the faithful trainer and a policy
+    whose grid is not a subset are errors that name the problem."""
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.learned import load_policy
+
+    exp = get_experiment("ctm-sif-logmaxnis")
+    allowed = [5.0, 10.0, 20.0]
+    out = tmp_path / "safe.npz"
+    pol = train_policy(exp.name, "fast", 0.5, episodes=4, seed=0, parallel=4, n_steps=6, progress=False,
+                       actions=allowed, out=out)
+    assert pol.grid.tolist() == allowed and pol.metadata["experiment"] == exp.name
+    back = load_policy(out, experiment=exp)
+    env = exp.make_env(n_steps=6)
+    d = env.reset(n_runs=50, rng=np.random.default_rng(0), stream=0)
+    chosen = env.grid[back.act(d)]
+    assert set(chosen.tolist()) <= set(allowed)
+    # the mapping is by value: the argmax over the policy's own grid, placed in the experiment's grid
+    own = np.asarray(allowed)[np.argmax(back.logits(af.features.observe(d, back.feature_set)), axis=1)]
+    np.testing.assert_array_equal(chosen, own)
+    res = evaluate(env, [back], n_runs=20, seed=0, progress=False)
+    assert np.isfinite(res[back.name].cost)
+    with pytest.raises(ValueError, match="not on it: \\[4.0\\]"):
+        train_policy(exp.name, "fast", 0.5, episodes=2, n_steps=4, progress=False, actions=[4.0, 10.0])
+    with pytest.raises(ValueError, match="SB3 trainer"):
+        train_policy(exp.name, "faithful", 0.5, episodes=2, n_steps=4, progress=False, actions=[5.0, 10.0])
+    coarse = FilterEnv(exp.make_filter(0), [1.0, 2.0, 10.0], cost=exp.cost, n_steps=6)
+    with pytest.raises(ValueError, match="not a subset"):
+        back.act(coarse.reset(n_runs=3, rng=np.random.default_rng(0), stream=0))

@@ -10,9 +10,10 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    (``myopic-cand``, the control: it should land on greedy) on UNGM-UKF and CTM-UKF, and compared
    with greedy and ML on the cost, the objective, RMSE and ANEES.
 2. **SIF policies and divergence** (``sif``): on the three Table I costs, policies trained with a
-   penalty on covariance repairs (``adaptive-penalised``), against the default n_it = 10, greedy,
-   the fixed values and the unpenalised policies of the reproduction; the fraction of divergent
-   runs beside each cost.
+   penalty on covariance repairs (``adaptive-penalised``) and policies restricted to the iteration
+   counts that never diverged as fixed values (``adaptive-safe``, :data:`SAFE_ACTIONS`), against the
+   default n_it = 10, greedy, the fixed values and the unpenalised policies of the reproduction;
+   the fraction of divergent runs beside each cost.
 3. **Out of distribution and retuning** (``ood``): the reproduction's adaptive UNGM-UKF policies
    (8 seeds) on a 3 x 3 grid of mismatched process and measurement noise
    (:mod:`adaptfilt.experiments.ood`), against default, best fixed in hindsight and greedy; then
@@ -29,12 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY"]
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SAFE_ACTIONS"]
 
 #: The learner of the candidate study (chosen by the measurement reported in REPRODUCTION.md).
 CAND_ALGO = "fast"
 #: Repair penalty (in units of the transformed cost) of the SIF study.
 PENALTY = 20.0
+#: The safe action set of the SIF study: the iteration counts that never diverged in 10^4 fixed-value runs
+#: (n_it = 1, 2, 3 diverge in 5.6 %, 0.32 %, 0.06 % of the reproduction's runs).
+SAFE_ACTIONS = (5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
@@ -49,20 +53,21 @@ class BeyondScale:
     retune_episodes: int
 
 
-FULL = BeyondScale("full", 1000, tuple(range(8)), None, 4000, 50)
+FULL = BeyondScale("full", 1000, tuple(range(8)), None, 10_000, 50)
 QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
 
 
 def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
-               features: str | None, algo: str, repair_penalty: float) -> dict:
+               features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None) -> dict:
     from adaptfilt.trainers import train_policy
 
     t0, c0 = time.perf_counter(), time.process_time()
     cmd = (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
            + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
-           + (f" --horizon {scale.n_steps}" if scale.n_steps else "") + f" --out {out}")
+           + (f" --horizon {scale.n_steps}" if scale.n_steps else "")
+           + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "") + f" --out {out}")
     train_policy(experiment, algo, gamma, scale.episodes, seed, features=features, n_steps=scale.n_steps,
-                 progress=False, out=out, command=cmd, repair_penalty=repair_penalty)
+                 progress=False, out=out, command=cmd, repair_penalty=repair_penalty, actions=actions)
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0, "command": cmd}
 
 
@@ -111,6 +116,8 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
     entries: dict[str, dict] = {}
     summary: dict = {"scale": scale.name, "version": adaptfilt.__version__}
+    cmd = (f"adaptfilt beyond --out {out_dir}" + (" --quick" if quick else "")
+           + ("" if set(studies) == {"cand", "sif", "ood"} else f" --studies {','.join(studies)}"))
     jobs, metas = [], []
     if "cand" in studies:
         for e, feats in CAND_EXPERIMENTS.items():
@@ -121,10 +128,11 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                     metas.append(rel)
     if "sif" in studies:
         for e in SIF_EXPERIMENTS:
-            for s in scale.seeds:
-                rel = f"policies/{e}-adaptive-penalised-s{s}.npz"
-                jobs.append((e, "adaptive-penalised", 0.5, s, str(out / rel), scale, None, "fast", PENALTY))
-                metas.append(rel)
+            for kind, pen, acts in (("adaptive-penalised", PENALTY, None), ("adaptive-safe", 0.0, SAFE_ACTIONS)):
+                for s in scale.seeds:
+                    rel = f"policies/{e}-{kind}-s{s}.npz"
+                    jobs.append((e, kind, 0.5, s, str(out / rel), scale, None, "fast", pen, acts))
+                    metas.append(rel)
     todo = [(j, m) for j, m in zip(jobs, metas) if not (out / m).exists()]
     say(f"[beyond] {len(todo)} policies to train")
     times = run_jobs(_train_job, [j for j, _ in todo], workers=workers, cluster=cluster, progress=progress,
@@ -142,7 +150,8 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     if "sif" in studies:
         data = Path(data_dir()) if not quick else root
         for e in SIF_EXPERIMENTS:
-            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-penalised")]
+            files = [str(out / m) for m in metas if m.startswith((f"policies/{e}-adaptive-penalised",
+                                                                   f"policies/{e}-adaptive-safe"))]
             files += [str(data / f"policies/{e}-adaptive-s{s}.npz") for s in scale.seeds
                       if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
             ejobs.append((e, files, scale, ("default", "greedy")))
@@ -152,11 +161,11 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     for (study, e), res in zip(names, results):
         d = out / "results" / f"{study}-{e}"
         res.save(d)
-        entries.update({f"results/{study}-{e}/{f}": {"command": f"adaptfilt beyond --out {out_dir}"}
+        entries.update({f"results/{study}-{e}/{f}": {"command": cmd}
                         for f in ("results.json", "results.npz")})
         rows = {}
         groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
-                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive")}
+                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive")}
         for g, members in groups.items():
             if not members:
                 continue
@@ -165,11 +174,15 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                 rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"])
                                            for m in ("cost", "objective", "rmse", "anees")}
             rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
-        for ref in ("greedy", "default", "ml"):
-            if ref in res:
-                p = res[ref]
+        # the cheapest fixed value that never diverged: what a constant can do safely
+        safe = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")
+                and res[n].divergent_frac == 0]
+        best_safe = min(safe, key=lambda n: res[n].cost) if safe else None
+        for ref, name in (("greedy", "greedy"), ("default", "default"), ("ml", "ml"), ("best safe fixed", best_safe)):
+            if name in res:
+                p = res[name]
                 rows[ref] = {"cost": p.cost, "objective": p.objective, "rmse": p.rmse, "anees": p.anees,
-                             "divergent_frac": p.divergent_frac}
+                             "divergent_frac": p.divergent_frac, "policy": name}
         summary.setdefault(study, {})[e] = rows
 
     if "ood" in studies:
@@ -184,7 +197,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             for c, res in zip(conds, ood_res):
                 d = out / "results" / f"ood-{c.key}"
                 res.save(d)
-                entries.update({f"results/ood-{c.key}/{f}": {"command": f"adaptfilt beyond --out {out_dir}"}
+                entries.update({f"results/ood-{c.key}/{f}": {"command": cmd}
                                 for f in ("results.json", "results.npz")})
                 tables[c.key] = res
             groups = {"learned": [n for n in ood_res[0].names if n.startswith("adaptive-s")],
@@ -192,17 +205,25 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             summary["ood"] = {m: gain_table(tables, groups, m) for m in ("objective", "rmse")}
             _ood_figures(summary["ood"], out / "figures")
             for f in (out / "figures").glob("*.png"):
-                entries[str(f.relative_to(out))] = {"command": f"adaptfilt beyond --out {out_dir}"}
+                entries[str(f.relative_to(out))] = {"command": cmd}
 
+    # studies run separately (--studies) add to what an earlier run of the same scale wrote
+    old_summary, old_files = {}, {}
+    if (out / "summary.json").exists() and (out / "manifest.json").exists():
+        prev = json.loads((out / "summary.json").read_text())
+        if prev.get("scale") == scale.name:
+            old_summary = prev
+            old_files = {f["path"]: f for f in json.loads((out / "manifest.json").read_text())["files"]}
+    summary = {**{k: v for k, v in old_summary.items() if k not in summary}, **summary}
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    entries["summary.json"] = {"command": f"adaptfilt beyond --out {out_dir}" + (" --quick" if quick else "")}
-    files = []
-    for rel in sorted(entries):
-        e = entries[rel]
-        files.append({"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
+    entries["summary.json"] = {"command": cmd}
+    files = {rel: f for rel, f in old_files.items() if rel not in entries and (out / rel).exists()}
+    for rel, e in entries.items():
+        files[rel] = {"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
                       "seed": 0, "version": adaptfilt.__version__,
-                      "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")})
-    (out / "manifest.json").write_text(json.dumps({"scale": scale.name, "files": files}, indent=1) + "\n")
+                      "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
+    (out / "manifest.json").write_text(json.dumps({"scale": scale.name, "files": [files[k] for k in sorted(files)]},
+                                                  indent=1) + "\n")
     return summary
 
 
@@ -225,24 +246,26 @@ def summary_md(summary: dict) -> str:
     f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
     d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
     parts = []
-    for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies with a repair penalty")):
+    for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies: a repair penalty, a safe action set")):
         if study not in summary:
             continue
         lines = [f"**{title}** (IQM over seeds [two-level 95 % CI]; differences to greedy)", "",
-                 "| experiment | policy | cost | log(1+L) | RMSE | ANEES | cost - greedy | RMSE - greedy | "
-                 "divergent runs (worst seed) |", "|---|---|---|---|---|---|---|---|---|"]
+                 "| experiment | policy | cost | log(1+L) | RMSE | ANEES | cost - greedy | cost - default | "
+                 "RMSE - greedy | divergent runs (worst seed) |", "|---|---|---|---|---|---|---|---|---|---|"]
+        refs = ("greedy", "default", "ml", "best safe fixed")
         for e, rows in summary[study].items():
-            for ref in ("greedy", "default", "ml"):
+            for ref in refs:
                 if ref in rows:
                     r = rows[ref]
-                    lines.append(f"| {e} | {ref} | {r['cost']:.4g} | {r['objective']:.4g} | {r['rmse']:.4g} | "
-                                 f"{r['anees']:.4g} | | | {100 * r['divergent_frac']:.2g} % |")
+                    label = ref if ref != "best safe fixed" else f"best safe fixed ({r['policy']})"
+                    lines.append(f"| {e} | {label} | {r['cost']:.4g} | {r['objective']:.4g} | {r['rmse']:.4g} | "
+                                 f"{r['anees']:.4g} | | | | {100 * r['divergent_frac']:.2g} % |")
             for g, r in rows.items():
-                if g in ("greedy", "default", "ml"):
+                if g in refs:
                     continue
                 lines.append(f"| {e} | {g} | {f(r['cost'])} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
-                             f"| {d(r['minus_greedy']['cost'])} | {d(r['minus_greedy']['rmse'])} "
-                             f"| {100 * r['divergent_frac_max']:.2g} % |")
+                             f"| {d(r['minus_greedy']['cost'])} | {d(r['minus_default']['cost'])} "
+                             f"| {d(r['minus_greedy']['rmse'])} | {100 * r['divergent_frac_max']:.2g} % |")
         parts.append("\n".join(lines) + "\n")
     if "ood" in summary:
         lines = ["**Out of distribution** (UNGM-UKF; gain over the default in mean log(1+L), positive is better; "
