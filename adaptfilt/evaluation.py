@@ -50,6 +50,7 @@ the figures of :mod:`adaptfilt.plots`.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -225,16 +226,22 @@ class Results:
         return head + "\n".join(rows) + "\n"
 
     # ------------------------------------------------------------- files
-    def save(self, out_dir: str | Path) -> Path:
+    def save(self, out_dir: str | Path, arrays: bool = True) -> Path:
         """Write ``results.json`` (config and scalar summaries) and ``results.npz``
-        (arrays) into ``out_dir``; :meth:`load` reads them back bit-identically."""
+        (arrays) into ``out_dir``; :meth:`load` reads them back bit-identically.
+        ``arrays=False`` writes the summaries only (no per-run or per-step arrays,
+        so no paired differences or figures from the file: for studies whose
+        paired statistics are computed before saving and stored on their own)."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        doc = {"format": RESULTS_FORMAT, "config": self.config,
+        config = self.config if arrays else {**self.config, "arrays": False}
+        doc = {"format": RESULTS_FORMAT, "config": config,
                "policies": {n: p.scalars() for n, p in self.policies.items()},
                "order": list(self.policies)}
         # json writes floats with repr(): they read back exactly.
         (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+        if not arrays:
+            return out
         arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values())
                   for k in _ARRAYS + _ARRAYS_NEW}
         np.savez_compressed(out / "results.npz", **arrays)
@@ -248,13 +255,19 @@ class Results:
         if doc.get("format") != RESULTS_FORMAT:
             raise ValueError(f"{out / 'results.json'} is not an adaptfilt results file (format {doc.get('format')!r})")
         pols = {}
-        with np.load(out / "results.npz", allow_pickle=False) as z:
+        with contextlib.ExitStack() as stack:
+            z = (None if doc["config"].get("arrays") is False  # saved without arrays: empty ones
+                 else stack.enter_context(np.load(out / "results.npz", allow_pickle=False)))
             for i, n in enumerate(doc["order"]):
                 s = doc["policies"][n]
                 kw = {k: s[k] for k in _SCALARS}
                 kw.update({k: s[k] for k in _SCALARS_NEW if k in s})
                 kw.update({k: (s[k][0], s[k][1]) for k in _CIS + _CIS_NEW if k in s})
-                kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS + _ARRAYS_NEW if f"p{i}_{k}" in z.files})
+                if z is None:
+                    kw.update({k: np.empty(0) for k in _ARRAYS})
+                    kw["usage"] = np.asarray(s["usage"], dtype=np.int64)  # the scalars keep the counts
+                else:
+                    kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS + _ARRAYS_NEW if f"p{i}_{k}" in z.files})
                 pols[n] = PolicyResult(name=n, **kw)
         return cls(config=doc["config"], policies=pols)
 

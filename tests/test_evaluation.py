@@ -72,6 +72,13 @@ def test_results_round_trip_bit_identically(ctm_results, tmp_path):
             assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), (n, k)
     back.save(tmp_path / "again")
     assert (tmp_path / "again" / "results.json").read_bytes() == (tmp_path / "results.json").read_bytes()
+    # summaries only: the same scalars, no arrays (and no npz file), marked in the config
+    res.save(tmp_path / "light", arrays=False)
+    assert not (tmp_path / "light" / "results.npz").exists()
+    light = Results.load(tmp_path / "light")
+    assert light.config["arrays"] is False and light.names == res.names
+    for n, p in res.policies.items():
+        assert light[n].scalars() == p.scalars() and light[n].run_cost.size == 0
 
 
 def test_evaluate_refuses_bad_input():
