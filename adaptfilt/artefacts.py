@@ -19,7 +19,8 @@ import os
 from pathlib import Path
 
 __all__ = ["data_dir", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
-           "load_table1", "load_claims", "load_reconciliation", "verify"]
+           "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
+           "verify_beyond"]
 
 
 def data_dir() -> Path:
@@ -96,6 +97,62 @@ def load_claims(root: str | Path | None = None) -> dict:
 def load_reconciliation(root: str | Path | None = None) -> dict:
     """The CTM RMSE reconciliation table (:func:`adaptfilt.experiments.references.ctm_reconciliation`)."""
     return _json("results/ctm-reconciliation.json", root)
+
+
+def load_beyond(root: str | Path | None = None) -> dict:
+    """``data/beyond/summary.json``: the studies beyond the paper (``adaptfilt beyond --out data``)."""
+    p = _d(root) / "beyond" / "summary.json"
+    if not p.exists():
+        raise FileNotFoundError(f"no {p}: run `adaptfilt beyond --out {_d(root)}` first")
+    return json.loads(p.read_text())
+
+
+def load_beyond_results(name: str, root: str | Path | None = None):
+    """One evaluation of the beyond studies, e.g. ``"cand-ungm-ukf"``, ``"sif-ctm-sif-nis"``,
+    ``"ood-q4-r0.25"`` (the out-of-distribution ones hold summaries only: ``Results.save(arrays=False)``)."""
+    from adaptfilt.evaluation import Results
+
+    p = _d(root) / "beyond" / "results" / name
+    if not (p / "results.json").exists():
+        have = sorted(q.name for q in p.parent.iterdir()) if p.parent.is_dir() else []
+        raise FileNotFoundError(f"no beyond results {name!r} in {p.parent}; there are: {have}")
+    return Results.load(p)
+
+
+def verify_beyond(root: str | Path | None = None) -> list[str]:
+    """Check ``beyond/manifest.json`` like :func:`verify`: every file exists, matches its sha256 and
+    loads (policies against their experiment, results with ``Results.load``). Returns the checked paths."""
+    from adaptfilt.evaluation import Results
+    from adaptfilt.learned import load_policy as _load
+
+    d = _d(root) / "beyond"
+    problems, checked = [], []
+    for e in json.loads((d / "manifest.json").read_text())["files"]:
+        p = d / e["path"]
+        if not p.exists() or hashlib.sha256(p.read_bytes()).hexdigest() != e["sha256"]:
+            problems.append(f"{e['path']}: missing or does not match its sha256")
+            continue
+        try:
+            if p.suffix == ".npz" and e["path"].startswith("policies/"):
+                exp = next(x for x in sorted(_experiments(), key=len, reverse=True) if p.name.startswith(x + "-"))
+                _load(p, experiment=exp)
+            elif p.name == "results.json":
+                Results.load(p.parent)
+            elif p.suffix == ".json":
+                json.loads(p.read_text())
+        except Exception as ex:  # noqa: BLE001 - report every problem
+            problems.append(f"{e['path']}: does not load ({type(ex).__name__}: {ex})")
+            continue
+        checked.append(e["path"])
+    if problems:
+        raise ValueError("data/beyond does not match its manifest:\n  " + "\n  ".join(problems))
+    return checked
+
+
+def _experiments() -> list[str]:
+    from adaptfilt.experiments import EXPERIMENTS
+
+    return list(EXPERIMENTS)
 
 
 def verify(root: str | Path | None = None, load: bool = True) -> list[str]:

@@ -17,6 +17,8 @@ chapter                                   helpers
 9 Your own model                          :func:`seed_lines`, :func:`plot_differences`
 10 RL in practice                         :func:`plot_seed_spread`, :func:`seed_verdicts`,
                                           :func:`claims_table`, :func:`timed`
+11 Beyond the paper                       :func:`verdict_counts`, :func:`plot_cost_divergence`,
+                                          :func:`plot_ood_gains`
 ========================================  =========================================================
 
 A *seed group* is a set of policies named ``<group>-s<seed>``
@@ -41,6 +43,8 @@ __all__ = [
     "seed_lines", "plot_differences",
     # chapter 10
     "plot_seed_spread", "seed_verdicts", "claims_table", "timed",
+    # chapter 11
+    "verdict_counts", "plot_cost_divergence", "plot_ood_gains",
 ]
 
 
@@ -384,3 +388,70 @@ def timed(fn: Callable, *args, **kwargs) -> tuple[object, float]:
     c0 = time.process_time()
     out = fn(*args, **kwargs)
     return out, time.process_time() - c0
+
+
+# ============================================================== chapter 11
+def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("cost", "rmse")) -> str:
+    r"""One line per metric: ``group - other`` as IQM over seeds [two-level 95 % CI], the seed-level
+    verdict, and how many seeds alone (their own paired run-level interval) find ``group`` lower,
+    tied or higher."""
+    from adaptfilt.experiments.seeds import difference
+
+    names = seed_groups(results.names)[group]
+    lines = []
+    for m in metrics:
+        d = difference(results, names, [other], m)["iqm"]
+        c = seed_verdicts(results, group, other, m)["counts"]
+        alone = ", ".join(f"{n} {v}" for v, n in sorted(c.items(), key=lambda kv: -kv[1]))
+        lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {seed_verdict(d)}"
+                     f"   (seeds alone: {alone})")
+    return "\n".join(lines)
+
+
+def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: str | None = None):
+    r"""Every policy of a SIF evaluation as a point (mean cost, fraction of divergent runs):
+    the fixed iteration counts (labelled with n_it), default and greedy, and each seed of
+    ``groups``. The divergent fraction is drawn on a symlog axis so that 0 (never diverged)
+    stays on the plot; the cheapest policy with no divergent run is what the safe policies aim at."""
+    from adaptfilt import style
+
+    fig, ax = _ax(ax, size=(7.5, 4.6))
+    fixed = [n for n in results.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    x = [results[n].cost for n in fixed]
+    y = [100 * results[n].divergent_frac for n in fixed]
+    ax.plot(x, y, "o-", color="0.55", label="fixed n_it")
+    for n, xi, yi in zip(fixed, x, y):
+        ax.annotate(n.split("=")[1], (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    cols = style.colors(len(groups) + 2)
+    for (n, mk), col in zip((("default", "s"), ("greedy", "D")), cols):
+        if n in results:
+            ax.plot(results[n].cost, 100 * results[n].divergent_frac, mk, ms=8, mec="black", label=n, color=col)
+    all_groups = seed_groups(results.names)
+    for g, col in zip(groups, cols[2:]):
+        names = all_groups.get(g, [])
+        ax.plot([results[n].cost for n in names], [100 * results[n].divergent_frac for n in names], "^",
+                color=col, alpha=0.8, label=f"{g} ({len(names)} seeds)")
+    ax.set_yscale("symlog", linthresh=0.01)
+    ax.set_xscale("log")
+    ax.set_xlabel("mean cost (log scale)")
+    ax.set_ylabel("divergent runs (%)")
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def plot_ood_gains(table: Mapping, metric: str = "objective",
+                   columns: Sequence[str] = ("greedy", "best fixed", "learned", "retuned")):
+    r"""One heat map per column of :func:`adaptfilt.experiments.ood.gain_table` (gain over the
+    default on the 3 x 3 grid of truth noise scalings; positive is better), on one colour scale."""
+    import matplotlib.pyplot as plt
+
+    from adaptfilt.experiments.ood import plot_gain
+
+    fig, axes = plt.subplots(1, len(columns), figsize=(4.1 * len(columns), 3.7), layout="constrained")
+    v = max(abs(c["gain"]) for row in table.values() for k, c in row.items() if k in columns)
+    for ax, col in zip(np.atleast_1d(axes), columns):
+        plot_gain(table, col, metric, ax=ax, title=f"{col}", vmax=v)
+    fig.suptitle(f"gain in {metric} over the default (positive: better)")
+    return fig

@@ -160,3 +160,25 @@ def test_sign_demo_and_training_figures():
     pol, curve = train(env, gamma=0.5, episodes=4, parallel=2, seed=0, progress=False)
     fig = crl.plot_training(curve, env.grid, batch=2)
     assert len(fig.axes) == 3
+
+
+def test_chapter_11_helpers(ungm_results):
+    res = ungm_results
+    text = crl.verdict_counts(res, "a", "greedy", ("cost", "rmse"))
+    lines = text.splitlines()
+    assert len(lines) == 2 and lines[0].startswith("a - greedy  cost")
+    d = sd.difference(res, sd.seed_groups(res.names)["a"], ["greedy"], "rmse")["iqm"]
+    assert f"{d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]" in lines[1]
+    counts = crl.seed_verdicts(res, "a", "greedy", "rmse")["counts"]
+    assert sum(counts.values()) == 4 and all(f"{n} {v}" in lines[1] for v, n in counts.items())
+    fig = crl.plot_cost_divergence(res, ["a", "b"], title="x")
+    ax = fig.axes[0]
+    fixed = [n for n in res.names if n.startswith("fixed-")]
+    assert len(ax.lines[0].get_xdata()) == len(fixed) and ax.get_yscale() == "symlog"
+    assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"default", "greedy", "a (4 seeds)", "b (3 seeds)"}
+    table = {"q1-r1": {"greedy": {"gain": 0.2}, "learned": {"gain": -0.1}}, "q4-r0.25": {"greedy": {"gain": 0.4}}}
+    fig = crl.plot_ood_gains(table, "objective", columns=("greedy", "learned"))
+    im = fig.axes[0].images[0]
+    assert im.norm.vmax == pytest.approx(0.4) and fig.axes[1].images[0].norm.vmin == pytest.approx(-0.4)
+    G = np.asarray(im.get_array())
+    assert G[1, 1] == pytest.approx(0.2) and G[2, 0] == pytest.approx(0.4) and np.isnan(G[0, 0])

@@ -242,8 +242,9 @@ def _ood_figures(tables: dict, fig_dir: Path) -> None:
         plt.close(fig)
 
 
-def summary_md(summary: dict) -> str:
+def summary_md(summary: dict, studies: tuple[str, ...] = ("cand", "sif", "ood")) -> str:
     """The studies' tables for REPRODUCTION.md (IQM over seeds [seed-level CI], differences to greedy)."""
+    summary = {k: v for k, v in summary.items() if k not in ("cand", "sif", "ood") or k in studies}
     f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
     d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
     parts = []

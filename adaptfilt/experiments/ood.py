@@ -156,7 +156,8 @@ def gain_table(results: dict, groups: dict[str, list[str]], metric: str = "cost"
     return out
 
 
-def plot_gain(table: dict, column: str, metric: str = "cost", ax=None, title: str | None = None):
+def plot_gain(table: dict, column: str, metric: str = "cost", ax=None, title: str | None = None,
+              vmax: float | None = None):
     """Heat map of the gain over the default of ``column`` on the q x r grid (positive: better)."""
     import matplotlib.pyplot as plt
 
@@ -170,7 +171,7 @@ def plot_gain(table: dict, column: str, metric: str = "cost", ax=None, title: st
         fig, ax = plt.subplots(figsize=(4.2, 3.6), layout="constrained")
     else:
         fig = ax.figure
-    v = np.nanmax(np.abs(G)) or 1.0
+    v = vmax or np.nanmax(np.abs(G)) or 1.0
     im = ax.imshow(G, cmap="RdBu", vmin=-v, vmax=v, origin="lower")
     for i in range(G.shape[0]):
         for j in range(G.shape[1]):
