@@ -17,8 +17,8 @@ chapter                                   helpers
 9 Your own model                          :func:`seed_lines`, :func:`plot_differences`
 10 RL in practice                         :func:`plot_seed_spread`, :func:`seed_verdicts`,
                                           :func:`claims_table`, :func:`timed`
-11 Beyond the paper                       :func:`verdict_counts`, :func:`plot_cost_divergence`,
-                                          :func:`plot_ood_gains`
+11 Beyond the paper                       :func:`verdict_counts`, :func:`divergence_onsets`,
+                                          :func:`plot_cost_divergence`, :func:`plot_ood_gains`
 ========================================  =========================================================
 
 A *seed group* is a set of policies named ``<group>-s<seed>``
@@ -44,7 +44,7 @@ __all__ = [
     # chapter 10
     "plot_seed_spread", "seed_verdicts", "claims_table", "timed",
     # chapter 11
-    "verdict_counts", "plot_cost_divergence", "plot_ood_gains",
+    "verdict_counts", "divergence_onsets", "plot_cost_divergence", "plot_ood_gains",
 ]
 
 
@@ -406,6 +406,32 @@ def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("c
         lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {seed_verdict(d)}"
                      f"   (seeds alone: {alone})")
     return "\n".join(lines)
+
+
+def divergence_onsets(env, value: float, n_runs: int = 1000, seed: int = 0, nees_limit: float = 100.0) -> dict:
+    r"""Run the environment's filter with the grid value ``value`` at every step on ``n_runs``
+    simulated runs and find, per run, the first step whose NEES exceeds ``nees_limit * nx`` (an
+    error far outside any credible region: a filter that has lost the target), and whether the
+    covariance was repaired at some step. Returns ``{"onset": (M,) first step or -1,
+    "repaired": (M,) bool, "nees": (T, M)}``."""
+    grid = np.asarray(env.grid, dtype=float)
+    hit = np.flatnonzero(np.isclose(grid, value))
+    if hit.size == 0:
+        raise ValueError(f"{value} is not on the grid {grid.tolist()}")
+    d = env.reset(n_runs=n_runs, rng=np.random.default_rng(seed), stream=seed)
+    a = np.full(n_runs, hit[0])
+    nees, repaired = [], np.zeros(n_runs, dtype=bool)
+    done = False
+    while not done:
+        t = env._t
+        d, _, done, info = env.step(a)
+        e = info["x_filt"] - env.traj.x[:, t, :]
+        nees.append(np.einsum("mi,mi->m", e, np.linalg.solve(info["P_filt"], e[..., None])[..., 0]))
+        repaired |= np.asarray(info["repaired"], dtype=bool)
+    N = np.array(nees)
+    bad = ~(N <= nees_limit * env.model.nx)  # NaN counts as lost
+    onset = np.where(bad.any(axis=0), bad.argmax(axis=0), -1)
+    return {"onset": onset, "repaired": repaired, "nees": N}
 
 
 def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: str | None = None):

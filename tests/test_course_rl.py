@@ -182,3 +182,19 @@ def test_chapter_11_helpers(ungm_results):
     assert im.norm.vmax == pytest.approx(0.4) and fig.axes[1].images[0].norm.vmin == pytest.approx(-0.4)
     G = np.asarray(im.get_array())
     assert G[1, 1] == pytest.approx(0.2) and G[2, 0] == pytest.approx(0.4) and np.isnan(G[0, 0])
+
+
+def test_divergence_onsets_finds_the_first_lost_step():
+    env = get_experiment("ctm-sif-logmaxnis").make_env(seed=0, n_steps=40)
+    out = crl.divergence_onsets(env, 1.0, n_runs=400, seed=3, nees_limit=100.0)
+    N, onset = out["nees"], out["onset"]
+    assert N.shape == (40, 400) and onset.shape == (400,)
+    lost = ~(N <= 100.0 * env.model.nx)
+    np.testing.assert_array_equal(onset >= 0, lost.any(axis=0))
+    for m in np.flatnonzero(onset >= 0)[:20]:
+        assert lost[onset[m], m] and not lost[: onset[m], m].any()
+    # the same runs with ten iterations: fewer lost runs (the SIF with one iteration is the fragile one)
+    ten = crl.divergence_onsets(env, 10.0, n_runs=400, seed=3)
+    assert (ten["onset"] >= 0).sum() <= (onset >= 0).sum()
+    with pytest.raises(ValueError, match="not on the grid"):
+        crl.divergence_onsets(env, 4.0, n_runs=2)
