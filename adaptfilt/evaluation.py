@@ -226,15 +226,24 @@ class Results:
         return head + "\n".join(rows) + "\n"
 
     # ------------------------------------------------------------- files
-    def save(self, out_dir: str | Path, arrays: bool = True) -> Path:
+    def save(self, out_dir: str | Path, arrays: bool = True, drop: Sequence[str] = ()) -> Path:
         """Write ``results.json`` (config and scalar summaries) and ``results.npz``
         (arrays) into ``out_dir``; :meth:`load` reads them back bit-identically.
         ``arrays=False`` writes the summaries only (no per-run or per-step arrays,
         so no paired differences or figures from the file: for studies whose
-        paired statistics are computed before saving and stored on their own)."""
+        paired statistics are computed before saving and stored on their own).
+        ``drop`` leaves out the named arrays (e.g. the per-run ``run_rmse``,
+        ``run_anees``, ``run_cost`` and ``choices``, which are most of the file;
+        the bootstrap replicates that paired differences and seed-level
+        aggregates use stay); they load back empty and the config lists them."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        bad = sorted(set(drop) - set(_ARRAYS + _ARRAYS_NEW))
+        if bad:
+            raise ValueError(f"drop names no array of a result: {bad}; arrays are {list(_ARRAYS + _ARRAYS_NEW)}")
         config = self.config if arrays else {**self.config, "arrays": False}
+        if arrays and drop:
+            config = {**config, "dropped": [k for k in _ARRAYS + _ARRAYS_NEW if k in drop]}
         doc = {"format": RESULTS_FORMAT, "config": config,
                "policies": {n: p.scalars() for n, p in self.policies.items()},
                "order": list(self.policies)}
@@ -243,7 +252,7 @@ class Results:
         if not arrays:
             return out
         arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values())
-                  for k in _ARRAYS + _ARRAYS_NEW}
+                  for k in _ARRAYS + _ARRAYS_NEW if k not in drop}
         np.savez_compressed(out / "results.npz", **arrays)
         return out
 
@@ -267,6 +276,7 @@ class Results:
                     kw.update({k: np.empty(0) for k in _ARRAYS})
                     kw["usage"] = np.asarray(s["usage"], dtype=np.int64)  # the scalars keep the counts
                 else:
+                    kw.update({k: np.empty(0) for k in doc["config"].get("dropped", ())})
                     kw.update({k: z[f"p{i}_{k}"] for k in _ARRAYS + _ARRAYS_NEW if f"p{i}_{k}" in z.files})
                 pols[n] = PolicyResult(name=n, **kw)
         return cls(config=doc["config"], policies=pols)

@@ -52,3 +52,82 @@ def test_quick_candidate_study_writes_its_manifest(tmp_path):
     rows = summary["cand"]["ungm-ukf"]
     assert rows["adaptive-cand"]["cost"]["n_seeds"] == 2 and "greedy" in rows
     assert "| ungm-ukf | adaptive-cand |" in summary_md(summary)
+
+
+def test_committed_beyond_studies_match_their_manifest_and_summary():
+    """data/beyond (``adaptfilt beyond --out data``): every file matches its manifest and loads; the
+    summary's seed-level numbers are what the stored evaluations give; the policies are what their
+    recorded commands say (8 seeds, the fast mode, the safe SIF policies on SAFE_ACTIONS only)."""
+    import shlex
+
+    from adaptfilt import artefacts
+    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SAFE_ACTIONS, SIF_EXPERIMENTS
+    from adaptfilt.experiments.seeds import aggregate, difference, iqm, seed_groups
+    from adaptfilt.learned import load_policy
+
+    root = artefacts.data_dir() / "beyond"
+    checked = artefacts.verify_beyond()
+    man = json.loads((root / "manifest.json").read_text())
+    assert len(checked) == len(man["files"]) and man["scale"] == "full"
+    summary = artefacts.load_beyond()
+    assert set(summary) >= {"cand", "sif", "ood"} and set(summary["cand"]) == set(CAND_EXPERIMENTS)
+    for study, exps, groups in (("cand", CAND_EXPERIMENTS, ("adaptive-cand", "myopic-cand")),
+                                ("sif", SIF_EXPERIMENTS, ("adaptive-penalised", "adaptive-safe"))):
+        for e in exps:
+            res = artefacts.load_beyond_results(f"{study}-{e}")
+            assert res.config["n_runs"] == 10_000
+            sg = seed_groups(res.names)
+            for g in groups:
+                assert sg[g] == [f"{g}-s{s}" for s in range(8)], (e, g)
+                row = summary[study][e][g]
+                assert row["cost"]["iqm"] == aggregate(res, sg[g], "cost").iqm
+                assert row["minus_greedy"]["rmse"] == list(difference(res, sg[g], ["greedy"], "rmse")["iqm"])
+                assert row["divergent_frac_max"] == max(res[n].divergent_frac for n in sg[g])
+            for s in (0, 7):
+                for g in groups:
+                    entry = next(f for f in man["files"] if f["path"] == f"policies/{e}-{g}-s{s}.npz")
+                    argv = shlex.split(entry["command"])
+                    assert argv[:3] == ["adaptfilt", "train", e] and argv[argv.index("--seed") + 1] == str(s)
+                    assert argv[argv.index("--algo") + 1] == "fast"
+                    pol = load_policy(root / entry["path"], experiment=e)
+                    if g == "adaptive-safe":
+                        assert pol.grid.tolist() == list(SAFE_ACTIONS) and "--actions" in argv
+                    elif g == "adaptive-penalised":
+                        assert float(argv[argv.index("--repair-penalty") + 1]) == PENALTY
+                    else:
+                        assert "+cand" in argv[argv.index("--features") + 1]
+    assert len(summary["ood"]["objective"]) == 9
+    for key, row in summary["ood"]["objective"].items():
+        res = artefacts.load_beyond_results(f"ood-{key}")
+        assert res.config["arrays"] is False and res.config["condition"] == key
+        learned = [n for n in res.names if n.startswith("adaptive-s")]
+        assert len(learned) == 8 and row["learned"]["n_seeds"] == 8
+        want = res["default"].objective - iqm([res[n].objective for n in learned])
+        assert row["learned"]["gain"] == pytest.approx(want, rel=1e-12, abs=1e-15)
+
+
+def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
+    """The SIF study at toy scale: both families per seed, the safe ones never choose an iteration count
+    outside SAFE_ACTIONS (usage in the evaluation), the cheapest divergence-free fixed value is reported,
+    and a later study run adds to the same summary and manifest instead of replacing them."""
+    from adaptfilt.experiments.beyond import SAFE_ACTIONS, run, summary_md
+    from adaptfilt.experiments.seeds import seed_groups
+    from adaptfilt.evaluation import Results
+
+    summary = run(tmp_path, quick=True, workers=1, studies=("sif",), progress=False)
+    e = "ctm-sif-nis"
+    res = Results.load(tmp_path / "beyond" / "results" / f"sif-{e}")
+    groups = seed_groups(res.names)
+    assert groups["adaptive-penalised"] == ["adaptive-penalised-s0", "adaptive-penalised-s1"]
+    grid = np.asarray(res.grid)
+    unsafe = ~np.isin(grid, SAFE_ACTIONS)
+    for n in groups["adaptive-safe"]:
+        assert res[n].usage[unsafe].sum() == 0 and res[n].usage.sum() > 0
+    row = summary["sif"][e]["best safe fixed"]
+    assert res[row["policy"]].divergent_frac == 0 and row["cost"] == res[row["policy"]].cost
+    assert "best safe fixed (" in summary_md(summary)
+    before = {f["path"] for f in json.loads((tmp_path / "beyond" / "manifest.json").read_text())["files"]}
+    summary2 = run(tmp_path, quick=True, workers=1, studies=("cand",), progress=False)
+    after = {f["path"] for f in json.loads((tmp_path / "beyond" / "manifest.json").read_text())["files"]}
+    assert before <= after and any(p.startswith("results/cand-") for p in after - before)
+    assert set(summary2) >= {"sif", "cand"}

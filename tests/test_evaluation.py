@@ -79,6 +79,14 @@ def test_results_round_trip_bit_identically(ctm_results, tmp_path):
     assert light.config["arrays"] is False and light.names == res.names
     for n, p in res.policies.items():
         assert light[n].scalars() == p.scalars() and light[n].run_cost.size == 0
+    # compact: some arrays dropped, the rest bit-identical, and paired differences still work
+    res.save(tmp_path / "compact", drop=("run_cost", "choices"))
+    compact = Results.load(tmp_path / "compact")
+    assert compact.config["dropped"] == ["choices", "run_cost"] and compact[res.names[0]].run_cost.size == 0
+    assert compact[res.names[0]].boot_rmse.tobytes() == res[res.names[0]].boot_rmse.tobytes()
+    assert compact.paired_difference(res.names[0], res.names[1]) == res.paired_difference(res.names[0], res.names[1])
+    with pytest.raises(ValueError, match="drop names no array"):
+        res.save(tmp_path / "x", drop=("nope",))
 
 
 def test_evaluate_refuses_bad_input():

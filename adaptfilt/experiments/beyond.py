@@ -39,6 +39,9 @@ PENALTY = 20.0
 #: The safe action set of the SIF study: the iteration counts that never diverged in 10^4 fixed-value runs
 #: (n_it = 1, 2, 3 diverge in 5.6 %, 0.32 %, 0.06 % of the reproduction's runs).
 SAFE_ACTIONS = (5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
+#: Per-run arrays left out of the stored evaluations (about 85 % of each file); the seed-level aggregates,
+#: paired differences (bootstrap replicates), usage and per-step curves stay.
+COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
@@ -160,7 +163,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                        desc="beyond: evaluate") if ejobs else []
     for (study, e), res in zip(names, results):
         d = out / "results" / f"{study}-{e}"
-        res.save(d)
+        res.save(d, drop=COMPACT)
         entries.update({f"results/{study}-{e}/{f}": {"command": cmd}
                         for f in ("results.json", "results.npz")})
         rows = {}
