@@ -37,6 +37,7 @@ CHAPTERS = [
     "08-sif-ctm",
     "09-your-own-model",
     "10-rl-in-practice",
+    "11-beyond-the-paper",
 ]
 #: Chapters that must have at least this many widgets (with static stand-ins).
 MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "05-actor-critic": 1}

@@ -173,10 +173,12 @@ def plot_gain(table: dict, column: str, metric: str = "cost", ax=None, title: st
         fig = ax.figure
     v = vmax or np.nanmax(np.abs(G)) or 1.0
     im = ax.imshow(G, cmap="RdBu", vmin=-v, vmax=v, origin="lower")
+    ax.grid(False)
     for i in range(G.shape[0]):
         for j in range(G.shape[1]):
             if np.isfinite(G[i, j]):
-                ax.text(j, i, f"{G[i, j]:.3g}", ha="center", va="center", fontsize=9)
+                ax.text(j, i, f"{G[i, j]:.3g}", ha="center", va="center", fontsize=9,
+                        color="white" if abs(G[i, j]) > 0.6 * v else "black")  # readable on dark cells
     ax.set_xticks(range(len(FACTORS)), [f"x{f:g}" for f in FACTORS])
     ax.set_yticks(range(len(FACTORS)), [f"x{f:g}" for f in FACTORS])
     ax.set_xlabel("truth R / nominal R")
