@@ -126,27 +126,17 @@ def verify_beyond(root: str | Path | None = None) -> list[str]:
     from adaptfilt.learned import load_policy as _load
 
     d = _d(root) / "beyond"
-    problems, checked = [], []
-    for e in json.loads((d / "manifest.json").read_text())["files"]:
-        p = d / e["path"]
-        if not p.exists() or hashlib.sha256(p.read_bytes()).hexdigest() != e["sha256"]:
-            problems.append(f"{e['path']}: missing or does not match its sha256")
-            continue
-        try:
-            if p.suffix == ".npz" and e["path"].startswith("policies/"):
-                exp = next(x for x in sorted(_experiments(), key=len, reverse=True) if p.name.startswith(x + "-"))
-                _load(p, experiment=exp)
-            elif p.name == "results.json":
-                Results.load(p.parent)
-            elif p.suffix == ".json":
-                json.loads(p.read_text())
-        except Exception as ex:  # noqa: BLE001 - report every problem
-            problems.append(f"{e['path']}: does not load ({type(ex).__name__}: {ex})")
-            continue
-        checked.append(e["path"])
-    if problems:
-        raise ValueError("data/beyond does not match its manifest:\n  " + "\n  ".join(problems))
-    return checked
+
+    def load(rel: str, p: Path) -> None:
+        if p.suffix == ".npz" and rel.startswith("policies/"):
+            _load(p, experiment=next(x for x in sorted(_experiments(), key=len, reverse=True)
+                                     if p.name.startswith(x + "-")))
+        elif p.name == "results.json":
+            Results.load(p.parent)
+        elif p.suffix == ".json":
+            json.loads(p.read_text())
+
+    return _check_files(d, json.loads((d / "manifest.json").read_text())["files"], load, "data/beyond")
 
 
 def _experiments() -> list[str]:
@@ -161,8 +151,26 @@ def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
     ``Results.load``, JSON files with ``json``. Returns the checked paths;
     raises ``ValueError`` listing every problem."""
     d = _d(root)
+
+    def loader(rel: str, p: Path) -> None:
+        parts = Path(rel).parts
+        if parts[0] == "policies":
+            stem, _, seed = Path(rel).stem.rpartition("-s")
+            kind = next(k for k in sorted(POLICY_KINDS, key=len, reverse=True) if stem.endswith("-" + k))
+            load_policy(stem[: -len(kind) - 1], kind, int(seed), root=d)
+        elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
+            load_results(parts[1], root=d)
+        elif p.suffix == ".json":
+            json.loads(p.read_text())
+
+    return _check_files(d, manifest(d)["files"], loader if load else None, "data/")
+
+
+def _check_files(d: Path, files: list[dict], load, label: str) -> list[str]:
+    """Each entry's file exists, matches its sha256 and (``load(rel, path)``) loads; returns the checked
+    paths, or raises ``ValueError`` listing every problem."""
     problems, checked = [], []
-    for e in manifest(d)["files"]:
+    for e in files:
         p = d / e["path"]
         if not p.exists():
             problems.append(f"{e['path']}: missing")
@@ -171,21 +179,13 @@ def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
         if h != e["sha256"]:
             problems.append(f"{e['path']}: sha256 {h} != manifest {e['sha256']}")
             continue
-        if load:
+        if load is not None:
             try:
-                parts = Path(e["path"]).parts
-                if parts[0] == "policies":
-                    stem, _, seed = Path(e["path"]).stem.rpartition("-s")
-                    kind = next(k for k in sorted(POLICY_KINDS, key=len, reverse=True) if stem.endswith("-" + k))
-                    load_policy(stem[: -len(kind) - 1], kind, int(seed), root=d)
-                elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
-                    load_results(parts[1], root=d)
-                elif p.suffix == ".json":
-                    json.loads(p.read_text())
+                load(e["path"], p)
             except Exception as ex:  # noqa: BLE001 - report every problem
                 problems.append(f"{e['path']}: does not load ({type(ex).__name__}: {ex})")
                 continue
         checked.append(e["path"])
     if problems:
-        raise ValueError("data/ does not match its manifest:\n  " + "\n  ".join(problems))
+        raise ValueError(f"{label} does not match its manifest:\n  " + "\n  ".join(problems))
     return checked

@@ -423,9 +423,8 @@ def divergence_onsets(env, value: float, n_runs: int = 1000, seed: int = 0, nees
     nees, repaired = [], np.zeros(n_runs, dtype=bool)
     done = False
     while not done:
-        t = env._t
         d, _, done, info = env.step(a)
-        e = info["x_filt"] - env.traj.x[:, t, :]
+        e = info["x_filt"] - env.traj.x[:, info["t"], :]
         nees.append(np.einsum("mi,mi->m", e, np.linalg.solve(info["P_filt"], e[..., None])[..., 0]))
         repaired |= np.asarray(info["repaired"], dtype=bool)
     N = np.array(nees)

@@ -355,11 +355,16 @@ def grid_indices(own: np.ndarray, env_grid, name: str = "policy") -> np.ndarray:
     env_grid = np.asarray(env_grid, dtype=float)
     if own.shape == env_grid.shape and np.allclose(own, env_grid):
         return np.arange(own.size)
-    hit = np.isclose(own[:, None], env_grid[None, :])
+    hit = _matches(own, env_grid)
     if not hit.any(axis=1).all():
         raise ValueError(f"policy {name!r} was trained on the grid {own.tolist()}, which is not a subset of the "
                          f"environment's grid {env_grid.tolist()}")
     return hit.argmax(axis=1)
+
+
+def _matches(own, env_grid) -> np.ndarray:
+    """``(len(own), len(env_grid))``: which environment value each of a policy's grid values is."""
+    return np.isclose(np.asarray(own, dtype=float)[:, None], np.asarray(env_grid, dtype=float)[None, :])
 
 
 def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> None:
@@ -370,7 +375,7 @@ def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> No
         if want is None or (have is None and key != "experiment"):
             continue  # the experiment is strict: a policy trained on a bare env is not "for" any experiment
         if key == "grid":  # a policy may act on a subset of the grid (grid_indices)
-            same = np.isclose(np.asarray(have, float)[:, None], np.asarray(want, float)[None, :]).any(axis=1).all()
+            same = _matches(have, want).any(axis=1).all()
         else:
             same = (list(want) == list(have)) if isinstance(want, (list, tuple)) else want == have
         if not same:

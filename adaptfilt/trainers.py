@@ -48,9 +48,9 @@ differently and training amplifies that into a different policy (README, Convent
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
