@@ -82,6 +82,8 @@ class _PointSet:
 
     ``rotation (n, K, M)`` (None: identity), ``scale`` and ``weight`` a
     scalar or ``(M,)``; ``mask (M,)``: the runs that use this set (None: all).
+    ``runs``: the set was made for these runs only (indices into the run axis,
+    ``M`` of them; None: for all runs); the sums are then computed for them alone.
     With ``groups``, the directions are instead ``L @ rotation @ basis[:, cols]
     * radius`` with weight ``w`` for each ``(cols, radius, w)`` of ``groups``
     (``basis (n, B)``, ``radius``, ``w`` ``(M,)``): each basis column is rotated
@@ -94,11 +96,15 @@ class _PointSet:
     mask: np.ndarray | None
     basis: np.ndarray | None = None
     groups: list | None = None
+    runs: np.ndarray | None = None
 
 
 def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | None, cross: bool, work: dict | None = None):
     """``sum_i w_i D_i``, ``sum_i w_i D_i D_i^T`` and ``sum_i w_i (X_i - m) D_i^T`` of one point set
-    (masked runs contribute zeros). ``work`` keeps buffers between calls."""
+    (masked runs contribute zeros). ``work`` keeps buffers between calls. With ``ps.runs``
+    the sums are those of the runs ``ps.runs``, in that order."""
+    if ps.runs is not None:
+        m, g0, L = (_take_runs(a, ps.runs) for a in (m, g0, L))
     A = L if ps.rotation is None else mm(L, ps.rotation)
     if ps.groups is None:
         return _pair_sums(g, m, g0, A * ps.scale, ps.weight, ps.mask, residual, cross)
@@ -119,9 +125,9 @@ def _pair_sums_lean(g, m, g0, A, w, mask, residual, cross, work: dict):
     """:func:`_pair_sums` with fewer temporaries (``X`` in a reused buffer, no ``dX``;
     ``Cov[x, g]`` from ``w (D+ - D-)``); ``w`` a scalar or ``(M,)``."""
     K = A.shape[1]
-    X = work.get(A.shape)
-    if X is None:
-        X = work[A.shape] = np.empty((A.shape[0], 2 * K, A.shape[2]))
+    X = work.get(K)
+    if X is None or X.shape[2] != A.shape[2]:  # one buffer per group size, for the latest run count
+        X = work[K] = np.empty((A.shape[0], 2 * K, A.shape[2]))
     np.add(m[:, None, :], A, out=X[:, :K])
     np.subtract(m[:, None, :], A, out=X[:, K:])
     G = g(X)
@@ -153,6 +159,27 @@ def _pair_sums(g, m, g0, A, weight, mask, residual, cross):
     EDD = np.einsum("isM,jsM->ijM", wD, D)
     EXD = np.einsum("isM,jsM->ijM", dX, wD) if cross else None
     return ED, EDD, EXD
+
+
+def _active_runs(active: np.ndarray) -> np.ndarray:
+    """The indices of the active runs; a single run is named twice (its sums are then computed
+    on two identical columns, as in a full batch: numpy drops a length-1 run axis and would
+    sum the points in another order, changing the last bits)."""
+    idx = np.flatnonzero(active)
+    return np.repeat(idx, 2) if idx.size == 1 else idx
+
+
+def _take_runs(a: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """``a[..., runs]``, C-contiguous: numpy's reductions and einsum sum in the same order
+    as on the whole batch only on the same layout, and the subset must match it bit for bit."""
+    return np.ascontiguousarray(a[..., runs])
+
+
+def _scatter(a: np.ndarray, runs: np.ndarray, M: int) -> np.ndarray:
+    """``a (..., len(runs))`` placed at ``runs`` of a zero ``(..., M)`` array."""
+    out = np.zeros(a.shape[:-1] + (M,))
+    out[..., runs] = a
+    return out
 
 
 def _check_tile(tile, M: int) -> int:
@@ -347,7 +374,13 @@ def haar_rotations(n: int, M: int, rng: np.random.Generator) -> np.ndarray:
     Gram-Schmidt on i.i.d. Gaussian columns, i.e. the Q of a QR factorisation
     with positive diagonal R, which is Haar distributed; vectorised over runs.
     """
-    G = rng.standard_normal((n, n, M))
+    return _gram_schmidt(rng.standard_normal((n, n, M)))
+
+
+def _gram_schmidt(G: np.ndarray) -> np.ndarray:
+    """The Q factor (positive diagonal R) of each ``G[:, :, j]``, ``(n, n, M)``: elementwise in the
+    run axis, so a subset of runs gets bit for bit the columns the whole batch gets."""
+    n = G.shape[0]
     Q = np.empty_like(G)
     for j in range(n):
         v = G[:, j]
@@ -478,10 +511,13 @@ class StochasticIntegrationRule(MomentRule):
     in the references. The iterations each run spent are in
     ``Moments.n_iter`` (both passes counted).
 
-    Batched runs: per-run ``n_iter`` and per-run stopping mask the draws;
-    every iteration draws for all runs, so draw ``i`` of run ``j`` consumes the
-    same random numbers whatever the iteration counts (common random numbers
-    between policies).
+    Batched runs: per-run ``n_iter`` and per-run stopping. Every iteration
+    draws its random numbers for all runs, so draw ``i`` of run ``j`` consumes
+    the same random numbers whatever the iteration counts (common random
+    numbers between policies), but evaluates the function only for the runs
+    still iterating: a batch costs ``sum_j n_iter_j`` draws' points, not
+    ``max_j n_iter_j * M``, and each run's moments are bit for bit those of
+    the scalar call with its own count.
 
     Stone Soup's defaults (the authors' Python port) are
     ``StochasticIntegrationRule(10, order=5, passes=2,
@@ -567,13 +603,15 @@ class StochasticIntegrationRule(MomentRule):
 
     # ------------------------------------------------------------ draws
     def _draw(self, n: int, M: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-        """The random variates of one draw for ``M`` runs (run axis last)."""
+        """The random variates of one draw for ``M`` runs (run axis last). For orders 3 and 5 the
+        first is the Gaussian matrix whose Gram-Schmidt factor is the rotation (:func:`haar_rotations`);
+        :meth:`_point_set` orthogonalises it, for the runs that use the draw only."""
         if self.order == 1:
             return (rng.standard_normal((n, M)),)
-        Q = haar_rotations(n, M, rng)
+        G = rng.standard_normal((n, n, M))
         if self.order == 3:
-            return Q, rng.chisquare(n + 2, size=M)
-        return Q, rng.chisquare(2 * n + 7, size=M), rng.beta(n + 2, 1.5, size=M)
+            return G, rng.chisquare(n + 2, size=M)
+        return G, rng.chisquare(2 * n + 7, size=M), rng.beta(n + 2, 1.5, size=M)
 
     def _basis(self, n: int) -> np.ndarray:
         """Simplex vertices and (``n > 1``) edge midpoints, ``(n, n + 1 + n(n+1)/2)``."""
@@ -598,9 +636,11 @@ class StochasticIntegrationRule(MomentRule):
         if self.order == 1:
             return _PointSet(scale=1.0, rotation=raw[0][:, None, :], weight=0.5, mask=None)
         if self.order == 3:
-            Q, rho2 = raw
+            G, rho2 = raw
+            Q = _gram_schmidt(G)
             return _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2, mask=None)
-        Q, r2, q = raw
+        G, r2, q = raw
+        Q = _gram_schmidt(G)
         r, a = np.sqrt(r2), np.arcsin(q) / 2
         rho, delta = r * np.sin(a), r * np.cos(a)
         coef, _ = self._degree5_weights(n, rho, delta)
@@ -608,23 +648,34 @@ class StochasticIntegrationRule(MomentRule):
         groups = [(v, rho, coef[0]), (v, delta, coef[1])] + ([(y, rho, coef[2]), (y, delta, coef[3])] if n > 1 else [])
         return _PointSet(scale=1.0, rotation=Q, weight=1.0, mask=None, basis=self._basis(n), groups=groups)
 
-    def _point_sets(self, n: int, M: int, n_iter: np.ndarray, rng: np.random.Generator, tile: int = 1) -> Iterator[_PointSet]:
-        """The draws of one pass, each for all ``M`` runs: ``max(n_iter)`` of them (at least
-        ``n_min`` with ``tol``); the recursion masks the runs that are done and may stop early.
+    def _point_sets(self, n: int, M: int, n_iter: np.ndarray, rng: np.random.Generator, tile: int = 1,
+                    runs: Callable[[], np.ndarray | None] | None = None) -> Iterator[_PointSet]:
+        """The draws of one pass: ``max(n_iter)`` of them (at least ``n_min`` with ``tol``); the
+        recursion may stop early. Every draw's random numbers are drawn for all ``M`` runs (so that
+        draw ``i`` of a run is the same whatever the other runs do), but its points are made only
+        for the runs ``runs()`` names when the draw is due (None: all); the others are done.
         With ``tile = G`` each draw is made for ``M / G`` runs and repeated ``G`` times."""
         cap = int(n_iter.max()) if self.tol is None else max(int(n_iter.max()), self.n_min)
         M0 = M // tile
         for _ in range(cap):
             raw = self._draw(n, M0, rng)
-            if tile > 1:
+            idx = None if runs is None else runs()
+            if idx is not None:
+                raw = tuple(_take_runs(a, idx % M0) for a in raw)
+            elif tile > 1:
                 raw = tuple(np.concatenate([a] * tile, axis=-1) for a in raw)
-            yield self._point_set(n, raw)
+            ps = self._point_set(n, raw)
+            ps.runs = idx
+            yield ps
 
     # -------------------------------------------------------- recursion
-    def _recursion(self, sets, evaluate, n_iter: np.ndarray, M: int, what: str, cross: bool, c=None,
+    def _recursion(self, make_sets, evaluate, n_iter: np.ndarray, M: int, what: str, cross: bool, c=None,
                    at: tuple[int, ...] | None = None) -> dict | dict[int, dict]:
         """One SIR recursion over draws, per run, until its fixed count or the stopping rule ends it.
 
+        ``make_sets(runs)``: the pass's draws (:meth:`_point_sets`), each made for the runs
+        ``runs()`` names when it is due: the runs still iterating (None: all of them), so a
+        run that is done costs no function evaluations, only its share of the random numbers.
         ``what``: ``"joint"`` (mean and covariances from the same draws),
         ``"mean"`` (first pass) or ``"cov"`` (second pass, about ``g0 + c``).
         Returns the averaged sums, the per-run counts and the Welford state.
@@ -647,10 +698,11 @@ class StochasticIntegrationRule(MomentRule):
         if at is not None and (per_run or int(n_iter) != max(at)):
             raise ValueError("_recursion(at=...) needs a fixed count with scalar n_iter = max(at)")
         snaps: dict[int, dict] = {}
+        sets = make_sets((lambda: None if active.all() else _active_runs(active)) if per_run else None)
         for ps in sets:
-            if per_run:
-                ps.mask = active.astype(float)
             e, ee, ex = evaluate(ps, cross)
+            if ps.runs is not None:  # sums of the active runs: zeros for the others
+                e, ee, ex = (None if a is None else _scatter(a, ps.runs, M) for a in (e, ee, ex))
             if sums is None:
                 ng = e.shape[0]
                 sums = [np.zeros_like(e), np.zeros_like(ee), None if ex is None else np.zeros_like(ex)]
@@ -658,7 +710,7 @@ class StochasticIntegrationRule(MomentRule):
             sums[1] += ee
             if cross:
                 sums[2] += ex
-            N = N + (1.0 if ps.mask is None else ps.mask)
+            N = N + (1.0 if ps.runs is None else active)
             if not track:
                 if at is not None and N in at:
                     snaps[int(N)] = self._averaged(sums, N, cross, None, None)
@@ -810,7 +862,7 @@ class StochasticIntegrationRule(MomentRule):
         work: dict = {}
         evaluate = lambda ps, cr: _weighted_sums(g, m, g0, L, ps, residual, cr, work)  # noqa: E731
         if self.passes == 1:
-            joint = self._recursion(self._point_sets(n, M, n_iter, rng, tile), evaluate, n_iter, M, "joint", cross, at=at)
+            joint = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng, tile, runs), evaluate, n_iter, M, "joint", cross, at=at)
             if at is None:
                 return self._finish(g0, joint, None, n_iter, M)
             return [self._finish(g0, joint[k], None, n_iter, M) for k in at]
@@ -818,14 +870,14 @@ class StochasticIntegrationRule(MomentRule):
             rng2 = rng.spawn(1)[0]
         except (AttributeError, TypeError, ValueError) as err:
             raise ValueError("passes=2 needs a numpy Generator with a SeedSequence (np.random.default_rng(seed))") from err
-        mean_pass = self._recursion(self._point_sets(n, M, n_iter, rng, tile), evaluate, n_iter, M, "mean", False, at=at)
+        mean_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng, tile, runs), evaluate, n_iter, M, "mean", False, at=at)
         if at is None:
-            cov_pass = self._recursion(self._point_sets(n, M, n_iter, rng2, tile), evaluate, n_iter, M, "cov", cross,
+            cov_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng2, tile, runs), evaluate, n_iter, M, "cov", cross,
                                        c=mean_pass["ED"])
             return self._finish(g0, mean_pass, cov_pass, n_iter, M)
         # without tol the covariance pass's sums do not depend on the centre c, so one
         # recursion serves every count (c only enters the tolerance test)
-        cov_pass = self._recursion(self._point_sets(n, M, n_iter, rng2, tile), evaluate, n_iter, M, "cov", cross, at=at)
+        cov_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng2, tile, runs), evaluate, n_iter, M, "cov", cross, at=at)
         return [self._finish(g0, mean_pass[k], cov_pass[k], n_iter, M) for k in at]
 
     def _finish(self, g0: np.ndarray, mean_pass: dict, cov_pass: dict | None, n_iter, M: int) -> Moments:
@@ -867,7 +919,7 @@ def stochastic_rule_points(n: int, order: int, rng: np.random.Generator) -> tupl
     if order == 1:
         X = raw[0]
         return np.concatenate([X, -X], axis=1), np.array([0.5, 0.5])
-    Q = raw[0][:, :, 0]
+    Q = _gram_schmidt(raw[0])[:, :, 0]
     if order == 3:
         rho2 = raw[1][0]
         A = Q * np.sqrt(rho2)

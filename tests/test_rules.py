@@ -534,6 +534,36 @@ def test_si_new_variants_per_run_n_iter_use_common_random_numbers(order, passes,
     assert np.all(si_moments(rule, g_nonpoly, m, P, 1, 7).mean != si_moments(rule, g_nonpoly, m, P, 5, 7).mean)
 
 
+@pytest.mark.parametrize("order,passes", [(3, 1), (5, 2), (1, 1)])
+def test_si_per_run_n_iter_evaluates_only_the_runs_still_iterating(order, passes):
+    """With one count per run, a draw's points are made for the runs that still need it: the
+    function sees sum_j n_iter_j draws' points (plus the centres), not max(n_iter) * M, and each
+    run's moments are bit for bit those of the scalar call with its own count (the subsets are
+    laid out as the whole batch, a count held by a single run included)."""
+    rng = np.random.default_rng(3)
+    n, M = 2, 40
+    m, P = rng.standard_normal((n, M)), np.moveaxis(np.stack([random_spd(rng, n) for _ in range(M)]), 0, -1)
+    its = rng.choice([1, 2, 3, 7], size=M)
+    its[5] = 12  # the last draws are this run's alone
+    rule = StochasticIntegrationRule(order=order, passes=passes)
+    seen = []
+
+    def g(X):
+        seen.append(X.shape[1] * X.shape[2])
+        return g_nonpoly(X)
+
+    per_run = si_moments(rule, g, m, P, its, 7)
+    ppd = rule.points_per_draw(n)
+    single = its.max() - np.sort(its)[-2]  # draws of run 5 alone: computed on two copies
+    assert sum(seen) == M + passes * ppd * (its.sum() + single)
+    assert sum(seen) < M + passes * ppd * its.max() * M / 2
+    for N in np.unique(its):
+        scalar = si_moments(rule, g_nonpoly, m, P, int(N), 7)
+        sel = its == N
+        for name in ("mean", "cov", "cross"):
+            np.testing.assert_array_equal(getattr(per_run, name)[..., sel], getattr(scalar, name)[..., sel])
+
+
 @pytest.mark.parametrize("passes", [1, 2])
 def test_si_tolerance_stopping(passes):
     """Each run iterates until its estimated error is below tol (between n_min and n_max); a run

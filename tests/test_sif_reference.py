@@ -27,7 +27,7 @@ from stonesoup.updater.kalman import StochasticIntegrationUpdater  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
 from adaptfilt.linalg import wrap_angle  # noqa: E402
-from adaptfilt.rules import StochasticIntegrationRule, stochastic_rule_points  # noqa: E402
+from adaptfilt.rules import StochasticIntegrationRule, _gram_schmidt, stochastic_rule_points  # noqa: E402
 
 
 # ------------------------------------------------------------- Stone Soup models
@@ -164,8 +164,10 @@ def feed_stone_soup(monkeypatch, feed):
 
 
 def our_draws(order, n, rng, k):
+    """Our draws' variates, the rotation orthogonalised (``_draw`` gives its Gaussian matrix)."""
     rule = StochasticIntegrationRule(order=order)
-    return [rule._draw(n, 1, rng) for _ in range(k)]
+    raws = [rule._draw(n, 1, rng) for _ in range(k)]
+    return raws if order == 1 else [(_gram_schmidt(r[0]),) + r[1:] for r in raws]
 
 
 def pass_draws(order, n, seed, n1, k=40):
