@@ -8,6 +8,11 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    rule (today's default) and of the degree-5 rule, interleaved, best of
    ``--repeat``; wall and process-CPU time per iteration and their ratio
    (target of issue 14: degree 5 within 2x of degree 3 per iteration).
+   Then **per-run counts**: one moment computation where the runs pick their
+   own ``n_iter`` as a learned policy does (most few, some many), against every
+   run at the largest count and at the mean count: a draw is evaluated only for
+   the runs still iterating, so the batch should cost about what its mean
+   count costs, plus the random numbers of the largest count for all runs.
 2. **Accuracy of the first update**: the RMS error, over ``M`` independent
    replicates, of ``z_pred``, ``Pzz`` and ``Pxz`` against a 2-D polar Gauss-Legendre
    reference (the bearing depends on ``px, py`` only, independent of the
@@ -67,6 +72,23 @@ def cost_per_iteration(M: int, n_iter: int, repeat: int) -> dict:
             wall[name] = min(wall[name], (time.perf_counter() - t0) / per)
             cpu[name] = min(cpu[name], (time.process_time() - c0) / per)
     return {"wall": wall, "cpu": cpu}
+
+
+def cost_per_run_counts(M: int, repeat: int, seed: int = 0) -> dict:
+    """Wall time of one degree-3 moment computation with per-run counts (80 % of the runs at 2,
+    15 % at 5, 5 % at 30, as a learned SIF policy spreads them) against all runs at 30 and at the
+    rounded mean count, best of ``repeat``."""
+    _, m, P, L, h, res = first_update_problem(M)
+    its = np.random.default_rng(seed).choice([2.0, 5.0, 30.0], size=M, p=[0.8, 0.15, 0.05])
+    cases = {"per-run (mean %.2f, max 30)" % its.mean(): its, "all at 30": 30.0, "all at %d" % round(its.mean()): float(round(its.mean()))}
+    rule = StochasticIntegrationRule(order=3)
+    best = {k: np.inf for k in cases}
+    for rep in range(repeat):
+        for name, n_it in cases.items():
+            t0 = time.perf_counter()
+            rule.moments(h, m, P, n_it, residual=res, rng=np.random.default_rng(rep), L=L)
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return best
 
 
 def reference_first_update(order: int = 400):
@@ -173,7 +195,16 @@ def main(argv=None) -> None:
               f"{c['wall'][name] / c['wall'][base]:13.2f} {c['cpu'][name] / c['cpu'][base]:12.2f}")
     pts3, pts5 = StochasticIntegrationRule(order=3).points_per_draw(4), StochasticIntegrationRule(order=5).points_per_draw(4)
     print(f"(function evaluations per iteration: degree 3 {pts3}, degree 5 {pts5}, ratio {pts5 / pts3:.1f}; "
-          f"target: degree 5 within 2x of degree 3)\n")
+          f"target: degree 5 within 2x of degree 3)")
+    print(f"per function evaluation, degree 5 / degree 3: "
+          f"{(c['wall']['degree 5'] / pts5) / (c['wall'][base] / pts3):.2f} (wall)\n")
+
+    print(f"## 1b. per-run counts, degree 3, M = {M_cost}, best of {args.repeat}")
+    pr = cost_per_run_counts(M_cost, args.repeat)
+    ref = pr["all at 30"]
+    for name, sec in pr.items():
+        print(f"{name:30s} {1e3 * sec:9.1f} ms   {sec / ref:5.2f} of all-at-30")
+    print()
 
     print(f"## 2. accuracy of the first update: RMS error over {M_acc} replicates (polar Gauss-Legendre reference)")
     rows, ref_err = accuracy(M_acc)
