@@ -369,6 +369,8 @@ def evaluate(
     traj: Trajectory | None = None,
     level: float = 0.95,
     command: str | None = None,
+    *,
+    n_steps: int | None = None,
 ) -> Results:
     """Evaluate ``policies`` on the same ``n_runs`` simulated trajectories.
 
@@ -390,21 +392,106 @@ def evaluate(
         Bootstrap resamples (shared by all policies: paired intervals).
     traj : Trajectory, optional
         Replay these trajectories instead of simulating.
+    n_steps : int, optional
+        A horizon other than the experiment's (``Experiment.make_env``); not
+        with an environment, whose horizon is its own.
 
     Returns
     -------
     Results
     """
+    env, policies, traj, counts, config = _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command,
+                                                 n_steps)
+    return _evaluate([(env.cost, config)], env, policies, traj, counts, level, progress)[0]
+
+
+def evaluate_costs(
+    experiments: Sequence,
+    policies: Sequence | None = None,
+    n_runs: int = 10_000,
+    seed: int = 0,
+    progress: bool | Literal["steps"] = True,
+    n_boot: int = 1000,
+    level: float = 0.95,
+    command: str | None = None,
+    *,
+    n_steps: int | None = None,
+) -> dict[str, Results]:
+    """:func:`evaluate` on several experiments that differ in their cost only, each policy rolled out once.
+
+    The SIF experiments of Table I run the same filter on the same runs and
+    charge different costs: a fixed ``n_iter`` filters identically in all
+    three. Here each policy is rolled out in the first experiment's
+    environment and every experiment's cost is charged on the same steps
+    (:func:`adaptfilt.mdp.rollout`, ``extra_costs``); a policy that is the
+    same constant as one before it (``default`` and ``fixed-n_iter=10``) is
+    not rolled out again. The result for each experiment equals
+    ``evaluate(experiment, policies, n_runs, seed)`` bit for bit (but for
+    ``wall_time_s``) at a fraction of the filter work. ValueError when the
+    experiments differ in anything but their cost (model, filter, grid,
+    horizon), naming it, or when a policy may choose by the cost (greedy,
+    or a learned policy with candidate-cost features): those differ
+    between the experiments and are evaluated per experiment.
+
+    Example
+    -------
+    >>> from adaptfilt.evaluation import evaluate_costs
+    >>> from adaptfilt.experiments import get_experiment
+    >>> exps = ["ctm-sif-stateinnov", "ctm-sif-nis"]
+    >>> pols = [p for p in get_experiment(exps[0]).baselines() if p.name in ("default", "fixed-n_iter=3")]
+    >>> res = evaluate_costs(exps, pols, n_runs=20, progress=False)  # doctest: +SKIP
+    >>> sorted(res), res["ctm-sif-nis"]["default"].rmse == res["ctm-sif-stateinnov"]["default"].rmse  # doctest: +SKIP
+    (['ctm-sif-nis', 'ctm-sif-stateinnov'], True)
+    """
+    if isinstance(experiments, str) or len(experiments) == 0:
+        raise ValueError(f"give a non-empty sequence of experiments, got {experiments!r}")
+    setups = [_setup(e, policies, n_runs, seed, n_boot, None, level, command, n_steps) for e in experiments]
+    env, pols, traj, counts, first = setups[0]
+    names = [c["experiment"] for *_, c in setups]
+    if len(set(names)) < len(names):
+        raise ValueError(f"experiments must be distinct, got {names}")
+    shared = ("model", "nx", "nz", "n_steps", "filter", "param_name", "default", "grid", "n_runs", "seed", "policies")
+    for e2, _, _, _, c in setups[1:]:
+        for k in shared:
+            if c[k] != first[k]:
+                raise ValueError(f"experiments {first['experiment']!r} and {c['experiment']!r} differ in {k} "
+                                 f"({first[k]!r} vs {c[k]!r}): only experiments that differ in their cost share rollouts")
+        if e2.truth.name != env.truth.name:
+            raise ValueError(f"experiments {first['experiment']!r} and {c['experiment']!r} simulate different truths")
+    for p in pols:
+        if not _cost_blind(p):
+            raise ValueError(f"policy {p.name!r} may choose by the cost (greedy, candidate features, or a policy type "
+                             "evaluate_costs does not know): evaluate it per experiment")
+    out = _evaluate([(e.cost, c) for e, _, _, _, c in setups], env, pols, traj, counts, level, progress)
+    return dict(zip(names, out))
+
+
+def _cost_blind(pol) -> bool:
+    """Whether ``pol``'s choices cannot depend on the environment's cost: constants, maximum likelihood,
+    random choice, and learned policies whose information state has no candidate costs."""
+    from adaptfilt.policies import FixedPolicy, MaxLikelihoodPolicy, RandomPolicy
+
+    if isinstance(pol, (FixedPolicy, MaxLikelihoodPolicy, RandomPolicy)):
+        return True
+    fs = getattr(pol, "feature_set", None)
+    return fs is not None and not fs.candidates
+
+
+def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None):
+    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation."""
     from adaptfilt import __version__
     from adaptfilt.experiments import Experiment, get_experiment
 
     exp = get_experiment(experiment_or_env) if isinstance(experiment_or_env, str) else experiment_or_env
     if isinstance(exp, Experiment):
-        env = exp.make_env(seed=seed)
+        env = exp.make_env(seed=seed, n_steps=n_steps)
         if policies is None:
             policies = exp.baselines()
     elif isinstance(exp, FilterEnv):
         env, exp = exp, None
+        if n_steps is not None and n_steps != env.n_steps:
+            raise ValueError(f"n_steps={n_steps} for an environment with horizon {env.n_steps}: "
+                             "build the environment with the horizon you want (FilterEnv(..., n_steps=...))")
         if policies is None:
             raise ValueError("give the policies to evaluate (an environment has no baselines; an Experiment has)")
     else:
@@ -436,22 +523,48 @@ def evaluate(
         "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",
         "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
     }
+    return env, policies, traj, counts, config
+
+
+def _constant(pol) -> tuple | None:
+    """What identifies a constant policy's episode (its value in each step), or None."""
+    from adaptfilt.policies import FixedPolicy
+
+    return (pol.value, pol.predict_param) if type(pol) is FixedPolicy else None
+
+
+def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj: Trajectory, counts: np.ndarray,
+              level: float, progress) -> list[Results]:
+    """Roll each policy out once in ``env`` and summarise it for every ``(cost, config)`` of ``targets``
+    (the first cost is the environment's own)."""
     bar = policies
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(policies, desc=f"evaluate {config['experiment'] or config['model']}", unit="policy")
-    res = Results(config=config)
+        bar = tqdm(policies, desc=f"evaluate {targets[0][1]['experiment'] or targets[0][1]['model']}", unit="policy")
+    results = [Results(config=config) for _, config in targets]
+    extra = [c for c, _ in targets[1:]]
+    done: dict[tuple, str] = {}
     for pol in bar:
         if progress:
             bar.set_postfix_str(pol.name)
         t0 = time.perf_counter()
-        run, cost = rollout(env, pol, traj=traj, progress=progress == "steps")
-        summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost, env.grid, counts, run.n_repairs, level,
-                          compute_weight=0.0 if env.cost is None else env.cost.compute_weight)
-        del run, cost  # the (M, T, nx, nx) covariances go here
-        res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
-    return res
+        key = _constant(pol)
+        if key is not None and key in done:  # the same episode again: copy its summaries under this name
+            for res in results:
+                twin = res.policies[done[key]]
+                res.policies[pol.name] = PolicyResult(**{**twin.__dict__, "name": pol.name, "wall_time_s": 0.0})
+            continue
+        run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
+        costs = [cost] + run.info["extra_costs"]
+        for res, (c, _), cost_k in zip(results, targets, costs):
+            summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs, level,
+                              compute_weight=0.0 if c is None else c.compute_weight)
+            res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
+        del run, cost, costs  # the (M, T, nx, nx) covariances go here
+        if key is not None:
+            done[key] = pol.name
+    return results
 
 
 def learned_name(path: str | Path, experiment: str) -> str:

@@ -348,7 +348,8 @@ class FilterEnv:
         Returns ``(decision, cost, done, info)``; ``info`` holds the update's
         ``x_filt (M, nx)``, ``P_filt (M, nx, nx)``, ``nis``, ``loglik``,
         ``theta``, ``t``, ``extra_spent`` (what the decision computed
-        beyond the chosen update, see :class:`Decision`) and ``repaired``
+        beyond the chosen update, see :class:`Decision`), ``update`` (the
+        update's quantities a :class:`Cost` reads) and ``repaired``
         (bool ``(M,)``: runs whose covariance the filter repaired in this step,
         ``on_indefinite="clip"``; what a learner may be charged for).
         ``predict_param`` replaces the filter's default in the following predict
@@ -376,7 +377,7 @@ class FilterEnv:
             u, repaired = self._logging_repairs(M, lambda: self.filt.update_rl(
                 self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(_UPDATE, t, self.stream)))
             cost = None if self.cost is None else self.cost(u, theta, self.nz)
-        info = {"t": t, "theta": theta, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
+        info = {"t": t, "theta": theta, "update": u, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
                 "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0),
                 # the chosen candidate is the update that happens: not spent on top of it
                 "extra_spent": d.extra_spent - (theta if d._cand is not None else 0.0),
@@ -399,11 +400,15 @@ class FilterEnv:
 
 
 def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int | None = None,
-            rng=None, stream: int | None = None, keep_pred: bool = False, progress: bool = False) -> tuple[FilterRun, np.ndarray | None]:
+            rng=None, stream: int | None = None, keep_pred: bool = False, progress: bool = False,
+            extra_costs: Sequence[Cost] = ()) -> tuple[FilterRun, np.ndarray | None]:
     """Run ``policy`` through ``env`` for a whole episode.
 
     Returns the filter run (moments, NIS, log-likelihood, parameters chosen)
-    and the cost ``(M, T)`` (None when the env has no cost).
+    and the cost ``(M, T)`` (None when the env has no cost). ``extra_costs``:
+    other costs to charge the same steps, ``run.info["extra_costs"]`` (one
+    ``(M, T)`` array each): what the episode would cost in environments that
+    differ from ``env`` in their cost only.
     """
     d = env.reset(n_runs=n_runs, rng=rng, traj=traj, stream=stream)
     rep0 = env.filt.n_repairs  # the filter's counter is cumulative; report this episode's repairs
@@ -422,9 +427,12 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
         steps = tqdm(steps, desc=getattr(policy, "name", "policy"), leave=False)
     predict_param = getattr(policy, "predict_param", None)  # a policy fixed in both steps
     spent = np.empty(T)
+    extra = [np.empty((T, M)) for _ in extra_costs]
     for t in steps:
         d, c, done, info = env.step(policy.act(d), predict_param=predict_param)
         spent[t] = np.mean(info["extra_spent"])
+        for buf, cost_fn in zip(extra, extra_costs):
+            buf[t] = cost_fn(info["update"], info["theta"], env.nz)
         mean[t], cov[t], nis[t], ll[t], params[t] = (
             info["x_filt"], info["P_filt"], info["nis"], info["loglik"], info["theta"])
         if costs is not None:
@@ -434,7 +442,7 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
     return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
                      x_pred=tr(xp), P_pred=tr(Pp), n_repairs=env.filt.n_repairs - rep0,
-                     info={"extra_spent": spent}), tr(costs)
+                     info={"extra_spent": spent, "extra_costs": [tr(b) for b in extra]}), tr(costs)
 
 
 def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:

@@ -125,3 +125,44 @@ def test_cli_evaluate_writes_summary_and_figures_reproducibly(tmp_path, capsys):
     assert (tmp_path / "b" / "summary.json").read_bytes() == (tmp_path / "a" / "summary.json").read_bytes()
     res_c = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=50, seed=2, progress=False)
     assert res_c["default"].rmse != summary["default"]["rmse"]
+
+
+def test_evaluate_costs_equals_one_evaluation_per_experiment_bit_for_bit():
+    """The SIF experiments differ in their cost only: one rollout per policy, every cost charged on
+    it, gives each experiment exactly what its own evaluation gives; ``default`` (the constant 10)
+    is ``fixed-n_iter=10`` again and is not rolled out twice."""
+    from adaptfilt.evaluation import evaluate_costs
+    from adaptfilt.experiments.claims import SIF_EXPERIMENTS
+
+    names = ("default", "fixed-n_iter=1", "fixed-n_iter=10")
+    pols = lambda e: [p for p in get_experiment(e).baselines() if p.name in names]  # noqa: E731
+    shared = evaluate_costs(list(SIF_EXPERIMENTS), pols(SIF_EXPERIMENTS[0]), n_runs=40, seed=2, progress=False, n_steps=25)
+    assert list(shared) == list(SIF_EXPERIMENTS)
+    costs = set()
+    for e in SIF_EXPERIMENTS:
+        alone = evaluate(e, pols(e), n_runs=40, seed=2, progress=False, n_steps=25)
+        assert shared[e].config == alone.config
+        for n in names:
+            a, b = alone[n].__dict__, shared[e][n].__dict__
+            for k, v in a.items():
+                if isinstance(v, str):
+                    assert v == b[k]
+                elif k != "wall_time_s":
+                    assert np.array_equal(np.asarray(v), np.asarray(b[k]), equal_nan=True), (e, n, k)
+        costs.add(round(shared[e]["fixed-n_iter=1"].cost, 12))
+    assert len(costs) == 3  # three costs really were charged
+    walls = [shared[SIF_EXPERIMENTS[0]][n].wall_time_s for n in ("default", "fixed-n_iter=10")]
+    assert walls[0] > 0 and walls[1] == 0.0  # fixed-n_iter=10 is default's episode again: copied, not rolled out
+
+
+def test_evaluate_costs_refuses_what_it_cannot_share():
+    from adaptfilt.evaluation import evaluate_costs
+
+    greedy = [p for p in get_experiment("ctm-sif-nis").baselines() if p.name == "greedy"]
+    with pytest.raises(ValueError, match="greedy.*may choose by the cost"):
+        evaluate_costs(["ctm-sif-nis", "ctm-sif-stateinnov"], greedy, n_runs=4, progress=False, n_steps=3)
+    fixed = [p for p in get_experiment("ctm-sif-nis").baselines() if p.name == "default"]
+    with pytest.raises(ValueError, match="differ in filter"):  # a constant both grids hold
+        evaluate_costs(["ctm-sif-nis", "ctm-ukf"], [FixedPolicy(10.0)], n_runs=4, progress=False, n_steps=3)
+    with pytest.raises(ValueError, match="distinct"):
+        evaluate_costs(["ctm-sif-nis", "ctm-sif-nis"], fixed, n_runs=4, progress=False, n_steps=3)
