@@ -161,8 +161,9 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         callbacks = [_curve_callback(curve, config.n_envs)]
         if max_seconds is not None:
             callbacks.append(_deadline(float(max_seconds)))
-        if progress:
-            callbacks.append(_Progress(total, f"{config.algo} {label} gamma={gamma:g} seed={seed}"))
+        if progress:  # SB3 collects whole rollouts: the bar's end is the total rounded up to one
+            rollout = model.n_steps * model.n_envs
+            callbacks.append(_Progress(-(-total // rollout) * rollout, f"{config.algo} {label} gamma={gamma:g} seed={seed}"))
         model.learn(total_timesteps=total, callback=callbacks)
     c = np.asarray(curve, dtype=float)
     meta = {"seed": int(seed), "episodes": int(episodes), "n_steps": int(T), "parallel": int(config.n_envs),

@@ -74,6 +74,19 @@ def cost_per_iteration(M: int, n_iter: int, repeat: int) -> dict:
     return {"wall": wall, "cpu": cpu}
 
 
+def arctan2_floor(points: int, M: int, repeat: int) -> float:
+    """Best wall time of numpy's arctan2 on ``points x M`` values: what the bearing alone costs one
+    degree-5 iteration, whatever the rule's own arithmetic costs."""
+    rng = np.random.default_rng(0)
+    y, x = rng.standard_normal((points, M)), rng.standard_normal((points, M))
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        np.arctan2(y, x)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def cost_per_run_counts(M: int, repeat: int, seed: int = 0) -> dict:
     """Wall time of one degree-3 moment computation with per-run counts (80 % of the runs at 2,
     15 % at 5, 5 % at 30, as a learned SIF policy spreads them) against all runs at 30 and at the
@@ -197,7 +210,10 @@ def main(argv=None) -> None:
     print(f"(function evaluations per iteration: degree 3 {pts3}, degree 5 {pts5}, ratio {pts5 / pts3:.1f}; "
           f"target: degree 5 within 2x of degree 3)")
     print(f"per function evaluation, degree 5 / degree 3: "
-          f"{(c['wall']['degree 5'] / pts5) / (c['wall'][base] / pts3):.2f} (wall)\n")
+          f"{(c['wall']['degree 5'] / pts5) / (c['wall'][base] / pts3):.2f} (wall)")
+    atan = arctan2_floor(pts5, M_cost, args.repeat)
+    print(f"the bearing's arctan2 alone on degree 5's {pts5} x {M_cost} points: {1e3 * atan:.2f} ms, "
+          f"{atan / c['wall'][base]:.2f} x the whole degree-3 iteration (a floor for the ratio)\n")
 
     print(f"## 1b. per-run counts, degree 3, M = {M_cost}, best of {args.repeat}")
     pr = cost_per_run_counts(M_cost, args.repeat)
