@@ -8,7 +8,9 @@ summary is a bootstrap over Monte-Carlo runs with **one** set of multinomial
 resampling counts shared by all policies, so a difference between two
 policies gets its own confidence interval
 (:meth:`Results.paired_difference`), much narrower than the two separate
-intervals suggest.
+intervals suggest. :func:`evaluate_costs` does the same for several
+experiments that differ only in their cost (the three SIF experiments of
+Table I): each policy is rolled out once and charged every cost.
 
 What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 
