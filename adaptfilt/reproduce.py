@@ -133,26 +133,23 @@ def _train_job(experiment: str, kind: str, seed: int, out: str, scale: Scale) ->
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}
 
 
-def _evaluate_job(experiment: str | tuple[str, ...], baselines: list[str], policy_files: list[str], scale: Scale):
+def _evaluate_job(experiments: tuple[str, ...], baselines: list[str], policy_files: list[str], scale: Scale):
     """Evaluate the named baselines and the policy files on the experiment's runs (a part of one
-    evaluation: every part simulates the same runs and resamples them the same way). A tuple of
-    experiments that differ in their cost only (the SIF ones) shares the rollouts of its baselines
-    (:func:`adaptfilt.evaluation.evaluate_costs`) and gives one part per experiment."""
+    evaluation: every part simulates the same runs and resamples them the same way); one part per
+    experiment. Several experiments differ in their cost only (the SIF ones): they share the
+    rollouts of their baselines (:func:`adaptfilt.evaluation.evaluate_costs`)."""
     from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
     from adaptfilt.experiments import get_experiment
     from adaptfilt.learned import load_policy
 
     t0, c0 = time.perf_counter(), _cpu()
-    shared = isinstance(experiment, tuple)
-    exp = get_experiment(experiment[0] if shared else experiment)
+    exp = get_experiment(experiments[0])
     by_name = {p.name: p for p in exp.baselines()}
     policies = [by_name[n] for n in baselines]
-    if shared:
-        parts = list(evaluate_costs(list(experiment), policies, n_runs=scale.eval_runs, seed=SEED, progress=False,
-                                    n_steps=scale.eval_steps).values())
-    else:
-        policies += [load_policy(p, experiment=exp, name=learned_name(p, experiment)) for p in policy_files]
-        parts = [evaluate(exp, policies, n_runs=scale.eval_runs, seed=SEED, progress=False, n_steps=scale.eval_steps)]
+    policies += [load_policy(p, experiment=exp, name=learned_name(p, exp.name)) for p in policy_files]
+    kw = dict(n_runs=scale.eval_runs, seed=SEED, progress=False, n_steps=scale.eval_steps)
+    parts = (list(evaluate_costs(list(experiments), policies, **kw).values()) if len(experiments) > 1
+             else [evaluate(exp, policies, **kw)])
     walls = {}
     for res in parts:
         for p in res.policies.values():  # per-run arrays in float32: data/ stays small; summaries are computed
@@ -160,26 +157,26 @@ def _evaluate_job(experiment: str | tuple[str, ...], baselines: list[str], polic
                 setattr(p, k, np.asarray(getattr(p, k), dtype=np.float32))
             # times go to timings.json, not into the results: the same command gives byte-identical files
             walls[p.name], p.wall_time_s = max(walls.get(p.name, 0.0), p.wall_time_s), 0.0
-    return (parts if shared else parts[0]), {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0,
-                                             "policies": walls}
+    return parts, {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0, "policies": walls}
 
 
-def _evaluation_jobs(experiment: str | tuple[str, ...], policy_paths: list[str], scale: Scale,
-                     cheap: bool = True) -> list[tuple]:
-    """An experiment's evaluation split into jobs: the cheap baselines together (not when ``cheap``
-    is False: a shared job of several experiments has them), greedy (and ML) alone (they try every
-    grid value), learned policies ``eval_chunk`` at a time. A tuple of experiments: their shared
-    cheap-baselines job alone."""
+def _cheap_and_heavy(experiment: str) -> tuple[list[str], list[str]]:
+    """The experiment's baselines: the cheap ones, and greedy and ML (they try every grid value)."""
     from adaptfilt.experiments import get_experiment
 
-    names = [p.name for p in get_experiment(experiment[0] if isinstance(experiment, tuple) else experiment).baselines()]
+    names = [p.name for p in get_experiment(experiment).baselines()]
     heavy = [n for n in names if n in ("greedy", "ml")]
-    if isinstance(experiment, tuple):
-        return [(experiment, [n for n in names if n not in heavy], [], scale)]
-    jobs = ([(experiment, [n for n in names if n not in heavy], [], scale)] if cheap else []) + \
-        [(experiment, [n], [], scale) for n in heavy]
+    return [n for n in names if n not in heavy], heavy
+
+
+def _evaluation_jobs(experiment: str, policy_paths: list[str], scale: Scale, cheap: bool = True) -> list[tuple]:
+    """An experiment's evaluation split into jobs: the cheap baselines together (unless ``cheap``
+    is False: a job shared with other experiments has them), greedy (and ML) alone, learned
+    policies ``eval_chunk`` at a time."""
+    light, heavy = _cheap_and_heavy(experiment)
+    jobs = ([((experiment,), light, [], scale)] if cheap else []) + [((experiment,), [n], [], scale) for n in heavy]
     for i in range(0, len(policy_paths), scale.eval_chunk):
-        jobs.append((experiment, [], policy_paths[i:i + scale.eval_chunk], scale))
+        jobs.append(((experiment,), [], policy_paths[i:i + scale.eval_chunk], scale))
     return jobs
 
 
@@ -317,38 +314,28 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     # the SIF experiments differ in their cost only: one job rolls their constant baselines out once
     sif = tuple(e for e in todo_e if e in SIF_EXPERIMENTS)
     sif = sif if len(sif) > 1 else ()
-    ejobs, owner = [], []
-    if sif:
-        ejobs += _evaluation_jobs(sif, [], scale)
-        owner.append(sif)
+    ejobs = [(sif, _cheap_and_heavy(sif[0])[0], [], scale)] if sif else []
     for e in todo_e:
-        js = _evaluation_jobs(e, [str(out / rel) for rel in learned[e]], scale, cheap=e not in sif)
-        ejobs += js
-        owner += [e] * len(js)
+        ejobs += _evaluation_jobs(e, [str(out / rel) for rel in learned[e]], scale, cheap=e not in sif)
     # the SIF greedy jobs are the longest: start them first, then the shared SIF baselines
-    order = sorted(range(len(ejobs)), key=lambda i: (not (isinstance(ejobs[i][0], tuple) or ejobs[i][0] in SIF_EXPERIMENTS),
-                                                     ejobs[i][1] != ["greedy"], not isinstance(ejobs[i][0], tuple)))
+    order = sorted(range(len(ejobs)), key=lambda i: (not set(ejobs[i][0]) & set(SIF_EXPERIMENTS),
+                                                     ejobs[i][1] != ["greedy"], len(ejobs[i][0]) == 1))
     say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs")
     outs = run_jobs(_evaluate_job, [ejobs[i] for i in order], workers=workers, cluster=cluster, progress=progress,
                     desc="evaluate")
     # each experiment's parts in job order (a shared job first): the merged tables keep their order
-    own = [o if isinstance(o, tuple) else (o,) for o in owner]
-    parts: dict[str, list] = {e: [None] * sum(e in o for o in own) for e in todo_e}
-    slot = {e: 0 for e in todo_e}
-    pos = {}
-    for i, o in enumerate(own):
-        for e in o:
-            pos[i, e] = slot[e]
-            slot[e] += 1
+    by_job = dict(zip(order, outs))
+    parts: dict[str, list] = {e: [] for e in todo_e}
     cpu = 0.0
-    for i, (res, t) in zip(order, outs):
-        for e, r in zip(own[i], res if isinstance(owner[i], tuple) else [res]):
-            parts[e][pos[i, e]] = r
+    for i, (exps_i, *_rest) in enumerate(ejobs):
+        res, t = by_job[i]
+        for e, r in zip(exps_i, res):
+            parts[e].append(r)
         cpu += t["cpu_time_s"]
         for name, w in t["policies"].items():  # a shared rollout's time is recorded under the first experiment
-            job_times[f"results/{own[i][0]}/{name}"] = {"wall_time_s": w}
-            for e in own[i][1:]:
-                job_times[f"results/{e}/{name}"] = {"wall_time_s": 0.0, "shared_with": own[i][0]}
+            job_times[f"results/{exps_i[0]}/{name}"] = {"wall_time_s": w}
+            for e in exps_i[1:]:
+                job_times[f"results/{e}/{name}"] = {"wall_time_s": 0.0, "shared_with": exps_i[0]}
     for e in todo_e:
         cmd = evaluate_command(e, learned[e], scale)
         res = _merge(parts[e], e, cmd)

@@ -81,8 +81,7 @@ class _PointSet:
     """The points ``m +- A[:, k]``, ``A = L @ rotation * scale``, with weight ``weight``.
 
     ``rotation (n, K, M)`` (None: identity), ``scale`` and ``weight`` a
-    scalar or ``(M,)``; ``mask (M,)``: the runs that use this set (None: all).
-    ``runs``: the set was made for these runs only (indices into the run axis,
+    scalar or ``(M,)``. ``runs``: the set was made for these runs only (indices into the run axis,
     ``M`` of them; None: for all runs); the sums are then computed for them alone.
     With ``groups``, the directions are instead ``L @ rotation @ basis[:, cols]
     * radius`` with weight ``w`` for each ``(cols, radius, w)`` of ``groups``
@@ -93,7 +92,6 @@ class _PointSet:
     scale: np.ndarray | float
     rotation: np.ndarray | None
     weight: np.ndarray | float
-    mask: np.ndarray | None
     basis: np.ndarray | None = None
     groups: list | None = None
     runs: np.ndarray | None = None
@@ -101,13 +99,13 @@ class _PointSet:
 
 def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | None, cross: bool, work: dict | None = None):
     """``sum_i w_i D_i``, ``sum_i w_i D_i D_i^T`` and ``sum_i w_i (X_i - m) D_i^T`` of one point set
-    (masked runs contribute zeros). ``work`` keeps buffers between calls. With ``ps.runs``
+    ``work`` keeps buffers between calls. With ``ps.runs``
     the sums are those of the runs ``ps.runs``, in that order."""
     if ps.runs is not None:
         m, g0, L = (_take_runs(a, ps.runs) for a in (m, g0, L))
     A = L if ps.rotation is None else mm(L, ps.rotation)
     if ps.groups is None:
-        return _pair_sums(g, m, g0, A * ps.scale, ps.weight, ps.mask, residual, cross)
+        return _pair_sums(g, m, g0, A * ps.scale, ps.weight, residual, cross)
     # rotate the basis once (BLAS: basis^T @ (L Q)[i] per row i), then one group at a time: small
     # temporaries, reused, cost far less first-touch paging than one large array of all points
     n, M = m.shape
@@ -116,12 +114,12 @@ def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | Non
         np.matmul(ps.basis.T, A[i], out=B[i])
     sums = None
     for cols, radius, w in ps.groups:
-        part = _pair_sums_lean(g, m, g0, B[:, cols] * radius, w, ps.mask, residual, cross, {} if work is None else work)
+        part = _pair_sums_lean(g, m, g0, B[:, cols] * radius, w, residual, cross, {} if work is None else work)
         sums = part if sums is None else [a if b is None else a + b for a, b in zip(sums, part)]
     return tuple(sums)
 
 
-def _pair_sums_lean(g, m, g0, A, w, mask, residual, cross, work: dict):
+def _pair_sums_lean(g, m, g0, A, w, residual, cross, work: dict):
     """:func:`_pair_sums` with fewer temporaries (``X`` in a reused buffer, no ``dX``;
     ``Cov[x, g]`` from ``w (D+ - D-)``); ``w`` a scalar or ``(M,)``."""
     K = A.shape[1]
@@ -132,8 +130,6 @@ def _pair_sums_lean(g, m, g0, A, w, mask, residual, cross, work: dict):
     np.subtract(m[:, None, :], A, out=X[:, K:])
     G = g(X)
     D = np.ascontiguousarray(G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :]))
-    if mask is not None:
-        w = w * mask
     Dp, Dm = D[:, :K], D[:, K:]
     wDp, wDm = Dp * w, Dm * w
     ED = (wDp + wDm).sum(axis=1)
@@ -142,7 +138,7 @@ def _pair_sums_lean(g, m, g0, A, w, mask, residual, cross, work: dict):
     return ED, EDD, EXD
 
 
-def _pair_sums(g, m, g0, A, weight, mask, residual, cross):
+def _pair_sums(g, m, g0, A, weight, residual, cross):
     """The sums over the points ``m +- A[:, k]`` with weights ``weight[k]`` (scalar, ``(M,)`` or ``(K, M)``)."""
     dX = np.concatenate([A, -A], axis=1)  # (n, 2K, M)
     G = g(m[:, None, :] + dX)
@@ -151,7 +147,7 @@ def _pair_sums(g, m, g0, A, weight, mask, residual, cross):
     # its runs are strided, which makes the einsums below ~6x slower for
     # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
     D = np.ascontiguousarray(D)
-    w = weight if mask is None else weight * mask
+    w = weight
     if np.ndim(w) == 2:  # one weight per direction and run: the same for +a_k and -a_k
         w = np.concatenate([w, w], axis=0)
     wD = D * w
@@ -262,7 +258,7 @@ class MomentRule(ABC):
             EDD += ee
             if cross:
                 EXD += ex
-            count = count + (1.0 if ps.mask is None else ps.mask)
+            count = count + 1.0
         ED /= count
         EDD /= count
         cov = self._cov_from_sums(EDD, ED, param)
@@ -350,7 +346,7 @@ class UnscentedRule(MomentRule):
 
     def _point_sets(self, n, M, kappa, rng):
         c = n + kappa
-        yield _PointSet(scale=np.sqrt(c), rotation=None, weight=0.5 / c, mask=None)
+        yield _PointSet(scale=np.sqrt(c), rotation=None, weight=0.5 / c)
 
     def _cov_from_sums(self, EDD, ED, kappa):
         if self.form == "standard":
@@ -634,11 +630,11 @@ class StochasticIntegrationRule(MomentRule):
 
     def _point_set(self, n: int, raw: tuple[np.ndarray, ...]) -> _PointSet:
         if self.order == 1:
-            return _PointSet(scale=1.0, rotation=raw[0][:, None, :], weight=0.5, mask=None)
+            return _PointSet(scale=1.0, rotation=raw[0][:, None, :], weight=0.5)
         if self.order == 3:
             G, rho2 = raw
             Q = _gram_schmidt(G)
-            return _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2, mask=None)
+            return _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2)
         G, r2, q = raw
         Q = _gram_schmidt(G)
         r, a = np.sqrt(r2), np.arcsin(q) / 2
@@ -646,7 +642,7 @@ class StochasticIntegrationRule(MomentRule):
         coef, _ = self._degree5_weights(n, rho, delta)
         v, y = slice(0, n + 1), slice(n + 1, None)
         groups = [(v, rho, coef[0]), (v, delta, coef[1])] + ([(y, rho, coef[2]), (y, delta, coef[3])] if n > 1 else [])
-        return _PointSet(scale=1.0, rotation=Q, weight=1.0, mask=None, basis=self._basis(n), groups=groups)
+        return _PointSet(scale=1.0, rotation=Q, weight=1.0, basis=self._basis(n), groups=groups)
 
     def _point_sets(self, n: int, M: int, n_iter: np.ndarray, rng: np.random.Generator, tile: int = 1,
                     runs: Callable[[], np.ndarray | None] | None = None) -> Iterator[_PointSet]:
@@ -861,8 +857,9 @@ class StochasticIntegrationRule(MomentRule):
         g0 = g(m[:, None, :])[:, 0, :]
         work: dict = {}
         evaluate = lambda ps, cr: _weighted_sums(g, m, g0, L, ps, residual, cr, work)  # noqa: E731
+        draws = lambda r: lambda runs: self._point_sets(n, M, n_iter, r, tile, runs)  # noqa: E731  (see _recursion)
         if self.passes == 1:
-            joint = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng, tile, runs), evaluate, n_iter, M, "joint", cross, at=at)
+            joint = self._recursion(draws(rng), evaluate, n_iter, M, "joint", cross, at=at)
             if at is None:
                 return self._finish(g0, joint, None, n_iter, M)
             return [self._finish(g0, joint[k], None, n_iter, M) for k in at]
@@ -870,14 +867,14 @@ class StochasticIntegrationRule(MomentRule):
             rng2 = rng.spawn(1)[0]
         except (AttributeError, TypeError, ValueError) as err:
             raise ValueError("passes=2 needs a numpy Generator with a SeedSequence (np.random.default_rng(seed))") from err
-        mean_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng, tile, runs), evaluate, n_iter, M, "mean", False, at=at)
+        mean_pass = self._recursion(draws(rng), evaluate, n_iter, M, "mean", False, at=at)
         if at is None:
-            cov_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng2, tile, runs), evaluate, n_iter, M, "cov", cross,
+            cov_pass = self._recursion(draws(rng2), evaluate, n_iter, M, "cov", cross,
                                        c=mean_pass["ED"])
             return self._finish(g0, mean_pass, cov_pass, n_iter, M)
         # without tol the covariance pass's sums do not depend on the centre c, so one
         # recursion serves every count (c only enters the tolerance test)
-        cov_pass = self._recursion(lambda runs: self._point_sets(n, M, n_iter, rng2, tile, runs), evaluate, n_iter, M, "cov", cross, at=at)
+        cov_pass = self._recursion(draws(rng2), evaluate, n_iter, M, "cov", cross, at=at)
         return [self._finish(g0, mean_pass[k], cov_pass[k], n_iter, M) for k in at]
 
     def _finish(self, g0: np.ndarray, mean_pass: dict, cov_pass: dict | None, n_iter, M: int) -> Moments:
