@@ -1,4 +1,4 @@
-r"""Reproduce the paper at the seed level: ``adaptfilt reproduce --out DIR [--quick] [--retrain] [--faithful]``.
+r"""Reproduce the paper at the seed level: ``adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful]``.
 
 :func:`reproduce` writes into ``DIR`` exactly the layout of the committed
 ``data/`` folder (which :mod:`adaptfilt.artefacts` reads for the course)::
@@ -36,7 +36,10 @@ by default, a Dask cluster with ``cluster=``; the files do not depend on which.
 
 Artefacts already in ``data/`` whose sha256 matches the manifest are reused
 unless ``retrain``; the paper-faithful policies are reused even then (``faithful``
-trains the ones ``data/`` lacks). ``quick`` runs the same pipeline at toy scale.
+trains the ones ``data/`` lacks). Scales (:data:`SCALES`): ``full`` is the paper's
+protocol and makes ``data/``; ``medium`` keeps the 8 seeds and every policy but halves
+the training and evaluates on M = 2000 runs, to check every verdict in under 15 minutes
+on 2 cores; ``quick`` runs the same pipeline at toy scale.
 """
 from __future__ import annotations
 
@@ -85,12 +88,20 @@ class Scale:
     recon_runs: int
     recon_steps: int | None
     eval_chunk: int = 4      # learned policies per evaluation job
+    faithful_episodes: int | None = None  # the paper-faithful policies' episodes (None: ``episodes``)
 
 
+#: The paper's protocol: M = 10^4 paired runs, 1000 training episodes per policy (about 31 min on 2 cores).
 FULL = Scale("full", episodes=1000, seeds=SEEDS, train_steps=None, eval_runs=10_000, eval_steps=None,
              floor_runs=2000, floor_steps=None, recon_runs=2000, recon_steps=None)
+#: Every learned policy at 8 seeds in under 15 minutes on 2 cores: half the training episodes,
+#: M = 2000 paired runs; the paper-faithful policies of ``data/`` (1000 episodes) are reused.
+MEDIUM = Scale("medium", episodes=500, seeds=SEEDS, train_steps=None, eval_runs=2000, eval_steps=None,
+               floor_runs=500, floor_steps=None, recon_runs=500, recon_steps=None, faithful_episodes=1000)
+#: The same pipeline at toy scale (about a minute): for tests.
 QUICK = Scale("quick", episodes=20, seeds=(0, 1), train_steps=25, eval_runs=200, eval_steps=30,
               floor_runs=100, floor_steps=60, recon_runs=200, recon_steps=40)
+SCALES = {s.name: s for s in (QUICK, MEDIUM, FULL)}
 
 
 def sha256(path: str | Path) -> str:
@@ -105,10 +116,14 @@ def policy_rel(experiment: str, kind: str, seed: int) -> str:
     return f"policies/{experiment}-{kind}-s{seed}.npz"
 
 
+def _episodes(kind: str, scale: Scale) -> int:
+    return scale.faithful_episodes if ALGO[kind] == "faithful" and scale.faithful_episodes else scale.episodes
+
+
 def policy_command(experiment: str, kind: str, seed: int, scale: Scale = FULL, prefix: str = "data") -> str:
     """The one command that makes ``policies/{experiment}-{kind}-s{seed}.npz``."""
     steps = "" if scale.train_steps is None else f" --horizon {scale.train_steps}"
-    return (f"adaptfilt train {experiment} --algo {ALGO[kind]} --gamma {GAMMA[kind]:g} --episodes {scale.episodes} "
+    return (f"adaptfilt train {experiment} --algo {ALGO[kind]} --gamma {GAMMA[kind]:g} --episodes {_episodes(kind, scale)} "
             f"--seed {seed}{steps} --out {prefix}/{policy_rel(experiment, kind, seed)}")
 
 
@@ -128,7 +143,7 @@ def _train_job(experiment: str, kind: str, seed: int, out: str, scale: Scale) ->
     from adaptfilt.trainers import train_policy
 
     t0, c0 = time.perf_counter(), _cpu()
-    train_policy(experiment, ALGO[kind], GAMMA[kind], scale.episodes, seed, n_steps=scale.train_steps,
+    train_policy(experiment, ALGO[kind], GAMMA[kind], _episodes(kind, scale), seed, n_steps=scale.train_steps,
                  progress=False, out=out, command=policy_command(experiment, kind, seed, scale))
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}
 
@@ -214,9 +229,12 @@ def _reusable(data: Path, rel: str, man: dict) -> dict | None:
 
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
               workers: int | None = None, cluster=None, experiments: tuple[str, ...] | None = None,
-              faithful: bool = False, jobs: int | None = None) -> dict:
+              faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None) -> dict:
     """Train + evaluate + floor + reconciliation + figures + tables into ``out_dir`` (module docstring).
 
+    ``scale``: ``"full"`` (default), ``"medium"`` or ``"quick"`` (:data:`SCALES`; ``quick=True``
+    is ``"quick"``). Only the full scale reuses the fast-mode policies and results of ``data/``;
+    every scale but ``quick`` reuses its paper-faithful policies.
     ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``; ``jobs`` is
     its old name); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
     Returns ``{"timings", "table1", "claims", "figures"}``.
@@ -228,7 +246,13 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     from adaptfilt.experiments.sweep import default_workers, run_jobs
     from adaptfilt.learned import read_npz
 
-    scale = QUICK if quick else FULL
+    if quick and scale not in (None, "quick", QUICK):
+        raise ValueError(f"quick=True and scale={scale!r}: give one of them")
+    if not isinstance(scale, Scale):
+        if (scale or "full") not in SCALES:
+            raise ValueError(f"unknown scale {scale!r}; one of {', '.join(SCALES)}")
+        scale = QUICK if quick else SCALES[scale or "full"]
+    quick, full = scale is QUICK, scale is FULL
     workers = workers if workers is not None else (jobs if jobs is not None else default_workers())
     out = Path(out_dir).resolve()
     data = data_dir().resolve()
@@ -238,7 +262,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
     # --retrain retrains the fast-mode policies; the paper-faithful ones (hours) are still reused
     kept = {"files": []} if quick else _load_manifest(data)
-    dman = {"files": []} if (retrain or quick) else kept
+    dman = {"files": []} if (retrain or not full) else kept
     entries: dict[str, dict] = {}
     timings: dict[str, dict] = {}
     job_times: dict[str, dict] = {}
@@ -302,7 +326,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     files = ("results.json", "results.npz", "summary.json", "summary.md")
     def stale(e: str) -> bool:
         """Evaluate again unless data/ holds this experiment's results for exactly these policies."""
-        if retrain or quick or any(rel in job_times for rel in learned[e]):
+        if retrain or not full or any(rel in job_times for rel in learned[e]):
             return True
         p = data / f"results/{e}/results.json"
         if not p.exists() or set(json.loads(p.read_text()).get("policies", {})) != \
@@ -352,9 +376,10 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     # ---- 3. floor, 4. reconciliation
     t0 = time.perf_counter()
     refs = []
-    if "ungm-ukf" in exps and not (not quick and not retrain and reuse("results/ungm-floor.json")):
-        refs.append(("results/ungm-floor.json", ungm_floor, (scale.floor_runs, SEED, scale.floor_steps)))
-    if not (not quick and not retrain and reuse("results/ctm-reconciliation.json")):
+    if "ungm-ukf" in exps and not (full and not retrain and reuse("results/ungm-floor.json")):
+        refs.append(("results/ungm-floor.json", ungm_floor,
+                     (scale.floor_runs, SEED, scale.floor_steps, 250, 1000, scale.eval_runs)))
+    if not (full and not retrain and reuse("results/ctm-reconciliation.json")):
         refs.append(("results/ctm-reconciliation.json", ctm_reconciliation, (scale.recon_runs, SEED, scale.recon_steps)))
     ref_out = run_jobs(_reference_job, [(r[0], r[2]) for r in refs], workers=workers, cluster=cluster,
                        progress=progress, desc="references")
@@ -383,10 +408,21 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         entries["results/fast-vs-faithful.json"] = {}
     else:
         extra = {}
+    ref = data / "results/claims.json"
+    # a smaller reproduction is a check of the full one in data/
+    if not full and not same and ref.exists() and _load_manifest(data).get("scale") == "full":
+        from adaptfilt.experiments.agreement import agreement, agreement_md
+
+        agr = agreement(json.loads(json.dumps(cl)), json.loads(ref.read_text()))
+        (out / "results/agreement.json").write_text(json.dumps(agr, indent=1) + "\n")
+        entries["results/agreement.json"] = {}
+        extra[f"Verdicts at {scale.name} scale against the full scale (data/)"] = agreement_md(
+            agr, f"{scale.name} scale", "full scale (data/)")
+        say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as at full scale (results/agreement.json)")
     (out / "results/table1.json").write_text(json.dumps(t1, indent=1) + "\n")
     (out / "results/table1.md").write_text(table1_md(t1))
     (out / "results/claims.json").write_text(json.dumps(cl, indent=1) + "\n")
-    cmd = "adaptfilt reproduce --out data" + (" --quick" if quick else "") + " --retrain"
+    cmd = "adaptfilt reproduce --out data" + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain"
     for rel in ("results/table1.json", "results/table1.md", "results/claims.json",
                 *(str(p.relative_to(out)) for p in figs)):
         entries[rel] = {}

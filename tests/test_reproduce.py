@@ -91,6 +91,9 @@ def test_quick_reproduce_writes_everything_and_is_identical_on_one_or_two_worker
             assert o["rmse_ci"][0] <= o["rmse"] <= o["rmse_ci"][1]
         assert d["ours"]["adaptive"]["n_seeds"] == 2
     assert "| C5 |" in (a / "report-tables.md").read_text()
+    agr = json.loads((a / "results/agreement.json").read_text())  # the toy verdicts beside the full ones in data/
+    assert agr["n"] > 30 and 0 <= agr["n_same"] <= agr["n"]
+    assert f"{agr['n_same']} of {agr['n']} seed-level verdicts" in (a / "report-tables.md").read_text()
     for e in EXPERIMENTS:  # nothing was copied from data/: every policy was trained here at quick scale
         assert artefacts.load_policy(e, "myopic", seed=1, root=a).metadata["episodes"] == 20
     assert len(artefacts.verify(a)) == len(artefacts.manifest(a)["files"])
@@ -132,3 +135,72 @@ def test_reproduce_cli_rejects_bad_engine_flags(bad, capsys):
     with pytest.raises(SystemExit) as e:
         main(["reproduce", "--out", "/tmp/never-written", *bad.split()])
     assert e.value.code == 2 and capsys.readouterr().err.startswith("adaptfilt: error:")
+
+
+def test_medium_scale_halves_training_and_reuses_the_faithful_policies_of_data():
+    """The medium scale trains the fast-mode policies on half the episodes, and names the paper-faithful
+    ones by the full scale's command, so that the 16 stored faithful policies (hours) are reused."""
+    from adaptfilt.reproduce import FULL, MEDIUM, SCALES, policy_command
+
+    assert set(SCALES) == {"quick", "medium", "full"} and MEDIUM.seeds == FULL.seeds == SEEDS
+    assert MEDIUM.episodes == FULL.episodes // 2 and MEDIUM.eval_runs < FULL.eval_runs
+    fast = policy_command("ungm-ukf", "adaptive", 3, MEDIUM)
+    assert "--algo fast" in fast and "--episodes 500" in fast
+    for e in FAITHFUL["adaptive-faithful"][1]:
+        cmd = policy_command(e, "adaptive-faithful", 3, MEDIUM)
+        assert cmd == policy_command(e, "adaptive-faithful", 3, FULL)
+        stored = next(x for x in artefacts.manifest()["files"] if x["path"] == f"policies/{e}-adaptive-faithful-s3.npz")
+        assert stored["command"] == cmd
+
+
+def test_reproduce_rejects_an_unknown_scale_and_quick_with_another_scale(tmp_path, capsys):
+    from adaptfilt.cli import main
+
+    with pytest.raises(ValueError, match="unknown scale 'huge'.*medium"):
+        reproduce(tmp_path, scale="huge", progress=False)
+    with pytest.raises(ValueError, match="quick=True and scale='full'"):
+        reproduce(tmp_path, quick=True, scale="full", progress=False)
+    with pytest.raises(SystemExit) as e:
+        main(["reproduce", "--out", str(tmp_path / "o"), "--quick", "--scale", "full"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.startswith("adaptfilt: error: --quick and --scale full") and err.count("\n") == 1
+
+
+def test_agreement_pairs_the_verdicts_of_two_reproductions():
+    import copy
+
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+
+    full = json.loads((DATA / "results/claims.json").read_text())
+    n = sum(len(v) for v in full.values() if isinstance(v, list) and v and isinstance(v[0], dict))
+    same = agreement(full, full)
+    assert same["n"] == same["n_same"] == n > 30 and not same["only_here"] and not same["only_reference"]
+    other = copy.deepcopy(full)
+    row = other["C1"][0]
+    row["verdict"] = "not confirmed (n.s.)"
+    other["C6"] = [r for r in other["C6"] if r["experiment"] != "ctm-ukf"]
+    agr = agreement(other, full)
+    dropped = sum(r["experiment"] == "ctm-ukf" for r in full["C6"])
+    assert dropped > 0 and agr["n"] == n - dropped and agr["n_same"] == n - dropped - 1
+    assert len(agr["only_reference"]) == dropped and all("/ctm-ukf/" in k for k in agr["only_reference"])
+    md = agreement_md(agr, "medium", "full")
+    assert md.startswith(f"{n - dropped - 1} of {n - dropped} seed-level verdicts are the same")
+    assert md.count("**not confirmed (n.s.)** vs **confirmed**") == 1
+
+
+def test_the_floor_runs_on_the_evaluations_trajectories():
+    """ungm_floor(eval_runs=M) filters the first runs of the very trajectories evaluate() draws for M runs."""
+    from adaptfilt import metrics
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.exact import PointMassFilter
+    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiments.references import ungm_floor
+
+    env = get_experiment("ungm-ukf").make_env(seed=0, n_steps=8)
+    traj = env.truth.simulate(30, 8, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))  # as evaluate(n_runs=30)
+    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
+    se = metrics.squared_error(traj.x[:12], pmf.run(traj.z[:12]).mean)
+    floor = ungm_floor(12, 0, 8, eval_runs=30)
+    assert floor["rmse"] == pytest.approx(float(np.sqrt(se.mean(axis=0)).mean()), rel=1e-12)
+    assert "30 runs" in floor["trajectories"] and "eval_runs=30" in floor["command"]
+    assert ungm_floor(12, 0, 8)["rmse"] != floor["rmse"]  # the first 12 of 10^4 runs are other runs

@@ -25,10 +25,11 @@ def _cpu() -> float:
 
 
 def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None, chunk: int = 250,
-               n_boot: int = 1000) -> dict:
+               n_boot: int = 1000, eval_runs: int = 10_000) -> dict:
     """Bayes floor on UNGM: the point-mass filter (grid -45..45, 901 points) on the
-    first ``n_runs`` trajectories of the UNGM evaluation (same seed, so the same
-    runs the UKF policies are scored on), time-averaged RMSE with a bootstrap CI."""
+    first ``n_runs`` trajectories of the UNGM evaluation on ``eval_runs`` runs (same
+    seed, so the same runs the UKF policies are scored on), time-averaged RMSE with a
+    bootstrap CI."""
     from adaptfilt import metrics
     from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
@@ -37,8 +38,8 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
     t0, c0 = time.perf_counter(), _cpu()
     env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
     T = env.n_steps
-    # evaluate() simulates 10^4 runs of T steps from this generator; the floor takes the first n_runs.
-    traj = env.model.simulate(max(10_000, n_runs), T, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
+    # evaluate() simulates eval_runs runs of T steps from this generator; the floor takes the first n_runs.
+    traj = env.model.simulate(max(int(eval_runs), n_runs), T, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
     x, z = traj.x[:n_runs], traj.z[:n_runs]
     pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
     se = np.concatenate([metrics.squared_error(x[i:i + chunk], pmf.run(z[i:i + chunk]).mean)
@@ -51,9 +52,11 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
     return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "rmse_ci": [lo, hi],
             "rmse_run_median": float(np.median(np.sqrt(se.mean(axis=1)))), "n_runs": int(n_runs), "n_steps": int(T),
             "seed": int(seed), "grid": "np.linspace(-45, 45, 901)",
-            "trajectories": f"first {n_runs} of the UNGM evaluation (default_rng([{TRAJ_SEED_KEY}, {seed}]), 10^4 runs)",
+            "trajectories": f"first {n_runs} of the UNGM evaluation (default_rng([{TRAJ_SEED_KEY}, {seed}]), "
+                            f"{'10^4' if eval_runs == 10_000 else eval_runs} runs)",
             "version": adaptfilt.__version__,
-            "command": f"python -c \"from adaptfilt.experiments.references import ungm_floor; print(ungm_floor({n_runs}, {seed}))\"",
+            "command": "python -c \"from adaptfilt.experiments.references import ungm_floor; "
+                       f"print(ungm_floor({n_runs}, {seed}{'' if eval_runs == 10_000 else f', eval_runs={eval_runs}'}))\"",
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}
 
 
