@@ -257,6 +257,9 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     out = Path(out_dir).resolve()
     data = data_dir().resolve()
     same = out == data
+    if same and not full:
+        raise ValueError(f"--scale {scale.name} into {out} would overwrite the full-scale reproduction there; "
+                         "give another --out")
     for sub in ("policies", "results"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
@@ -422,7 +425,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     (out / "results/table1.json").write_text(json.dumps(t1, indent=1) + "\n")
     (out / "results/table1.md").write_text(table1_md(t1))
     (out / "results/claims.json").write_text(json.dumps(cl, indent=1) + "\n")
-    cmd = "adaptfilt reproduce --out data" + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain"
+    cmd = ("adaptfilt reproduce --out " + ("data" if full else "DIR")
+           + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain")
     for rel in ("results/table1.json", "results/table1.md", "results/claims.json",
                 *(str(p.relative_to(out)) for p in figs)):
         entries[rel] = {}

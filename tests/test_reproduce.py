@@ -160,6 +160,8 @@ def test_reproduce_rejects_an_unknown_scale_and_quick_with_another_scale(tmp_pat
         reproduce(tmp_path, scale="huge", progress=False)
     with pytest.raises(ValueError, match="quick=True and scale='full'"):
         reproduce(tmp_path, quick=True, scale="full", progress=False)
+    with pytest.raises(ValueError, match="would overwrite the full-scale reproduction"):
+        reproduce(DATA, scale="medium", progress=False)
     with pytest.raises(SystemExit) as e:
         main(["reproduce", "--out", str(tmp_path / "o"), "--quick", "--scale", "full"])
     err = capsys.readouterr().err
@@ -204,3 +206,29 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
     assert floor["rmse"] == pytest.approx(float(np.sqrt(se.mean(axis=0)).mean()), rel=1e-12)
     assert "30 runs" in floor["trajectories"] and "eval_runs=30" in floor["command"]
     assert ungm_floor(12, 0, 8)["rmse"] != floor["rmse"]  # the first 12 of 10^4 runs are other runs
+
+
+def test_stored_medium_check_matches_and_agrees_with_the_full_reproduction():
+    """data/medium: the summary files of ``adaptfilt reproduce --out DIR --scale medium --retrain``. They match
+    their manifest, the stored agreement is recomputed from its claims and today's full-scale claims, and
+    REPRODUCTION.md quotes its count."""
+    from pathlib import Path
+
+    from adaptfilt.experiments.agreement import agreement
+
+    d = DATA / "medium"
+    man = json.loads((d / "manifest.json").read_text())
+    assert man["scale"] == "medium" and man["seeds"] == list(SEEDS)
+    assert {e["path"] for e in man["files"]} >= {"results/claims.json", "results/agreement.json", "timings.json"}
+    for e in man["files"]:
+        assert sha256(d / e["path"]) == e["sha256"], e["path"]
+        assert e["command"] == "adaptfilt reproduce --out DIR --scale medium --retrain" and e["version"]
+    claims = json.loads((d / "results/claims.json").read_text())
+    stored = json.loads((d / "results/agreement.json").read_text())
+    assert json.loads(json.dumps(agreement(claims, artefacts.load_claims()))) == stored
+    scale = json.loads((d / "timings.json").read_text())["scale"]
+    assert scale["name"] == "medium" and scale["eval_runs"] == 2000 and scale["episodes"] == 500
+    ff = json.loads((d / "results/fast-vs-faithful.json").read_text())
+    assert {e: v["n_runs"] for e, v in ff.items()} == {"ungm-ukf": 2000, "ctm-ukf": 2000}
+    report = (Path(__file__).resolve().parents[1] / "REPRODUCTION.md").read_text()
+    assert f"{stored['n_same']} of the {stored['n']} seed-level comparisons" in report
