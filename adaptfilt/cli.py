@@ -9,7 +9,7 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood] [--workers N] [--cluster ADDRESS]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw] [--workers N] [--cluster ADDRESS]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
@@ -69,6 +69,8 @@ def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
         words += ["--horizon", str(args.horizon)]
     if args.actions is not None:
         words += ["--actions", ",".join(f"{v:g}" for v in args.actions)]
+    if args.cost_transform != "log1p":
+        words += ["--cost-transform", args.cost_transform]
     return " ".join(words + ["--out", out])
 
 
@@ -79,7 +81,8 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
     command = args.command_line or _train_command(args, seed, out)
     train_policy(args.name, args.algo, args.gamma, args.episodes, seed, parallel=args.parallel,
                  features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
-                 out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions)
+                 out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions,
+                 cost_transform=args.cost_transform)
     return out
 
 
@@ -131,9 +134,9 @@ def _values(text: str) -> tuple[float, ...]:
 
 
 def _studies(text: str) -> str:
-    bad = [s for s in text.split(",") if s not in ("cand", "sif", "ood")]
+    bad = [s for s in text.split(",") if s not in ("cand", "sif", "ood", "raw")]
     if bad or not text:
-        raise argparse.ArgumentTypeError(f"studies are a comma-separated subset of cand,sif,ood; got {text!r}")
+        raise argparse.ArgumentTypeError(f"studies are a comma-separated subset of cand,sif,ood,raw; got {text!r}")
     return text
 
 
@@ -332,6 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--actions", type=_values, default=None,
                    help="the grid values the policy may choose, e.g. 5,7,10,15,20,30 (a safe subset of the "
                         "experiment's grid holding its default; fast/a2c/ppo only)")
+    p.add_argument("--cost-transform", choices=("log1p", "none"), default="log1p",
+                   help="reward -log(1 + L) (default, the paper's) or -L (none: the mean cost itself)")
     p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,
@@ -360,7 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       "out of distribution), at the seed level, into OUT/beyond")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory (OUT/beyond)")
     p.add_argument("--quick", action="store_true", help="toy scale")
-    p.add_argument("--studies", type=_studies, default="cand,sif,ood", help="which: cand,sif,ood (default all)")
+    p.add_argument("--studies", type=_studies, default="cand,sif,ood,raw",
+                   help="which: cand,sif,ood,raw (default all)")
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
     p.add_argument("--cluster", default=None, help="run the jobs on a Dask cluster (scheduler address or 'local')")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -115,7 +115,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               config: SB3Config = FAST, *, features: str | None = None, n_steps: int | None = None,
               progress: bool = True, command: str | None = None, name: str | None = None,
               max_seconds: float | None = None, repair_penalty: float = 0.0,
-              actions: Sequence[float] | None = None):
+              actions: Sequence[float] | None = None, cost_transform: str = "log1p"):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
@@ -131,6 +131,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     ``actions``: the grid values the policy may choose, a subset of the experiment's
     grid holding its default (a *safe action set*: e.g. no SIF iteration count that
     can diverge); the policy still acts in the full experiment (named experiments only).
+    ``cost_transform``: the reward is ``-log(1 + L)`` (``"log1p"``, the paper's) or ``-L`` (``"none"``:
+    the mean cost itself, whose rare large steps the log flattens).
     """
     import torch
     from stable_baselines3 import A2C, PPO
@@ -148,7 +150,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     if actions is not None:
         target, n_steps = _restricted(target, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
-                    repair_penalty=repair_penalty)
+                    repair_penalty=repair_penalty, cost_transform=cost_transform)
     T = venv.venv.env.n_steps
     total = int(episodes) * T
     kwargs = {"policy_kwargs": {"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
@@ -266,7 +268,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  *, parallel: int | None = None, features: str | None = None, n_steps: int | None = None,
                  progress: bool = True, command: str | None = None, out: str | Path | None = None,
                  resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
-                 repair_penalty: float = 0.0, actions: Sequence[float] | None = None):
+                 repair_penalty: float = 0.0, actions: Sequence[float] | None = None,
+                 cost_transform: str = "log1p"):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
     ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
@@ -275,7 +278,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     batch of an SB3 algorithm (default: its config's). ``sb3``: extra keyword
     arguments for the SB3 algorithm. ``resume`` (faithful and batched) continues
     from the checkpoint next to ``out``. ``name``: the policy's name (default:
-    ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0).
+    ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0). ``cost_transform``: the learner
+    minimises the mean of ``log(1 + L)`` (``"log1p"``, the paper's) or of ``L`` (``"none"``).
 
     >>> import adaptfilt as af                                        # doctest: +SKIP
     >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
@@ -293,6 +297,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         if algo == "faithful" and parallel not in (None, 1):
             raise ValueError("the faithful algorithm learns from one episode at a time (parallel = 1)")
         kw = {} if features is None else {"features": features}
+        if cost_transform != "log1p":
+            kw["cost_transform"] = cost_transform
         if repair_penalty:
             kw["repair_penalty"] = repair_penalty
         if n_steps is not None:
@@ -313,7 +319,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         kwargs["batch_size"] = max(2, parallel * kwargs["n_steps"] // 8)
     cfg = SB3Config(base.algo, parallel or base.n_envs, kwargs)
     pol = train_sb3(experiment, gamma, episodes, seed, cfg, features=features, n_steps=n_steps, progress=progress,
-                    command=command, name=name, repair_penalty=repair_penalty, actions=actions)
+                    command=command, name=name, repair_penalty=repair_penalty, actions=actions,
+                    cost_transform=cost_transform)
     if out is not None:
         pol.save(out)
     return pol

@@ -96,6 +96,16 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
                         assert float(argv[argv.index("--repair-penalty") + 1]) == PENALTY
                     else:
                         assert "+cand" in argv[argv.index("--features") + 1]
+    for e in ("ungm-ukf", "ctm-ukf"):  # training on -L itself, beside the reproduction's log(1 + L) policies
+        res = artefacts.load_beyond_results(f"raw-{e}")
+        sg = seed_groups(res.names)
+        assert sg["adaptive-raw"] == [f"adaptive-raw-s{s}" for s in range(8)] == [
+            n.replace("adaptive-", "adaptive-raw-") for n in sg["adaptive"]]
+        row = summary["raw"][e]["adaptive-raw"]
+        assert row["minus_adaptive"]["cost"] == list(difference(res, sg["adaptive-raw"], sg["adaptive"], "cost")["iqm"])
+        entry = next(f for f in man["files"] if f["path"] == f"policies/{e}-adaptive-raw-s3.npz")
+        assert "--cost-transform none" in entry["command"] and "--algo fast" in entry["command"]
+        assert load_policy(root / entry["path"], experiment=e).metadata["cost_transform"] == "none"
     assert len(summary["ood"]["objective"]) == 9
     for key, row in summary["ood"]["objective"].items():
         res = artefacts.load_beyond_results(f"ood-{key}")
@@ -131,3 +141,33 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     after = {f["path"] for f in json.loads((tmp_path / "beyond" / "manifest.json").read_text())["files"]}
     assert before <= after and any(p.startswith("results/cand-") for p in after - before)
     assert set(summary2) >= {"sif", "cand"}
+
+
+def test_quick_raw_study_pairs_the_untransformed_policies_with_the_log_ones(tmp_path):
+    """The raw study at toy scale: policies trained on -L record it (command and metadata) and are compared,
+    paired and at the seed level, with the adaptive policies of the reproduction found beside them."""
+    from adaptfilt.evaluation import Results
+    from adaptfilt.experiments.beyond import QUICK, run, summary_md
+    from adaptfilt.experiments.seeds import difference
+    from adaptfilt.learned import load_policy
+    from adaptfilt.trainers import train_policy
+
+    for e in ("ungm-ukf", "ctm-ukf"):  # stand-ins for the reproduction's policies (toy scale)
+        for s in QUICK.seeds:
+            train_policy(e, "fast", 0.5, QUICK.episodes, s, n_steps=QUICK.n_steps, progress=False,
+                         out=tmp_path / "policies" / f"{e}-adaptive-s{s}.npz")
+    summary = run(tmp_path, quick=True, workers=1, studies=("raw",), progress=False)
+    for e in ("ungm-ukf", "ctm-ukf"):
+        res = Results.load(tmp_path / "beyond" / "results" / f"raw-{e}")
+        raw, log = ["adaptive-raw-s0", "adaptive-raw-s1"], ["adaptive-s0", "adaptive-s1"]
+        assert set(raw + log + ["greedy", "default", "ml"]) <= set(res.names)
+        row = summary["raw"][e]["adaptive-raw"]
+        assert row["minus_adaptive"]["rmse"] == list(difference(res, raw, log, "rmse")["iqm"])
+        pol = load_policy(tmp_path / "beyond" / "policies" / f"{e}-adaptive-raw-s1.npz", experiment=e)
+        assert pol.metadata["cost_transform"] == "none" and "--cost-transform none" in pol.metadata["command"]
+        # a different reward: not the policy the same seed learns on log(1 + L)
+        other = load_policy(tmp_path / "policies" / f"{e}-adaptive-s1.npz", experiment=e)
+        assert other.metadata["cost_transform"] == "log1p"
+        assert not np.array_equal(pol.curve["train_cost"], other.curve["train_cost"])
+    md = summary_md(summary)
+    assert "| ungm-ukf | adaptive-raw |" in md and "adaptive-raw - adaptive, IQM" in md

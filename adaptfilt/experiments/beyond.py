@@ -1,6 +1,6 @@
-r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick]``.
+r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw]``.
 
-Three studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
+Four studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
 into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json``):
 
 1. **Candidate-aware information state** (``cand``): the paper's information state cannot see what
@@ -18,6 +18,11 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    (8 seeds) on a 3 x 3 grid of mismatched process and measurement noise
    (:mod:`adaptfilt.experiments.ood`), against default, best fixed in hindsight and greedy; then
    retuned with 50 episodes on each condition; heat maps of the gain over the default.
+4. **Training on the untransformed cost** (``raw``): the learners minimise the mean of
+   ``log(1 + L)``, while the costs reported are means of ``L``, set by rare large steps. Policies
+   trained on ``-L`` itself (``adaptive-raw``, gamma 0.5, the fast mode, ``--cost-transform none``)
+   on UNGM-UKF and CTM-UKF, against the reproduction's adaptive policies (trained on ``log(1 + L)``),
+   greedy, ML and the default, on the same runs.
 
 Every training is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or Dask).
 """
@@ -30,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SAFE_ACTIONS"]
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SAFE_ACTIONS", "STUDIES"]
 
 #: The learner of the candidate study (chosen by the measurement reported in REPRODUCTION.md).
 CAND_ALGO = "fast"
@@ -43,6 +48,8 @@ SAFE_ACTIONS = (5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
 #: paired differences (bootstrap replicates), usage and per-step curves stay.
 COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
+RAW_EXPERIMENTS = ("ungm-ukf", "ctm-ukf")
+STUDIES = ("cand", "sif", "ood", "raw")
 SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
 
@@ -61,16 +68,19 @@ QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
 
 
 def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
-               features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None) -> dict:
+               features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None,
+               cost_transform: str = "log1p") -> dict:
     from adaptfilt.trainers import train_policy
 
     t0, c0 = time.perf_counter(), time.process_time()
     cmd = (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
            + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
            + (f" --horizon {scale.n_steps}" if scale.n_steps else "")
-           + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "") + f" --out {out}")
+           + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "")
+           + (f" --cost-transform {cost_transform}" if cost_transform != "log1p" else "") + f" --out {out}")
     train_policy(experiment, algo, gamma, scale.episodes, seed, features=features, n_steps=scale.n_steps,
-                 progress=False, out=out, command=cmd, repair_penalty=repair_penalty, actions=actions)
+                 progress=False, out=out, command=cmd, repair_penalty=repair_penalty, actions=actions,
+                 cost_transform=cost_transform)
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0, "command": cmd}
 
 
@@ -103,7 +113,7 @@ def _ood_job(condition, files: list[str], scale: BeyondScale, retune_seed: int =
 
 
 def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cluster=None,
-        studies: tuple[str, ...] = ("cand", "sif", "ood"), progress: bool = True) -> dict:
+        studies: tuple[str, ...] = STUDIES, progress: bool = True) -> dict:
     """Run the studies (module docstring) into ``out_dir/beyond``; returns their summaries."""
     import adaptfilt
     from adaptfilt.artefacts import data_dir
@@ -120,7 +130,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     entries: dict[str, dict] = {}
     summary: dict = {"scale": scale.name, "version": adaptfilt.__version__}
     cmd = (f"adaptfilt beyond --out {out_dir}" + (" --quick" if quick else "")
-           + ("" if set(studies) == {"cand", "sif", "ood"} else f" --studies {','.join(studies)}"))
+           + ("" if set(studies) == set(STUDIES) else f" --studies {','.join(studies)}"))
     jobs, metas = [], []
     if "cand" in studies:
         for e, feats in CAND_EXPERIMENTS.items():
@@ -136,6 +146,12 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                     rel = f"policies/{e}-{kind}-s{s}.npz"
                     jobs.append((e, kind, 0.5, s, str(out / rel), scale, None, "fast", pen, acts))
                     metas.append(rel)
+    if "raw" in studies:
+        for e in RAW_EXPERIMENTS:
+            for s in scale.seeds:
+                rel = f"policies/{e}-adaptive-raw-s{s}.npz"
+                jobs.append((e, "adaptive-raw", 0.5, s, str(out / rel), scale, None, "fast", 0.0, None, "none"))
+                metas.append(rel)
     todo = [(j, m) for j, m in zip(jobs, metas) if not (out / m).exists()]
     say(f"[beyond] {len(todo)} policies to train")
     times = run_jobs(_train_job, [j for j, _ in todo], workers=workers, cluster=cluster, progress=progress,
@@ -159,6 +175,14 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                       if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
             ejobs.append((e, files, scale, ("default", "greedy")))
             names.append(("sif", e))
+    if "raw" in studies:  # beside the reproduction's policies, trained on log(1 + L) with the same recipe
+        data = Path(data_dir()) if not quick else root
+        for e in RAW_EXPERIMENTS:
+            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-raw")]
+            files += [str(data / f"policies/{e}-adaptive-s{s}.npz") for s in scale.seeds
+                      if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
+            ejobs.append((e, files, scale, ("default", "ml", "greedy")))
+            names.append(("raw", e))
     results = run_jobs(_evaluate_job, ejobs, workers=workers, cluster=cluster, progress=progress,
                        desc="beyond: evaluate") if ejobs else []
     for (study, e), res in zip(names, results):
@@ -168,7 +192,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                         for f in ("results.json", "results.npz")})
         rows = {}
         groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
-                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive")}
+                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw", "adaptive")}
         for g, members in groups.items():
             if not members:
                 continue
@@ -177,6 +201,10 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                 rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"])
                                            for m in ("cost", "objective", "rmse", "anees")}
             rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
+        if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
+            rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
+                                                                         groups["adaptive"], m)["iqm"])
+                                                      for m in ("cost", "objective", "rmse", "anees")}
         # the cheapest fixed value that never diverged: what a constant can do safely
         safe = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")
                 and res[n].divergent_frac == 0]
@@ -245,13 +273,14 @@ def _ood_figures(tables: dict, fig_dir: Path) -> None:
         plt.close(fig)
 
 
-def summary_md(summary: dict, studies: tuple[str, ...] = ("cand", "sif", "ood")) -> str:
+def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
     """The studies' tables for REPRODUCTION.md (IQM over seeds [seed-level CI], differences to greedy)."""
-    summary = {k: v for k, v in summary.items() if k not in ("cand", "sif", "ood") or k in studies}
+    summary = {k: v for k, v in summary.items() if k not in STUDIES or k in studies}
     f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
     d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
     parts = []
-    for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies: a repair penalty, a safe action set")):
+    for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies: a repair penalty, a safe action set"),
+                         ("raw", "Training on the untransformed cost (adaptive-raw) against log(1 + L) (adaptive)")):
         if study not in summary:
             continue
         lines = [f"**{title}** (IQM over seeds [two-level 95 % CI]; differences to greedy)", "",
@@ -271,6 +300,13 @@ def summary_md(summary: dict, studies: tuple[str, ...] = ("cand", "sif", "ood"))
                 lines.append(f"| {e} | {g} | {f(r['cost'])} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
                              f"| {d(r['minus_greedy']['cost'])} | {d(r['minus_default']['cost'])} "
                              f"| {d(r['minus_greedy']['rmse'])} | {100 * r['divergent_frac_max']:.2g} % |")
+        paired = [(e, rows["adaptive-raw"]["minus_adaptive"]) for e, rows in summary[study].items()
+                  if "minus_adaptive" in rows.get("adaptive-raw", {})] if study == "raw" else []
+        if paired:
+            lines += ["", "| experiment | adaptive-raw - adaptive, IQM [seed-level 95 % CI] | cost | log(1+L) | RMSE | ANEES |",
+                      "|---|---|---|---|---|---|"]
+            lines += [f"| {e} | | " + " | ".join(d(x[m]) for m in ("cost", "objective", "rmse", "anees")) + " |"
+                      for e, x in paired]
         parts.append("\n".join(lines) + "\n")
     if "ood" in summary:
         lines = ["**Out of distribution** (UNGM-UKF; gain over the default in mean log(1+L), positive is better; "
