@@ -115,7 +115,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               config: SB3Config = FAST, *, features: str | None = None, n_steps: int | None = None,
               progress: bool = True, command: str | None = None, name: str | None = None,
               max_seconds: float | None = None, repair_penalty: float = 0.0,
-              actions: Sequence[float] | None = None, cost_transform: str = "log1p"):
+              actions: Sequence[float] | None = None, cost_transform: str = "log1p",
+              normalize_reward: bool = False):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
@@ -132,10 +133,13 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     grid holding its default (a *safe action set*: e.g. no SIF iteration count that
     can diverge); the policy still acts in the full experiment (named experiments only).
     ``cost_transform``: the reward is ``-log(1 + L)`` (``"log1p"``, the paper's) or ``-L`` (``"none"``:
-    the mean cost itself, whose rare large steps the log flattens).
+    the mean cost itself, whose rare large steps the log flattens). ``normalize_reward``: the learner
+    sees the reward divided by a running estimate of the return's spread (SB3's ``VecNormalize``,
+    observations untouched); the learning curve keeps the transformed cost itself.
     """
     import torch
     from stable_baselines3 import A2C, PPO
+    from stable_baselines3.common.vec_env import VecNormalize
 
     import adaptfilt
     from adaptfilt.gym import make_vec, to_learned_policy
@@ -158,7 +162,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     curve: list[float] = []
     with one_torch_thread(), torch.random.fork_rng(devices=[]):
         venv.seed(seed)
-        model = classes[config.algo]("MlpPolicy", venv, gamma=float(gamma), seed=int(seed), device="cpu",
+        env = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=float(gamma)) if normalize_reward else venv
+        model = classes[config.algo]("MlpPolicy", env, gamma=float(gamma), seed=int(seed), device="cpu",
                                      verbose=0, **kwargs)
         callbacks = [_curve_callback(curve, config.n_envs)]
         if max_seconds is not None:
@@ -174,6 +179,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
             "curve_summary": {"episodes": int(episodes), "train_cost_first10pct": _frac(c, 0), "train_cost_last10pct": _frac(c, 1)}}
     if repair_penalty:  # recorded only when set: files made before the option existed stay reproducible
         meta["repair_penalty"] = float(repair_penalty)
+    if normalize_reward:
+        meta["normalize_reward"] = True
     pol = to_learned_policy(model, venv, gamma=gamma, name=name, metadata=meta)
     pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
     return pol
@@ -231,7 +238,9 @@ def _curve_callback(curve: list, n_envs: int):
             self.acc, self.n = 0.0, 0
 
         def _on_step(self) -> bool:
-            self.acc += float(-np.mean(self.locals["rewards"]))
+            env = self.training_env  # under VecNormalize the learner's rewards are rescaled: log the MDP's own
+            r = env.get_original_reward() if hasattr(env, "get_original_reward") else self.locals["rewards"]
+            self.acc += float(-np.mean(r))
             self.n += 1
             if np.any(self.locals["dones"]):
                 curve.append(self.acc / self.n)

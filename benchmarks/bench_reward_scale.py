@@ -20,26 +20,11 @@ from pathlib import Path
 
 
 def train_norm(experiment: str, seed: int, out: str) -> str:
-    """One PPO fast-mode policy on -L with VecNormalize reward scaling (module level: runs in a worker)."""
-    import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
+    """One PPO fast-mode policy on -L with reward normalisation (module level: runs in a worker)."""
+    from adaptfilt.trainers import train_sb3
 
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.gym import make_vec, to_learned_policy
-    from adaptfilt.learned import one_torch_thread
-    from adaptfilt.trainers import FAST
-
-    exp = get_experiment(experiment)
-    venv = make_vec(experiment, n_envs=FAST.n_envs, seed=seed, features=exp.features, cost_transform="none")
-    kwargs = {"policy_kwargs": {"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
-              **FAST.kwargs}
-    with one_torch_thread(), torch.random.fork_rng(devices=[]):
-        venv.seed(seed)
-        model = PPO("MlpPolicy", VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=0.5), gamma=0.5,
-                    seed=seed, device="cpu", verbose=0, **kwargs)
-        model.learn(total_timesteps=1000 * venv.venv.env.n_steps)
-    to_learned_policy(model, venv, gamma=0.5, name=f"norm-s{seed}", metadata={"seed": seed}).save(out)
+    train_sb3(experiment, 0.5, 1000, seed, progress=False, cost_transform="none", normalize_reward=True,
+              name=f"norm-s{seed}").save(out)
     return out
 
 

@@ -97,3 +97,18 @@ def test_a_policy_trained_on_a_safe_subset_of_the_grid_acts_in_the_full_experime
     coarse = FilterEnv(exp.make_filter(0), [1.0, 2.0, 10.0], cost=exp.cost, n_steps=6)
     with pytest.raises(ValueError, match="not a subset"):
         back.act(coarse.reset(n_runs=3, rng=np.random.default_rng(0), stream=0))
+
+
+def test_reward_normalisation_rescales_what_the_learner_sees_not_the_learning_curve():
+    """normalize_reward=True wraps the runs in SB3's VecNormalize. The first batch of episodes is played by the
+    same initial policy on the same runs, so its curve value (the MDP's own cost) must equal the unnormalised
+    run's; later ones differ because the learner saw other rewards."""
+    from adaptfilt.trainers import FAST, SB3Config, train_sb3
+
+    cfg = SB3Config("ppo", 16, {**FAST.kwargs, "n_steps": 32, "batch_size": 128})
+    kw = dict(gamma=0.5, episodes=64, seed=3, config=cfg, n_steps=20, progress=False, cost_transform="none")
+    plain = train_sb3("ungm-ukf", **kw)
+    norm = train_sb3("ungm-ukf", **kw, normalize_reward=True)
+    a, b = plain.curve["train_cost"], norm.curve["train_cost"]
+    assert a.shape == b.shape and a[0] == b[0] and not np.array_equal(a, b)
+    assert norm.metadata["normalize_reward"] is True and "normalize_reward" not in plain.metadata

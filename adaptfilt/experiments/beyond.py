@@ -161,26 +161,29 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
 
     # ---- evaluations
     ejobs, names = [], []
+    data = root if quick else Path(data_dir())
+
+    def reproduction(e: str) -> list[str]:
+        """The reproduction's adaptive policies of ``e`` (those there are)."""
+        paths = [data / f"policies/{e}-adaptive-s{s}.npz" for s in scale.seeds]
+        return [str(p) for p in paths if p.exists()]
+
     if "cand" in studies:
         for e in CAND_EXPERIMENTS:
             files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-") and "cand" in m]
             ejobs.append((e, files, scale, ("default", "ml", "greedy")))
             names.append(("cand", e))
     if "sif" in studies:
-        data = Path(data_dir()) if not quick else root
         for e in SIF_EXPERIMENTS:
             files = [str(out / m) for m in metas if m.startswith((f"policies/{e}-adaptive-penalised",
                                                                    f"policies/{e}-adaptive-safe"))]
-            files += [str(data / f"policies/{e}-adaptive-s{s}.npz") for s in scale.seeds
-                      if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
+            files += reproduction(e)
             ejobs.append((e, files, scale, ("default", "greedy")))
             names.append(("sif", e))
     if "raw" in studies:  # beside the reproduction's policies, trained on log(1 + L) with the same recipe
-        data = Path(data_dir()) if not quick else root
         for e in RAW_EXPERIMENTS:
             files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-raw")]
-            files += [str(data / f"policies/{e}-adaptive-s{s}.npz") for s in scale.seeds
-                      if (data / f"policies/{e}-adaptive-s{s}.npz").exists()]
+            files += reproduction(e)
             ejobs.append((e, files, scale, ("default", "ml", "greedy")))
             names.append(("raw", e))
     results = run_jobs(_evaluate_job, ejobs, workers=workers, cluster=cluster, progress=progress,
@@ -217,9 +220,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         summary.setdefault(study, {})[e] = rows
 
     if "ood" in studies:
-        data = Path(data_dir()) if not quick else root
-        files = [str(data / f"policies/ungm-ukf-adaptive-s{s}.npz") for s in scale.seeds
-                 if (data / f"policies/ungm-ukf-adaptive-s{s}.npz").exists()]
+        files = reproduction("ungm-ukf")
         if files:
             conds = CONDITIONS if not quick else CONDITIONS[:2]
             ood_res = run_jobs(_ood_job, [(c, files, scale) for c in conds], workers=workers, cluster=cluster,
