@@ -18,7 +18,7 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["data_dir", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
+__all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
            "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
            "verify_beyond"]
 
@@ -27,6 +27,34 @@ def data_dir() -> Path:
     """``$ADAPTFILT_DATA`` if set, else the ``data/`` folder of the repository."""
     env = os.environ.get("ADAPTFILT_DATA")
     return Path(env) if env else Path(__file__).resolve().parent.parent / "data"
+
+
+class DataNotFound(FileNotFoundError):
+    """No stored artefacts where :func:`find_data` looked (the message says where)."""
+
+
+def find_data(data: str | Path | None = None, required: str | None = None) -> Path | None:
+    """The stored artefacts a command reuses: ``data`` (``--data DIR``), else ``$ADAPTFILT_DATA``, else
+    the ``data/`` of the checkout this package runs from. A folder counts when it holds ``manifest.json``.
+
+    A folder given by ``data`` or ``$ADAPTFILT_DATA`` that holds none is an error: it was asked for.
+    With none given and no checkout (a package installed from a wheel), the result is None, or, when
+    ``required`` says what to do instead, a :class:`DataNotFound` naming where it looked and that."""
+    for given, what in ((data, "--data"), (os.environ.get("ADAPTFILT_DATA"), "$ADAPTFILT_DATA")):
+        if given:
+            d = Path(given).expanduser()
+            if not (d / "manifest.json").is_file():
+                raise DataNotFound(f"{what} {d}: no manifest.json there; give a copy of the repository's data/ folder")
+            return d
+    package = Path(__file__).resolve().parent
+    checkout = package.parent
+    if (checkout / "pyproject.toml").is_file() and (checkout / "data" / "manifest.json").is_file():
+        return checkout / "data"
+    if required is None:
+        return None
+    raise DataNotFound(f"no stored artefacts: no --data DIR given, $ADAPTFILT_DATA not set, and {package} is not "
+                       f"in a checkout with data/manifest.json (give --data with a copy of the repository's data/); "
+                       f"{required}")
 
 
 def _d(root) -> Path:

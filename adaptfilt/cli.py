@@ -25,9 +25,12 @@ exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import NoReturn
 
@@ -88,35 +91,77 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
 
 def _train(args: argparse.Namespace) -> int:
     if args.seeds is None:
-        train_job(args, args.seed, args.out)
+        try:
+            train_job(args, args.seed, args.out)
+        except KeyboardInterrupt as e:
+            raise _checkpoint_kept(e, args.out) from None
         print(f"wrote {args.out}")
         return 0
-    from adaptfilt.experiments.sweep import run_jobs
+    from adaptfilt.experiments.journal import Journal
     from adaptfilt.trainers import seed_path
 
     args.no_progress = True  # one bar over the seeds instead of one per training
     outs = [str(seed_path(args.out, s)) for s in args.seeds]
-    run_jobs(train_job, [(args, s, o) for s, o in zip(args.seeds, outs)], workers=args.workers,
-             cluster=args.cluster, desc=f"train {args.name} ({args.algo}, {len(outs)} seeds)")
+    journal = Journal(seeds_journal(args.out))
+    keys = [(args.command_line or _train_command(args, s, o), s) for s, o in zip(args.seeds, outs)]
+    resumed = sum(journal.get(*k) is not None for k in keys)
+    if resumed:
+        print(f"{resumed} of {len(keys)} seeds finished by an earlier run ({journal.path}): reused", flush=True)
+    journal.run(train_job, [(args, s, o) for s, o in zip(args.seeds, outs)], keys, files=[[o] for o in outs],
+                workers=args.workers, cluster=args.cluster, desc=f"train {args.name} ({args.algo}, {len(outs)} seeds)")
+    journal.finish()
     print("wrote " + ", ".join(outs))
     return 0
 
 
+def seeds_journal(out: str | Path) -> Path:
+    """``train --seeds --out DIR/p.npz``: the journal of its finished seeds, ``DIR/p.journal.jsonl``."""
+    out = Path(out)
+    return out.with_name(out.name.removesuffix(".npz") + ".journal.jsonl")
+
+
+def _checkpoint_kept(e: KeyboardInterrupt, out: str) -> KeyboardInterrupt:
+    """One training stopped: the checkpoint it leaves (faithful and batched write one), if any."""
+    from adaptfilt.actor_critic import checkpoint_path
+    from adaptfilt.experiments.sweep import Interrupted
+
+    ckpt = checkpoint_path(out)
+    kept = (f"the checkpoint {ckpt} is kept; add --resume to the same command to continue from it"
+            if ckpt.exists() else "nothing was written")
+    return Interrupted(kept=kept, signum=getattr(e, "signum", signal.SIGINT))
+
+
+@contextlib.contextmanager
+def _resumable(journal: Path):
+    """An interrupt outside the jobs (between stages) says what the run's journal keeps, as one inside does."""
+    try:
+        yield
+    except KeyboardInterrupt as e:
+        if getattr(e, "kept", ""):
+            raise
+        from adaptfilt.experiments.journal import Journal
+
+        raise Journal(journal).interrupted(e) from None
+
+
 def _reproduce(args: argparse.Namespace) -> int:
-    from adaptfilt.reproduce import reproduce
+    from adaptfilt.reproduce import JOURNAL, reproduce
 
     if args.quick and args.scale not in (None, "quick"):
         raise ValueError(f"--quick and --scale {args.scale}: give one of them")
-    reproduce(out_dir=Path(args.out), quick=args.quick, scale=args.scale, retrain=args.retrain, progress=not args.no_progress,
-              faithful=args.faithful, workers=args.workers, cluster=args.cluster)
+    with _resumable(Path(args.out) / JOURNAL):
+        reproduce(out_dir=Path(args.out), quick=args.quick, scale=args.scale, retrain=args.retrain,
+                  progress=not args.no_progress, faithful=args.faithful, workers=args.workers, cluster=args.cluster,
+                  data=args.data)
     return 0
 
 
 def _beyond(args: argparse.Namespace) -> int:
-    from adaptfilt.experiments.beyond import run, summary_md
+    from adaptfilt.experiments.beyond import JOURNAL, run, summary_md
 
-    summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
-                  studies=tuple(args.studies.split(",")), progress=not args.no_progress)
+    with _resumable(Path(args.out) / "beyond" / JOURNAL):
+        summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
+                      studies=tuple(args.studies.split(",")), progress=not args.no_progress, data=args.data)
     text = summary_md(summary)
     (Path(args.out) / "beyond" / "summary.md").write_text(text)
     print(text)
@@ -358,6 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
     p.add_argument("--cluster", default=None,
                    help="run the jobs on a Dask cluster: a scheduler address, or 'local' for a local one")
+    p.add_argument("--data", default=None,
+                   help="the stored artefacts to reuse (a copy of the repository's data/; default: $ADAPTFILT_DATA, "
+                        "then the checkout's data/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_reproduce)
 
@@ -369,6 +417,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="which: cand,sif,ood,raw (default all)")
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
     p.add_argument("--cluster", default=None, help="run the jobs on a Dask cluster (scheduler address or 'local')")
+    p.add_argument("--data", default=None,
+                   help="where the reproduction's policies are (a copy of the repository's data/; default: "
+                        "$ADAPTFILT_DATA, then the checkout's data/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_beyond)
 
@@ -385,12 +436,47 @@ USER_ERRORS = (ValueError, KeyError, OSError)
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``adaptfilt ARGS``; a user error exits with status 2 and one line
-    ``adaptfilt: error: ...`` on stderr."""
+    ``adaptfilt: error: ...`` on stderr; Ctrl-C or SIGTERM with status 130 or 143 and one line
+    ``adaptfilt: interrupted: ...`` saying what was kept and how to resume."""
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with _sigterm_interrupts():
+            return args.func(args)
+    except KeyboardInterrupt as e:
+        _interrupted(e)
     except USER_ERRORS as e:
         _fail(_user_message(e))
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """SIGTERM (a scheduler ending the job, a closed terminal's shell) stops a command as Ctrl-C does:
+    its workers stopped, what finished kept and said. Only from the main thread (signal's rule)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        from adaptfilt.experiments.sweep import Interrupted
+
+        raise Interrupted(signum=signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(e: KeyboardInterrupt) -> NoReturn:
+    if "tqdm" in sys.modules:  # a bar left open mid-line by the interrupt would swallow the message
+        from tqdm import tqdm
+
+        for bar in list(getattr(tqdm, "_instances", ())):
+            bar.close()
+    kept = getattr(e, "kept", "") or "nothing was written"
+    sys.stderr.write(f"adaptfilt: interrupted: {' '.join(kept.split())}\n")
+    raise SystemExit(128 + getattr(e, "signum", signal.SIGINT))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -63,6 +63,7 @@ import numpy as np
 from scipy import stats
 
 from adaptfilt import metrics
+from adaptfilt.files import atomic_path, atomic_write
 from adaptfilt.mdp import FilterEnv, rollout
 from adaptfilt.models import Trajectory
 
@@ -250,12 +251,13 @@ class Results:
                "policies": {n: p.scalars() for n, p in self.policies.items()},
                "order": list(self.policies)}
         # json writes floats with repr(): they read back exactly.
-        (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
-        if not arrays:
-            return out
-        arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values())
-                  for k in _ARRAYS + _ARRAYS_NEW if k not in drop}
-        np.savez_compressed(out / "results.npz", **arrays)
+        # arrays first, then the JSON that names them: each file whole or absent (adaptfilt.files)
+        if arrays:
+            arrays = {f"p{i}_{k}": getattr(p, k) for i, p in enumerate(self.policies.values())
+                      for k in _ARRAYS + _ARRAYS_NEW if k not in drop}
+            with atomic_path(out / "results.npz") as tmp, open(tmp, "wb") as f:
+                np.savez_compressed(f, **arrays)
+        atomic_write(out / "results.json", json.dumps(doc, indent=1) + "\n")
         return out
 
     @classmethod
@@ -657,7 +659,7 @@ def evaluate_experiment(
     res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
     res.config.update(experiment=exp.name, description=exp.description)
     res.save(out)
-    (out / "summary.json").write_text(json.dumps(res.summary(), indent=1) + "\n")
+    atomic_write(out / "summary.json", json.dumps(res.summary(), indent=1) + "\n")
     table = res.table()
     from adaptfilt.experiments.seeds import seed_groups
 
@@ -665,7 +667,7 @@ def evaluate_experiment(
         from adaptfilt.experiments.report import summary_md
 
         table += "\n**Seed level**: " + summary_md(res)
-    (out / "summary.md").write_text(table)
+    atomic_write(out / "summary.md", table)
     if figures:
         from adaptfilt.plots import save_figures
 

@@ -48,6 +48,7 @@ import torch
 from torch import nn
 
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
+from adaptfilt.files import atomic_path
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
            "POLICY_FORMAT", "check_compatible", "grid_indices"]
@@ -111,9 +112,7 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], metadat
     # always a metadata entry (possibly {}): it is what tells read_npz the file is ours
     text = json.dumps({} if metadata is None else metadata, sort_keys=True, indent=1, allow_nan=True)
     items["__metadata__"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name in sorted(items):
             arr = np.asarray(items[name])
             if arr.dtype == object:
@@ -124,7 +123,6 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], metadat
             info.compress_type = zipfile.ZIP_DEFLATED
             info.external_attr = 0o644 << 16
             zf.writestr(info, buf.getvalue())
-    os.replace(tmp, path)
     return path
 
 

@@ -34,6 +34,15 @@ its seed only), **floor** and **reconcile** (:mod:`adaptfilt.experiments.referen
 Jobs run on :func:`adaptfilt.experiments.sweep.run_jobs`: a local process pool
 by default, a Dask cluster with ``cluster=``; the files do not depend on which.
 
+Stopping and resuming: every job writes its files atomically and is recorded, as it finishes, in
+``DIR/journal.jsonl`` (:mod:`adaptfilt.experiments.journal`); the same command run again into the
+same ``DIR`` takes every recorded job whose command, seed, version and files match from there (the
+final files are byte-identical to an uninterrupted run's) and runs the rest. A completed run removes
+the journal.
+
+The stored artefacts are looked for in ``data`` (``--data DIR``), ``$ADAPTFILT_DATA``, then the
+checkout's ``data/`` (:func:`adaptfilt.artefacts.find_data`); a full-scale run without ``retrain``
+needs them and says so rather than retraining everything.
 Artefacts already in ``data/`` whose sha256 matches the manifest are reused
 unless ``retrain``; the paper-faithful policies are reused even then (``faithful``
 trains the ones ``data/`` lacks). Scales (:data:`SCALES`): ``full`` is the paper's
@@ -43,7 +52,6 @@ on 2 cores; ``quick`` runs the same pipeline at toy scale.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -55,8 +63,10 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
+from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
+from adaptfilt.files import atomic_write, sha256
 
 __all__ = ["reproduce", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command", "sha256",
            "ungm_floor", "ctm_reconciliation", "embed_report_tables"]
@@ -102,14 +112,10 @@ MEDIUM = Scale("medium", episodes=500, seeds=SEEDS, train_steps=None, eval_runs=
 QUICK = Scale("quick", episodes=20, seeds=(0, 1), train_steps=25, eval_runs=200, eval_steps=30,
               floor_runs=100, floor_steps=60, recon_runs=200, recon_steps=40)
 SCALES = {s.name: s for s in (QUICK, MEDIUM, FULL)}
-
-
-def sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+#: The journal of a run's finished jobs, in its output folder (removed when the run completes).
+JOURNAL = "journal.jsonl"
+#: What --retrain costs at full scale, for the message that asks for it.
+RETRAIN_COST = "about 31 minutes on 2 cores"
 
 
 def policy_rel(experiment: str, kind: str, seed: int) -> str:
@@ -229,7 +235,8 @@ def _reusable(data: Path, rel: str, man: dict) -> dict | None:
 
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
               workers: int | None = None, cluster=None, experiments: tuple[str, ...] | None = None,
-              faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None) -> dict:
+              faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None,
+              data: str | Path | None = None) -> dict:
     """Train + evaluate + floor + reconciliation + figures + tables into ``out_dir`` (module docstring).
 
     ``scale``: ``"full"`` (default), ``"medium"`` or ``"quick"`` (:data:`SCALES`; ``quick=True``
@@ -237,13 +244,14 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     every scale but ``quick`` reuses its paper-faithful policies.
     ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``; ``jobs`` is
     its old name); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
+    ``data``: the stored artefacts to reuse (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``).
     Returns ``{"timings", "table1", "claims", "figures"}``.
     """
     import adaptfilt
-    from adaptfilt.artefacts import data_dir
+    from adaptfilt.artefacts import find_data
     from adaptfilt.evaluation import Results
     from adaptfilt.experiments import EXPERIMENTS
-    from adaptfilt.experiments.sweep import default_workers, run_jobs
+    from adaptfilt.experiments.sweep import default_workers
     from adaptfilt.learned import read_npz
 
     if quick and scale not in (None, "quick", QUICK):
@@ -255,23 +263,28 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     quick, full = scale is QUICK, scale is FULL
     workers = workers if workers is not None else (jobs if jobs is not None else default_workers())
     out = Path(out_dir).resolve()
-    data = data_dir().resolve()
-    same = out == data
+    exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
+    need = None if (retrain or not full) else (f"or add --retrain to train the {len(exps) * len(KINDS) * len(scale.seeds)} "
+                                               f"fast-mode policies and evaluate everything here ({RETRAIN_COST})")
+    found = find_data(data, required=need)
+    data = found.resolve() if found is not None else out
+    same = found is not None and out == data
     if same and not full:
         raise ValueError(f"--scale {scale.name} into {out} would overwrite the full-scale reproduction there; "
                          "give another --out")
     for sub in ("policies", "results"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
     # --retrain retrains the fast-mode policies; the paper-faithful ones (hours) are still reused
-    kept = {"files": []} if quick else _load_manifest(data)
+    kept = {"files": []} if (quick or found is None) else _load_manifest(data)
     dman = {"files": []} if (retrain or not full) else kept
     entries: dict[str, dict] = {}
     timings: dict[str, dict] = {}
     job_times: dict[str, dict] = {}
     say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
     engine = f"cluster {cluster}" if cluster is not None else f"{workers} local workers"
-    say(f"reproduce ({scale.name} scale, {len(scale.seeds)} seeds) into {out}; {engine}; retrain={retrain}")
+    say(f"reproduce ({scale.name} scale, {len(scale.seeds)} seeds) into {out}; {engine}; retrain={retrain}; "
+        + (f"stored artefacts: {data}" if found is not None else "no stored artefacts"))
+    journal = Journal(out / JOURNAL)
     T0 = time.perf_counter()
 
     def reuse(rel: str, man: dict | None = None) -> bool:
@@ -286,7 +299,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
 
     def adopt(rel: str, command: str, keep: bool = False) -> bool:
         """A policy file in data/ that no manifest lists yet, made by the expected command."""
-        if quick or (retrain and not keep) or not (data / rel).exists():
+        if quick or found is None or (retrain and not keep) or not (data / rel).exists():
             return False
         meta = read_npz(data / rel)[1]
         recorded = " ".join(w for w in str(meta.get("command", "")).split() if w != "--no-progress")
@@ -315,8 +328,12 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
                 learned[e].append(rel)
     # the slow ones first, so that they do not finish last on a worker of their own
     todo.sort(key=lambda a: (ALGO[a[1]] != "faithful", a[0] not in SIF_EXPERIMENTS))
-    say(f"[train] {len(todo)} policies to train, {n_reused} reused")
-    res_jobs = run_jobs(_train_job, todo, workers=workers, cluster=cluster, progress=progress, desc="train")
+    keys = [(policy_command(e, k, s, scale), s) for e, k, s, _, _ in todo]
+    resumed = sum(journal.get(*k) is not None for k in keys)
+    say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
+        f"{n_reused} reused")
+    res_jobs = journal.run(_train_job, todo, keys, files=[[a[3]] for a in todo], workers=workers, cluster=cluster,
+                           progress=progress, desc="train")
     for (e, k, s, _, _), r in zip(todo, res_jobs):
         rel = policy_rel(e, k, s)
         entries[rel] = {"command": policy_command(e, k, s, scale), "seed": s, **r}
@@ -347,9 +364,12 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     # the SIF greedy jobs are the longest: start them first, then the shared SIF baselines
     order = sorted(range(len(ejobs)), key=lambda i: (not set(ejobs[i][0]) & set(SIF_EXPERIMENTS),
                                                      ejobs[i][1] != ["greedy"], len(ejobs[i][0]) == 1))
-    say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs")
-    outs = run_jobs(_evaluate_job, [ejobs[i] for i in order], workers=workers, cluster=cluster, progress=progress,
-                    desc="evaluate")
+    ekeys = [(_evaluation_key(ejobs[i]), SEED) for i in order]
+    resumed = sum(journal.get(*k) is not None for k in ekeys)
+    say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs, {resumed} of them "
+        f"finished by an earlier run ({JOURNAL})")
+    outs = journal.run(_evaluate_job, [ejobs[i] for i in order], ekeys, save=_save_parts, load=_load_parts,
+                       workers=workers, cluster=cluster, progress=progress, desc="evaluate")
     # each experiment's parts in job order (a shared job first): the merged tables keep their order
     by_job = dict(zip(order, outs))
     parts: dict[str, list] = {e: [] for e in todo_e}
@@ -368,8 +388,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         res = _merge(parts[e], e, cmd)
         d = out / f"results/{e}"
         res.save(d)
-        (d / "summary.json").write_text(json.dumps(res.summary(), indent=1) + "\n")
-        (d / "summary.md").write_text(res.table())
+        atomic_write(d / "summary.json", json.dumps(res.summary(), indent=1) + "\n")
+        atomic_write(d / "summary.md", res.table())
         for f in files:
             entries[f"results/{e}/{f}"] = {"command": cmd, "seed": SEED}
     timings["evaluate"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": cpu,
@@ -384,10 +404,11 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
                      (scale.floor_runs, SEED, scale.floor_steps, 250, 1000, scale.eval_runs)))
     if not (full and not retrain and reuse("results/ctm-reconciliation.json")):
         refs.append(("results/ctm-reconciliation.json", ctm_reconciliation, (scale.recon_runs, SEED, scale.recon_steps)))
-    ref_out = run_jobs(_reference_job, [(r[0], r[2]) for r in refs], workers=workers, cluster=cluster,
-                       progress=progress, desc="references")
+    ref_out = journal.run(_reference_job, [(r[0], r[2]) for r in refs], [(f"{r[0]}: {r[1].__name__}{r[2]!r}", SEED)
+                                                                         for r in refs],
+                          workers=workers, cluster=cluster, progress=progress, desc="references")
     for (rel, _, _), o in zip(refs, ref_out):
-        (out / rel).write_text(json.dumps(o, indent=1) + "\n")
+        atomic_write(out / rel, json.dumps(o, indent=1) + "\n")
         entries[rel] = {"command": o["command"], "seed": SEED, "wall_time_s": o["wall_time_s"],
                         "cpu_time_s": o["cpu_time_s"]}
     floor = json.loads((out / "results/ungm-floor.json").read_text()) if (out / "results/ungm-floor.json").exists() else None
@@ -406,25 +427,25 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         from adaptfilt.experiments.fast_vs_faithful import comparison, comparison_md
 
         ff = comparison(results, job_times)
-        (out / "results/fast-vs-faithful.json").write_text(json.dumps(ff, indent=1) + "\n")
+        atomic_write(out / "results/fast-vs-faithful.json", json.dumps(ff, indent=1) + "\n")
         extra = {"Fast trainer vs paper-faithful trainer (seed level)": comparison_md(ff)}
         entries["results/fast-vs-faithful.json"] = {}
     else:
         extra = {}
     ref = data / "results/claims.json"
     # a smaller reproduction is a check of the full one in data/
-    if not full and not same and ref.exists() and _load_manifest(data).get("scale") == "full":
+    if not full and not same and found is not None and ref.exists() and _load_manifest(data).get("scale") == "full":
         from adaptfilt.experiments.agreement import agreement, agreement_md
 
         agr = agreement(json.loads(json.dumps(cl)), json.loads(ref.read_text()))
-        (out / "results/agreement.json").write_text(json.dumps(agr, indent=1) + "\n")
+        atomic_write(out / "results/agreement.json", json.dumps(agr, indent=1) + "\n")
         entries["results/agreement.json"] = {}
         extra[f"Verdicts at {scale.name} scale against the full scale (data/)"] = agreement_md(
             agr, f"{scale.name} scale", "full scale (data/)")
         say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as at full scale (results/agreement.json)")
-    (out / "results/table1.json").write_text(json.dumps(t1, indent=1) + "\n")
-    (out / "results/table1.md").write_text(table1_md(t1))
-    (out / "results/claims.json").write_text(json.dumps(cl, indent=1) + "\n")
+    atomic_write(out / "results/table1.json", json.dumps(t1, indent=1) + "\n")
+    atomic_write(out / "results/table1.md", table1_md(t1))
+    atomic_write(out / "results/claims.json", json.dumps(cl, indent=1) + "\n")
     cmd = ("adaptfilt reproduce --out " + ("data" if full else "DIR")
            + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain")
     for rel in ("results/table1.json", "results/table1.md", "results/claims.json",
@@ -435,8 +456,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     timings["total"] = {"wall_time_s": time.perf_counter() - T0,
                         "cpu_time_s": sum(v.get("cpu_time_s", 0) or 0 for v in timings.values()),
                         "note": f"{scale.name} scale, {'retrain' if retrain else 'reusing data/'}; {engine}"}
-    (out / "report-tables.md").write_text(report_tables(results, floor, t1, cl, rec, timings, extra))
-    (out / "timings.json").write_text(json.dumps({"timings": timings, "jobs": job_times, "scale": asdict(scale),
+    atomic_write(out / "report-tables.md", report_tables(results, floor, t1, cl, rec, timings, extra))
+    atomic_write(out / "timings.json", json.dumps({"timings": timings, "jobs": job_times, "scale": asdict(scale),
                                                   "workers": workers, "cluster": None if cluster is None else str(cluster),
                                                   "python": sys.version.split()[0], "cpu_count": os.cpu_count()},
                                                  indent=1) + "\n")
@@ -448,9 +469,34 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
                                "wall_time_s": _seconds(e.get("wall_time_s")), "cpu_time_s": _seconds(e.get("cpu_time_s"))})
     manifest = {"package_version": adaptfilt.__version__, "scale": scale.name, "seeds": list(scale.seeds),
                 "generated_by": cmd, "files": manifest_files}
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    atomic_write(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+    journal.finish()
     say(_timings_text(timings))
     return {"timings": timings, "table1": t1, "claims": cl, "figures": figs}
+
+
+def _evaluation_key(job: tuple) -> str:
+    """What identifies an evaluation job: its experiments, baselines, runs and the policy files' contents."""
+    experiments, baselines, files, scale = job
+    steps = "" if scale.eval_steps is None else f" --horizon {scale.eval_steps}"
+    pols = "".join(f" --policy {Path(f).name}@{sha256(f)[:16]}" for f in files)
+    return f"evaluate {'+'.join(experiments)} --runs {scale.eval_runs} --seed {SEED}{steps} baselines {','.join(baselines)}{pols}"
+
+
+def _save_parts(folder: Path, value: tuple) -> tuple[list[Path], dict]:
+    """An evaluation job's value as files for the journal: its Results parts, and its times."""
+    parts, times = value
+    files = []
+    for j, res in enumerate(parts):
+        res.save(folder / f"part{j}")
+        files += [folder / f"part{j}" / "results.npz", folder / f"part{j}" / "results.json"]
+    return files, {"parts": len(parts), "times": times}
+
+
+def _load_parts(folder: Path, stored: dict) -> tuple[list, dict]:
+    from adaptfilt.evaluation import Results
+
+    return [Results.load(folder / f"part{j}") for j in range(stored["parts"])], stored["times"]
 
 
 def _names(experiment: str, rels: list[str]) -> list[str]:

@@ -23,15 +23,46 @@ Results come back in job order, identical bit for bit whatever the number of
 workers and the engine (a test checks it). Every worker runs torch on one
 thread: the networks are tiny, and several processes each with several
 threads only wait on each other.
+
+Stopping. Ctrl-C (``KeyboardInterrupt`` here) cancels the jobs not yet started, terminates the
+workers of the running ones (every job writes its files atomically, :mod:`adaptfilt.files`, so a
+stopped job leaves nothing half-written) and raises :class:`Interrupted`, which counts the jobs that
+finished; ``on_done`` has been called for each of them as it finished, so a caller can record them
+(:mod:`adaptfilt.experiments.journal`) and a later run skip them. Workers ignore SIGINT, which a
+terminal sends to the whole process group: this process alone decides what stops. Workers die with
+this process however it dies (SIGTERM, SIGKILL, the OOM killer): on Linux the kernel kills them
+(``prctl(PR_SET_PDEATHSIG)``), elsewhere a thread in each worker watches its parent. On a Dask cluster
+the futures are cancelled, and a cluster started here is closed.
 """
 from __future__ import annotations
 
 import os
+import signal
+import sys
 import threading
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Sequence
 
-__all__ = ["run_jobs", "default_workers"]
+__all__ = ["run_jobs", "default_workers", "Interrupted", "JobFailed"]
+
+
+class JobFailed(RuntimeError):
+    """A job raised (the message names the job and its error) or its worker process died."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by a signal before its end: Ctrl-C (SIGINT), or SIGTERM where the command line
+    turns it into this. ``done`` jobs of ``total`` had finished; ``kept`` says in words what they left
+    and how to resume (the driver that knows fills it in); ``signum`` sets the exit status, 128 + signum."""
+
+    def __init__(self, done: int = 0, total: int = 0, kept: str = "", signum: int = signal.SIGINT) -> None:
+        super().__init__(kept or f"{done} of {total} jobs finished")
+        self.done, self.total, self.kept, self.signum = done, total, kept, int(signum)
+
+    def with_kept(self, kept: str) -> "Interrupted":
+        return Interrupted(self.done, self.total, kept, self.signum)
 
 
 def default_workers() -> int:
@@ -51,6 +82,36 @@ def _one_thread() -> None:
     torch.set_num_threads(1)
 
 
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent: int) -> None:
+    """Make this (worker) process die when ``parent`` does, whatever kills the parent."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            if ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL) == 0:
+                if os.getppid() != parent:  # the parent died before prctl took effect
+                    os._exit(1)
+                return
+        except (OSError, AttributeError):  # pragma: no cover - a libc without prctl
+            pass
+
+    def watch() -> None:  # pragma: no cover - not Linux
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="adaptfilt-parent-watch").start()
+
+
+def _worker_init(parent: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent)
+    _one_thread()
+
+
 #: One job at a time per process: trainers seed process-global generators (torch, and SB3 also
 #: numpy's and Python's), so two jobs in threads of one Dask worker would draw from each other's.
 _LOCK = threading.Lock()
@@ -63,62 +124,108 @@ def _call(fn: Callable, args: tuple) -> Any:
 
 
 def run_jobs(fn: Callable, jobs: Sequence[tuple], workers: int | None = None, cluster=None,
-             progress: bool = True, desc: str = "jobs") -> list:
+             progress: bool = True, desc: str = "jobs", on_done: Callable[[int, Any], None] | None = None) -> list:
     """``[fn(*a) for a in jobs]``, in parallel (see the module docstring); results in job order.
 
     ``fn`` must be importable by name (a module-level function) for the process
-    pool and a cluster. An exception in a job is raised here, naming the job.
+    pool and a cluster. An exception in a job is a :class:`JobFailed` here, naming
+    the job, and stops the others; Ctrl-C is :class:`Interrupted`. ``on_done(i, result)``
+    is called here, in this process, as job ``i`` finishes (in the order they finish).
     """
     jobs = [tuple(a) for a in jobs]
     if not jobs:
         return []
+    workers = default_workers() if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=len(jobs), desc=desc, unit="job")
-    try:
-        if cluster is not None:
-            return _run_dask(fn, jobs, cluster, bar)
-        workers = default_workers() if workers is None else int(workers)
-        if workers < 1:
-            raise ValueError(f"workers must be >= 1, got {workers}")
-        if workers == 1 or len(jobs) == 1:
-            out = []
-            for i, a in enumerate(jobs):
-                try:
-                    out.append(_call(fn, a))
-                except Exception as e:
-                    raise RuntimeError(f"job {i} {fn.__name__}{a!r} failed: {e}") from e
-                if bar is not None:
-                    bar.update(1)
-            return out
-        import multiprocessing as mp
+    done = 0
 
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn"),
-                                 initializer=_one_thread) as ex:
-            futs = [ex.submit(fn, *a) for a in jobs]
-            return _gather(as_completed(futs), {f: i for i, f in enumerate(futs)}, fn, jobs, bar, "")
-    finally:
-        if bar is not None:
-            bar.close()
-
-
-def _gather(completed, index: dict, fn: Callable, jobs: list[tuple], bar, where: str, key=lambda f: f) -> list:
-    """Results in job order as the futures complete; a failed job is an error naming it."""
-    out: list = [None] * len(jobs)
-    for f in completed:
-        i = index[key(f)]
-        try:
-            out[i] = f.result()
-        except Exception as e:
-            raise RuntimeError(f"job {i} {fn.__name__}{jobs[i]!r} failed{where}: {e}") from e
+    def finished(i: int, value: Any) -> None:
+        nonlocal done
+        done += 1
+        if on_done is not None:
+            on_done(i, value)
         if bar is not None:
             bar.update(1)
+
+    try:
+        if cluster is not None:
+            return _run_dask(fn, jobs, cluster, finished)
+        if workers == 1 or len(jobs) == 1:
+            return _run_here(fn, jobs, finished)
+        return _run_pool(fn, jobs, min(workers, len(jobs)), finished)
+    except Interrupted:
+        raise
+    except KeyboardInterrupt:
+        raise Interrupted(done, len(jobs)) from None
+    finally:
+        if bar is not None:
+            bar.close()  # ends the bar's line: a message after it starts on a line of its own
+
+
+def _failed(i: int, fn: Callable, args: tuple, e: BaseException, where: str = "") -> JobFailed:
+    return JobFailed(f"job {i} {fn.__name__}{args!r} failed{where}: {e}")
+
+
+def _run_here(fn: Callable, jobs: list[tuple], finished: Callable) -> list:
+    out: list = []
+    for i, a in enumerate(jobs):
+        try:
+            out.append(_call(fn, a))
+        except Exception as e:
+            raise _failed(i, fn, a, e) from e
+        finished(i, out[i])
     return out
 
 
-def _run_dask(fn: Callable, jobs: list[tuple], cluster, bar) -> list:
+def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable) -> list:
+    import multiprocessing as mp
+
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
+                             initargs=(os.getpid(),))
+    try:
+        futs = {ex.submit(fn, *a): i for i, a in enumerate(jobs)}
+        out: list = [None] * len(jobs)
+        for f in as_completed(futs):
+            i = futs[f]
+            try:
+                out[i] = f.result()
+            except BrokenProcessPool as e:
+                raise JobFailed(f"job {i} {fn.__name__}{jobs[i]!r}: a worker process died ({e}); out of "
+                                "memory? try fewer --workers") from e
+            except Exception as e:
+                raise _failed(i, fn, jobs[i], e) from e
+            finished(i, out[i])
+        return out
+    except BaseException:
+        _stop_pool(ex)
+        raise
+    finally:
+        ex.shutdown(wait=True)  # at once after _stop_pool; else every job has finished
+
+
+def _stop_pool(ex: ProcessPoolExecutor, grace: float = 3.0) -> None:
+    """Cancel what has not started and terminate the workers (the with-block's shutdown would wait
+    for every queued job). A terminated job leaves no partial file: jobs write atomically."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + grace
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+
+
+def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> list:
     from distributed import Client, as_completed as dask_completed
 
     own = None
@@ -127,12 +234,27 @@ def _run_dask(fn: Callable, jobs: list[tuple], cluster, bar) -> list:
     elif cluster == "local":  # a throw-away cluster of local worker processes, one job each at a time
         own = client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
                               dashboard_address=None)
+        # its workers are this process's children: they ignore Ctrl-C and die with it, as the pool's do
+        client.run(_worker_init, os.getpid())
     else:
         own = client = Client(str(cluster))
+    futs: list = []
     try:
         futs = [client.submit(_call, fn, a, pure=False) for a in jobs]
-        return _gather(dask_completed(futs), {f.key: i for i, f in enumerate(futs)}, fn, jobs, bar, " on the cluster",
-                       key=lambda f: f.key)
+        index = {f.key: i for i, f in enumerate(futs)}
+        out: list = [None] * len(jobs)
+        for f in dask_completed(futs):
+            i = index[f.key]
+            try:
+                out[i] = f.result()
+            except Exception as e:
+                raise _failed(i, fn, jobs[i], e, " on the cluster") from e
+            finished(i, out[i])
+        return out
+    except BaseException:
+        if futs:  # a shared cluster must not go on with jobs nobody waits for
+            client.cancel(futs)
+        raise
     finally:
         if own is not None:
             own.close()

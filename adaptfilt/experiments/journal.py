@@ -1,0 +1,143 @@
+r"""Long runs that can be stopped and resumed: the journal of a run's finished jobs.
+
+A long command (``adaptfilt reproduce``, ``beyond``, ``train --seeds``) is a list of jobs
+(:func:`adaptfilt.experiments.sweep.run_jobs`). As each job finishes, this process appends one JSON
+line to the run's journal, a file beside its output::
+
+    {"command": ..., "seed": ..., "version": ..., "files": {path: sha256}, "value": ...}
+
+the command that identifies the job, its seed, the package version, the sha256 of every file the job
+wrote (paths relative to the journal's folder) and its value (timings, a small result). Run the same
+command again into the same place and every job whose record matches -- same command, seed and
+version, every file there with its recorded sha256 -- is taken from the journal, not run again.
+A job is a deterministic function of its command and seed, and a value takes the same path whether it
+was computed now or read back (:meth:`Journal.run` always hands on what it loads from what it saved),
+so the resumed run's files are byte-identical to an uninterrupted run's. A completed run removes its
+journal (:meth:`Journal.finish`): its manifest then records every file.
+
+Values that are not JSON (an evaluation's :class:`~adaptfilt.evaluation.Results`) are files too: a
+``save(folder, value) -> (files, json_value)`` writes them under ``<journal>.parts/`` and
+``load(folder, json_value)`` reads them back. Every file is written atomically (:mod:`adaptfilt.files`)
+and a record only after its files, so a record never names a file that is not whole; a line cut short
+by a kill is ignored.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from adaptfilt.experiments.sweep import Interrupted, run_jobs
+from adaptfilt.files import sha256
+
+__all__ = ["Journal"]
+
+
+class Journal:
+    """The finished jobs of one run, in the JSON-lines file ``path`` (module docstring)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.root = self.path.parent
+        self.parts = self.path.with_name(self.path.name.removesuffix(".jsonl") + ".parts")
+        self.records = self._read()
+        self.reused = 0  # jobs taken from the journal by this run
+        self.finished = 0  # jobs this run ran to the end
+
+    def _read(self) -> dict[str, dict]:
+        records: dict[str, dict] = {}
+        if self.path.exists():
+            for line in self.path.read_text(encoding="utf-8").splitlines():
+                try:
+                    r = json.loads(line)
+                    records[r["command"]] = r
+                except (ValueError, KeyError, TypeError):  # a line cut short when the run was killed
+                    continue
+        return records
+
+    @staticmethod
+    def _version() -> str:
+        import adaptfilt
+
+        return adaptfilt.__version__
+
+    def get(self, command: str, seed: int) -> dict | None:
+        """The record of a finished job that can be reused as it is, else None."""
+        r = self.records.get(command)
+        if r is None or r.get("seed") != seed or r.get("version") != self._version():
+            return None
+        for rel, digest in r.get("files", {}).items():
+            p = self.root / rel
+            if not p.is_file() or sha256(p) != digest:
+                return None
+        return r
+
+    def add(self, command: str, seed: int, files: Sequence[str | Path] = (), value: Any = None) -> dict:
+        """Record a finished job (after its files are written: they are hashed now)."""
+        rec = {"command": command, "seed": seed, "version": self._version(),
+               "files": {self._rel(f): sha256(f) for f in files}, "value": value}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(rec, sort_keys=True) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        self.records[command] = rec
+        return rec
+
+    def _rel(self, f: str | Path) -> str:
+        p = Path(f)
+        return str(p.relative_to(self.root) if p.is_absolute() else p)
+
+    def folder(self, command: str) -> Path:
+        """Where a job's value files go (one folder per command)."""
+        return self.parts / hashlib.sha256(command.encode()).hexdigest()[:16]
+
+    def run(self, fn: Callable, jobs: Sequence[tuple], keys: Sequence[tuple[str, int]],
+            files: Sequence[Sequence[str | Path]] | None = None,
+            save: Callable[[Path, Any], tuple[list[Path], Any]] | None = None,
+            load: Callable[[Path, Any], Any] | None = None, **run_kw) -> list:
+        """:func:`~adaptfilt.experiments.sweep.run_jobs` over the jobs the journal does not hold.
+
+        ``keys[i]``: job i's (command, seed); ``files[i]``: the files job i writes itself (recorded
+        with their sha256); ``save``/``load``: a value kept as files (module docstring). Returns every
+        job's value in job order, taken from the journal or computed now."""
+        values: list = [None] * len(jobs)
+        todo = []
+        for i, (command, seed) in enumerate(keys):
+            rec = self.get(command, seed)
+            if rec is None:
+                todo.append(i)
+            else:
+                values[i] = self._value(rec, load)
+                self.reused += 1
+
+        def done(j: int, value: Any) -> None:
+            i = todo[j]
+            command, seed = keys[i]
+            written, stored = save(self.folder(command), value) if save else (list(files[i]) if files else [], value)
+            values[i] = self._value(self.add(command, seed, written, stored), load)
+            self.finished += 1
+
+        try:
+            run_jobs(fn, [jobs[i] for i in todo], on_done=done, **run_kw)
+        except KeyboardInterrupt as e:
+            raise self.interrupted(e) from None
+        return values
+
+    def _value(self, rec: dict, load) -> Any:
+        return load(self.folder(rec["command"]), rec["value"]) if load else rec["value"]
+
+    def interrupted(self, e: BaseException) -> Interrupted:
+        """The interrupt ``e`` (Ctrl-C, or SIGTERM turned into it) with one line on what is kept."""
+        kept = (f"{len(self.records)} finished jobs are kept in {self.path}; run the same command again to "
+                "resume" if self.records else "no job had finished: nothing to resume")
+        return Interrupted(getattr(e, "done", 0), getattr(e, "total", 0), kept, getattr(e, "signum", signal.SIGINT))
+
+    def finish(self) -> None:
+        """The run completed: its journal and the value files go (the manifest records the outputs)."""
+        self.path.unlink(missing_ok=True)
+        shutil.rmtree(self.parts, ignore_errors=True)
