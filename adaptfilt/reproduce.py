@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
-from adaptfilt.experiments.journal import Journal
+from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
 from adaptfilt.files import atomic_write, sha256
@@ -486,17 +486,11 @@ def _evaluation_key(job: tuple) -> str:
 def _save_parts(folder: Path, value: tuple) -> tuple[list[Path], dict]:
     """An evaluation job's value as files for the journal: its Results parts, and its times."""
     parts, times = value
-    files = []
-    for j, res in enumerate(parts):
-        res.save(folder / f"part{j}")
-        files += [folder / f"part{j}" / "results.npz", folder / f"part{j}" / "results.json"]
-    return files, {"parts": len(parts), "times": times}
+    return save_results(folder, parts), {"parts": len(parts), "times": times}
 
 
 def _load_parts(folder: Path, stored: dict) -> tuple[list, dict]:
-    from adaptfilt.evaluation import Results
-
-    return [Results.load(folder / f"part{j}") for j in range(stored["parts"])], stored["times"]
+    return load_results(folder, stored["parts"]), stored["times"]
 
 
 def _names(experiment: str, rels: list[str]) -> list[str]:

@@ -24,7 +24,12 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    on UNGM-UKF and CTM-UKF, against the reproduction's adaptive policies (trained on ``log(1 + L)``),
    greedy, ML and the default, on the same runs.
 
-Every training is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or Dask).
+Every training and evaluation is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or
+Dask), recorded as it finishes in ``DIR/beyond/journal.jsonl`` (:mod:`adaptfilt.experiments.journal`):
+the same command run again after an interrupt reuses every finished job and gives the same files. A
+policy that ``DIR/beyond/manifest.json`` lists with the same training command and sha256 is reused too
+(studies run separately with ``--studies`` share the folder). The reproduction's policies are looked
+for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func:`adaptfilt.artefacts.find_data`).
 """
 from __future__ import annotations
 
@@ -35,7 +40,13 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptfilt.experiments.journal import Journal, load_results, save_results
+from adaptfilt.files import atomic_write, sha256
+
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SAFE_ACTIONS", "STUDIES"]
+
+#: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
+JOURNAL = "journal.jsonl"
 
 #: The learner of the candidate study (chosen by the measurement reported in REPRODUCTION.md).
 CAND_ALGO = "fast"
@@ -67,17 +78,25 @@ FULL = BeyondScale("full", 1000, tuple(range(8)), None, 10_000, 50)
 QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
 
 
+def _train_command(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
+                   features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None,
+                   cost_transform: str = "log1p") -> str:
+    """The command recorded in (and by) a training job of :func:`_train_job` (same arguments)."""
+    return (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
+            + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
+            + (f" --horizon {scale.n_steps}" if scale.n_steps else "")
+            + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "")
+            + (f" --cost-transform {cost_transform}" if cost_transform != "log1p" else "") + f" --out {out}")
+
+
 def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
                features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None,
                cost_transform: str = "log1p") -> dict:
     from adaptfilt.trainers import train_policy
 
     t0, c0 = time.perf_counter(), time.process_time()
-    cmd = (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
-           + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
-           + (f" --horizon {scale.n_steps}" if scale.n_steps else "")
-           + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "")
-           + (f" --cost-transform {cost_transform}" if cost_transform != "log1p" else "") + f" --out {out}")
+    cmd = _train_command(experiment, kind, gamma, seed, out, scale, features, algo, repair_penalty, actions,
+                         cost_transform)
     train_policy(experiment, algo, gamma, scale.episodes, seed, features=features, n_steps=scale.n_steps,
                  progress=False, out=out, command=cmd, repair_penalty=repair_penalty, actions=actions,
                  cost_transform=cost_transform)
@@ -113,19 +132,24 @@ def _ood_job(condition, files: list[str], scale: BeyondScale, retune_seed: int =
 
 
 def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cluster=None,
-        studies: tuple[str, ...] = STUDIES, progress: bool = True) -> dict:
-    """Run the studies (module docstring) into ``out_dir/beyond``; returns their summaries."""
+        studies: tuple[str, ...] = STUDIES, progress: bool = True, data: str | Path | None = None) -> dict:
+    """Run the studies (module docstring) into ``out_dir/beyond``; returns their summaries. ``data``:
+    where the reproduction's policies are (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``)."""
     import adaptfilt
-    from adaptfilt.artefacts import data_dir
+    from adaptfilt.artefacts import find_data
     from adaptfilt.experiments.ood import CONDITIONS, gain_table
     from adaptfilt.experiments.seeds import aggregate, difference
-    from adaptfilt.experiments.sweep import run_jobs
-    from adaptfilt.reproduce import sha256
+    from adaptfilt.reproduce import RETRAIN_COST
 
     scale = QUICK if quick else FULL
     root = Path(out_dir).resolve()
+    need = None if quick or not set(studies) & {"sif", "ood", "raw"} else (
+        "the sif, ood and raw studies compare with the reproduction's policies: make them with `adaptfilt reproduce "
+        f"--out DIR --retrain` ({RETRAIN_COST}) and give --data DIR")
+    data = root if quick else find_data(data, required=need)
     out = root / "beyond"
     (out / "policies").mkdir(parents=True, exist_ok=True)
+    journal = Journal(out / JOURNAL)
     say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
     entries: dict[str, dict] = {}
     summary: dict = {"scale": scale.name, "version": adaptfilt.__version__}
@@ -152,10 +176,14 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                 rel = f"policies/{e}-adaptive-raw-s{s}.npz"
                 jobs.append((e, "adaptive-raw", 0.5, s, str(out / rel), scale, None, "fast", 0.0, None, "none"))
                 metas.append(rel)
-    todo = [(j, m) for j, m in zip(jobs, metas) if not (out / m).exists()]
-    say(f"[beyond] {len(todo)} policies to train")
-    times = run_jobs(_train_job, [j for j, _ in todo], workers=workers, cluster=cluster, progress=progress,
-                     desc="beyond: train")
+    listed = _listed_policies(out)
+    todo = [(j, m) for j, m in zip(jobs, metas) if not _same_training(listed.get(m), _train_command(*j), out / m)]
+    keys = [(_train_command(*j), j[3]) for j, _ in todo]
+    resumed = sum(journal.get(*k) is not None for k in keys)
+    say(f"[beyond] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
+        f"{len(jobs) - len(todo)} listed in the manifest")
+    times = journal.run(_train_job, [j for j, _ in todo], keys, files=[[out / m] for _, m in todo], workers=workers,
+                        cluster=cluster, progress=progress, desc="beyond: train")
     for (_, rel), t in zip(todo, times):
         entries[rel] = t
 
@@ -186,12 +214,15 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             files += reproduction(e)
             ejobs.append((e, files, scale, ("default", "ml", "greedy")))
             names.append(("raw", e))
-    results = run_jobs(_evaluate_job, ejobs, workers=workers, cluster=cluster, progress=progress,
-                       desc="beyond: evaluate") if ejobs else []
+    results = journal.run(_evaluate_job, ejobs, [(_job_key("evaluate", study, e, files, scale, keep), 0)
+                                                  for (study, e), (_, files, _, keep) in zip(names, ejobs)],
+                          save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
+                          desc="beyond: evaluate")
     for (study, e), res in zip(names, results):
         d = out / "results" / f"{study}-{e}"
+        wall = _take_times(res)
         res.save(d, drop=COMPACT)
-        entries.update({f"results/{study}-{e}/{f}": {"command": cmd}
+        entries.update({f"results/{study}-{e}/{f}": {"command": cmd, "wall_time_s": wall}
                         for f in ("results.json", "results.npz")})
         rows = {}
         groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
@@ -223,15 +254,18 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         files = reproduction("ungm-ukf")
         if files:
             conds = CONDITIONS if not quick else CONDITIONS[:2]
-            ood_res = run_jobs(_ood_job, [(c, files, scale) for c in conds], workers=workers, cluster=cluster,
-                               progress=progress, desc="beyond: out of distribution")
+            ood_res = journal.run(_ood_job, [(c, files, scale) for c in conds],
+                                  [(_job_key("ood", c.key, "ungm-ukf", files, scale), 0) for c in conds],
+                                  save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
+                                  desc="beyond: out of distribution")
             tables = {}
             for c, res in zip(conds, ood_res):
                 d = out / "results" / f"ood-{c.key}"
                 # summaries only: nine conditions x 32 policies of per-run arrays would triple data/;
                 # the paired gains are computed here, before saving, and kept in summary.json
+                wall = _take_times(res)
                 res.save(d, arrays=False)
-                entries[f"results/ood-{c.key}/results.json"] = {"command": cmd}
+                entries[f"results/ood-{c.key}/results.json"] = {"command": cmd, "wall_time_s": wall}
                 tables[c.key] = res
             groups = {"learned": [n for n in ood_res[0].names if n.startswith("adaptive-s")],
                       "retuned": [n for n in ood_res[0].names if n.startswith("retuned-s")]}
@@ -248,16 +282,62 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             old_summary = prev
             old_files = {f["path"]: f for f in json.loads((out / "manifest.json").read_text())["files"]}
     summary = {**{k: v for k, v in old_summary.items() if k not in summary}, **summary}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    atomic_write(out / "summary.json", json.dumps(summary, indent=1) + "\n")
     entries["summary.json"] = {"command": cmd}
     files = {rel: f for rel, f in old_files.items() if rel not in entries and (out / rel).exists()}
     for rel, e in entries.items():
         files[rel] = {"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
                       "seed": 0, "version": adaptfilt.__version__,
                       "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
-    (out / "manifest.json").write_text(json.dumps({"scale": scale.name, "files": [files[k] for k in sorted(files)]},
-                                                  indent=1) + "\n")
+    atomic_write(out / "manifest.json", json.dumps({"scale": scale.name, "files": [files[k] for k in sorted(files)]},
+                                                   indent=1) + "\n")
+    journal.finish()
     return summary
+
+
+def _take_times(res) -> float:
+    """The evaluation's wall time, moved from its policies to the manifest: the same command then
+    writes byte-identical results, resumed or not."""
+    wall = sum(p.wall_time_s for p in res.policies.values())
+    for p in res.policies.values():
+        p.wall_time_s = 0.0
+    return round(wall, 2)
+
+
+def _listed_policies(out: Path) -> dict[str, dict]:
+    """The policies ``out/manifest.json`` lists (an earlier run's), by path."""
+    p = out / "manifest.json"
+    files = json.loads(p.read_text())["files"] if p.exists() else []
+    return {f["path"]: f for f in files if f["path"].startswith("policies/")}
+
+
+def _same_training(entry: dict | None, command: str, path: Path) -> bool:
+    """A listed policy made by ``command`` (its --out aside: the folder may have moved) and unchanged since."""
+    if entry is None or not path.is_file():
+        return False
+    recorded = str(entry.get("command", "")).rsplit(" --out ", 1)[0]
+    return recorded == command.rsplit(" --out ", 1)[0] and sha256(path) == entry["sha256"]
+
+
+def _job_key(kind: str, *parts) -> str:
+    """What identifies an evaluation job for the journal; policy files by their name and contents."""
+    def word(x) -> str:
+        if isinstance(x, BeyondScale):
+            return f"runs={x.eval_runs} steps={x.n_steps} episodes={x.episodes} retune={x.retune_episodes}"
+        if isinstance(x, (list, tuple)):
+            return "[" + ",".join(f"{Path(f).name}@{sha256(f)[:16]}" if str(f).endswith(".npz") else str(f)
+                                  for f in x) + "]"
+        return str(x)
+
+    return f"beyond {kind} " + " ".join(word(x) for x in parts)
+
+
+def _save_one(folder: Path, res) -> tuple[list[Path], int]:
+    return save_results(folder, [res]), 1
+
+
+def _load_one(folder: Path, n: int):
+    return load_results(folder, n)[0]
 
 
 def _ood_figures(tables: dict, fig_dir: Path) -> None:

@@ -34,7 +34,7 @@ from typing import Any, Callable, Sequence
 from adaptfilt.experiments.sweep import Interrupted, run_jobs
 from adaptfilt.files import sha256
 
-__all__ = ["Journal"]
+__all__ = ["Journal", "save_results", "load_results"]
 
 
 class Journal:
@@ -141,3 +141,19 @@ class Journal:
         """The run completed: its journal and the value files go (the manifest records the outputs)."""
         self.path.unlink(missing_ok=True)
         shutil.rmtree(self.parts, ignore_errors=True)
+
+
+def save_results(folder: Path, results: Sequence) -> list[Path]:
+    """Evaluations (:class:`~adaptfilt.evaluation.Results`) as a job's value files: ``folder/part{j}``."""
+    files = []
+    for j, res in enumerate(results):
+        res.save(folder / f"part{j}")
+        files += [folder / f"part{j}" / "results.npz", folder / f"part{j}" / "results.json"]
+    return files
+
+
+def load_results(folder: Path, n: int) -> list:
+    """What :func:`save_results` saved, bit for bit."""
+    from adaptfilt.evaluation import Results
+
+    return [Results.load(folder / f"part{j}") for j in range(n)]
