@@ -9,7 +9,8 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw] [--workers N] [--cluster ADDRESS]
+                        [--data DIR]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw] [--workers N] [--cluster ADDRESS] [--data DIR]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
@@ -17,10 +18,18 @@ handler, so that a notebook can call the same function directly.
 
 Errors: every user error -- a bad flag value (checked by the ``type=``
 functions below before any work starts), an unknown experiment, an --out that
-cannot be written, a missing, damaged or mismatched policy file, or any
-``ValueError`` / ``KeyError`` / ``OSError`` the library raises -- prints one
+cannot be written, a missing, damaged or mismatched policy file, no stored
+artefacts, a book built outside the checkout, an unreachable --cluster, a job
+that fails with such an error or loses its worker, or any ``ValueError`` /
+``KeyError`` / ``OSError`` / ``ImportError`` the library raises -- prints one
 line ``adaptfilt: error: ...`` on stderr and exits with status 2. Any other
 exception is a bug and keeps its traceback.
+
+Interrupts: Ctrl-C (SIGINT) or SIGTERM stops a command within seconds (its
+workers too) and prints one line ``adaptfilt: interrupted: ...`` saying what was
+kept and how to resume; the exit status is 130 (SIGINT) or 143 (SIGTERM).
+``reproduce``, ``beyond`` and ``train --seeds`` resume: the same command again
+reuses every job that finished (:mod:`adaptfilt.experiments.journal`).
 """
 from __future__ import annotations
 
@@ -100,6 +109,7 @@ def _train(args: argparse.Namespace) -> int:
     from adaptfilt.experiments.journal import Journal
     from adaptfilt.trainers import seed_path
 
+    progress = not args.no_progress
     args.no_progress = True  # one bar over the seeds instead of one per training
     outs = [str(seed_path(args.out, s)) for s in args.seeds]
     journal = Journal(seeds_journal(args.out))
@@ -108,7 +118,8 @@ def _train(args: argparse.Namespace) -> int:
     if resumed:
         print(f"{resumed} of {len(keys)} seeds finished by an earlier run ({journal.path}): reused", flush=True)
     journal.run(train_job, [(args, s, o) for s, o in zip(args.seeds, outs)], keys, files=[[o] for o in outs],
-                workers=args.workers, cluster=args.cluster, desc=f"train {args.name} ({args.algo}, {len(outs)} seeds)")
+                workers=args.workers, cluster=args.cluster, progress=progress,
+                desc=f"train {args.name} ({args.algo}, {len(outs)} seeds)")
     journal.finish()
     print("wrote " + ", ".join(outs))
     return 0
@@ -429,9 +440,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Library errors that are the user's (a bad name, value or file): one line at the CLI.
-#: Anything else is a bug and keeps its traceback.
-USER_ERRORS = (ValueError, KeyError, OSError)
+#: Library errors that are the user's (a bad name, value or file; a missing optional package): one line at
+#: the CLI, as are a book that cannot be built and a job of a sweep that failed with one of them or lost
+#: its worker (:func:`_is_user_error`). Anything else is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, KeyError, OSError, ImportError)
+
+
+def _is_user_error(e: BaseException) -> bool:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from adaptfilt.book import BookBuildError
+    from adaptfilt.experiments.sweep import JobFailed
+
+    if isinstance(e, JobFailed):  # in a worker: judged by what the job raised
+        return e.__cause__ is None or isinstance(e.__cause__, USER_ERRORS + (BrokenProcessPool,))
+    return isinstance(e, USER_ERRORS + (BookBuildError,))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -444,7 +467,9 @@ def main(argv: list[str] | None = None) -> int:
             return args.func(args)
     except KeyboardInterrupt as e:
         _interrupted(e)
-    except USER_ERRORS as e:
+    except Exception as e:
+        if not _is_user_error(e):
+            raise
         _fail(_user_message(e))
 
 

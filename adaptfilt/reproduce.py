@@ -339,7 +339,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         entries[rel] = {"command": policy_command(e, k, s, scale), "seed": s, **r}
         job_times[rel] = r
     timings["train"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": sum(r["cpu_time_s"] for r in res_jobs),
-                        "note": f"{len(todo)} trained ({scale.episodes} episodes each), {n_reused} reused; {engine}"}
+                        "note": f"{len(todo) - resumed} trained ({scale.episodes} episodes each), {resumed} by an earlier "
+                                f"run (journal), {n_reused} reused; {engine}"}
 
     # ---- 2. evaluate
     t0 = time.perf_counter()

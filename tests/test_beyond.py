@@ -54,6 +54,46 @@ def test_quick_candidate_study_writes_its_manifest(tmp_path):
     assert "| ungm-ukf | adaptive-cand |" in summary_md(summary)
 
 
+def test_beyond_resumes_from_its_journal_to_identical_files(tmp_path, monkeypatch, capsys):
+    """Stopped after its third job, the same run again takes those three from the journal and writes the
+    files an uninterrupted run writes (into the same folder: a policy records its --out); run once
+    more, it trains nothing, the manifest listing every policy with its command and sha256."""
+    from adaptfilt.experiments.beyond import run
+    from adaptfilt.experiments.journal import Journal
+    from adaptfilt.experiments.sweep import Interrupted
+    from adaptfilt.reproduce import sha256
+
+    def digests(d):
+        return {str(p.relative_to(d)): sha256(p) for p in sorted(d.rglob("*")) if p.is_file()}
+
+    run(tmp_path, quick=True, workers=1, studies=("cand",), progress=False)
+    reference = digests(tmp_path / "beyond")
+    (tmp_path / "beyond").rename(tmp_path / "reference")
+    add = Journal.add
+
+    def add_then_stop(self, *a, **kw):
+        rec = add(self, *a, **kw)
+        if len(self.records) == 3:
+            raise KeyboardInterrupt
+        return rec
+
+    monkeypatch.setattr(Journal, "add", add_then_stop)
+    with pytest.raises(Interrupted, match="3 finished jobs are kept in .*journal.jsonl; run the same command again"):
+        run(tmp_path, quick=True, workers=1, studies=("cand",), progress=False)
+    monkeypatch.setattr(Journal, "add", add)
+    capsys.readouterr()
+    run(tmp_path, quick=True, workers=1, studies=("cand",))
+    assert "[beyond] 5 policies to train, 3 finished by an earlier run" in capsys.readouterr().out
+    again = digests(tmp_path / "beyond")
+    assert again.keys() == reference.keys() and "journal.jsonl" not in again
+    # equal but for the manifest, which records this run's training times
+    assert {k: v for k, v in again.items() if k != "manifest.json"} == \
+        {k: v for k, v in reference.items() if k != "manifest.json"}
+    run(tmp_path, quick=True, workers=1, studies=("cand",))
+    assert "[beyond] 0 policies to train, 0 finished by an earlier run (journal.jsonl), 8 listed in the manifest" \
+        in capsys.readouterr().out
+
+
 def test_committed_beyond_studies_match_their_manifest_and_summary():
     """data/beyond (``adaptfilt beyond --out data``): every file matches its manifest and loads; the
     summary's seed-level numbers are what the stored evaluations give; the policies are what their

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import json
 import shlex
+import signal
+import sys
 
 import numpy as np
 import pytest
@@ -74,9 +76,16 @@ def _digest(root) -> dict:
             if p.is_file() and (p.suffix == ".npz" or p.name in ("results.json", "claims.json", "table1.json"))}
 
 
-def test_quick_reproduce_writes_everything_and_is_identical_on_one_or_two_workers(tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
+@pytest.fixture(scope="module")
+def quick_reproduction(tmp_path_factory):
+    """``adaptfilt reproduce --quick --retrain`` on two workers, uninterrupted."""
+    a = tmp_path_factory.mktemp("quick") / "a"
     reproduce(a, quick=True, retrain=True, progress=False, workers=2)
+    return a
+
+
+def test_quick_reproduce_writes_everything_and_is_identical_on_one_or_two_workers(quick_reproduction, tmp_path):
+    a, b = quick_reproduction, tmp_path / "b"
     for i, stem in enumerate(["ungm-ukf-rmse", "ungm-ukf-anees", "ungm-ukf-rmse-anees", "ctm-ukf-rmse",
                               "ctm-ukf-anees", "ctm-ukf-rmse-anees"], start=1):
         assert (a / "figures" / f"fig{i}-{stem}.png").stat().st_size > 1000
@@ -102,6 +111,51 @@ def test_quick_reproduce_writes_everything_and_is_identical_on_one_or_two_worker
     shared = [k for k in db if k.startswith(("policies/ungm-ukf", "policies/ctm-sif-nis", "results/ungm-ukf/",
                                              "results/ctm-sif-nis/"))]
     assert len(shared) >= 10 and all(da[k] == db[k] for k in shared), [k for k in shared if da[k] != db[k]]
+
+
+#: Files that hold wall or CPU times, which no two runs share: compared without them.
+TIMED = ("timings.json", "report-tables.md", "manifest.json", "results/ungm-floor.json",
+         "results/ctm-reconciliation.json")
+
+
+def _untimed(root, rel: str):
+    text = (root / rel).read_text()
+    if rel == "report-tables.md":  # its last table is the stage times
+        return text[:text.rindex("| stage |")]
+    doc = json.loads(text)
+    if rel == "manifest.json":
+        return [{k: v for k, v in e.items() if not k.endswith("_time_s") and not (k == "sha256" and e["path"] in TIMED)}
+                for e in doc["files"]]
+    return {k: v for k, v in doc.items() if k not in ("wall_time_s", "cpu_time_s", "jobs", "timings")}
+
+
+def test_reproduce_stops_on_ctrl_c_and_resumes_to_identical_files(quick_reproduction, tmp_path):
+    """``adaptfilt reproduce --quick --retrain`` stopped by Ctrl-C in its training: out within seconds,
+    workers gone, one line naming the journal; the same command again reuses the finished policies
+    and writes the uninterrupted run's files, byte for byte (times aside)."""
+    from processes import adaptfilt, lines, one_line, run, start, stop, wait_for  # tests/processes.py
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("reads /proc")
+    out = tmp_path / "c"
+    cmd = adaptfilt("reproduce", "--quick", "--retrain", "--workers", "2", "--out", str(out))
+    proc = start(cmd, tmp_path)
+    wait_for(lambda: lines(out / "journal.jsonl") >= 4, proc=proc)
+    seen = stop(proc, signal.SIGINT, group=True)
+    assert seen["rc"] == 130 and seen["seconds"] < 10 and seen["left"] == [] and len(seen["workers"]) >= 2
+    kept = lines(out / "journal.jsonl")
+    assert 4 <= kept < 20 and f"{kept} finished jobs are kept in {out / 'journal.jsonl'}" in one_line(seen["err"])
+    again = run(cmd, tmp_path).stdout
+    assert f"[train] {20 - kept} policies to train, {kept} finished by an earlier run (journal.jsonl)" in again
+    a, c = _digest_all(quick_reproduction), _digest_all(out)
+    assert a.keys() == c.keys() and "journal.jsonl" not in c
+    assert [k for k in a if a[k] != c[k] and k not in TIMED] == []
+    for rel in TIMED:
+        assert _untimed(quick_reproduction, rel) == _untimed(out, rel), rel
+
+
+def _digest_all(root) -> dict:
+    return {str(p.relative_to(root)): sha256(p) for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def test_retraining_with_recorded_command_is_deterministic(tmp_path):

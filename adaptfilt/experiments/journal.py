@@ -48,13 +48,13 @@ class Journal:
         self.reused = 0  # jobs taken from the journal by this run
         self.finished = 0  # jobs this run ran to the end
 
-    def _read(self) -> dict[str, dict]:
-        records: dict[str, dict] = {}
+    def _read(self) -> dict[tuple[str, int], dict]:
+        records: dict[tuple[str, int], dict] = {}
         if self.path.exists():
             for line in self.path.read_text(encoding="utf-8").splitlines():
                 try:
                     r = json.loads(line)
-                    records[r["command"]] = r
+                    records[r["command"], r["seed"]] = r
                 except (ValueError, KeyError, TypeError):  # a line cut short when the run was killed
                     continue
         return records
@@ -67,8 +67,8 @@ class Journal:
 
     def get(self, command: str, seed: int) -> dict | None:
         """The record of a finished job that can be reused as it is, else None."""
-        r = self.records.get(command)
-        if r is None or r.get("seed") != seed or r.get("version") != self._version():
+        r = self.records.get((command, seed))
+        if r is None or r.get("version") != self._version():
             return None
         for rel, digest in r.get("files", {}).items():
             p = self.root / rel
@@ -85,16 +85,16 @@ class Journal:
             f.write(json.dumps(rec, sort_keys=True) + "\n")
             f.flush()
             os.fsync(f.fileno())
-        self.records[command] = rec
+        self.records[command, seed] = rec
         return rec
 
     def _rel(self, f: str | Path) -> str:
         p = Path(f)
         return str(p.relative_to(self.root) if p.is_absolute() else p)
 
-    def folder(self, command: str) -> Path:
-        """Where a job's value files go (one folder per command)."""
-        return self.parts / hashlib.sha256(command.encode()).hexdigest()[:16]
+    def folder(self, command: str, seed: int) -> Path:
+        """Where a job's value files go (one folder per job)."""
+        return self.parts / hashlib.sha256(f"{command}\0{seed}".encode()).hexdigest()[:16]
 
     def run(self, fn: Callable, jobs: Sequence[tuple], keys: Sequence[tuple[str, int]],
             files: Sequence[Sequence[str | Path]] | None = None,
@@ -118,7 +118,7 @@ class Journal:
         def done(j: int, value: Any) -> None:
             i = todo[j]
             command, seed = keys[i]
-            written, stored = save(self.folder(command), value) if save else (list(files[i]) if files else [], value)
+            written, stored = save(self.folder(command, seed), value) if save else (list(files[i]) if files else [], value)
             values[i] = self._value(self.add(command, seed, written, stored), load)
             self.finished += 1
 
@@ -129,7 +129,7 @@ class Journal:
         return values
 
     def _value(self, rec: dict, load) -> Any:
-        return load(self.folder(rec["command"]), rec["value"]) if load else rec["value"]
+        return load(self.folder(rec["command"], rec["seed"]), rec["value"]) if load else rec["value"]
 
     def interrupted(self, e: BaseException) -> Interrupted:
         """The interrupt ``e`` (Ctrl-C, or SIGTERM turned into it) with one line on what is kept."""

@@ -36,6 +36,7 @@ the futures are cancelled, and a cluster started here is closed.
 """
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import sys
@@ -226,14 +227,17 @@ def _stop_pool(ex: ProcessPoolExecutor, grace: float = 3.0) -> None:
 
 
 def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> list:
-    from distributed import Client, as_completed as dask_completed
+    try:
+        from distributed import Client, as_completed as dask_completed
+    except ImportError as e:
+        raise ImportError(f"a Dask cluster needs the distributed package: pip install 'adaptfilt[cluster]' ({e})") from e
 
     own = None
     if isinstance(cluster, Client):
         client = cluster
     elif cluster == "local":  # a throw-away cluster of local worker processes, one job each at a time
         own = client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
-                              dashboard_address=None)
+                              dashboard_address=None, silence_logs=logging.ERROR)
         # its workers are this process's children: they ignore Ctrl-C and die with it, as the pool's do
         client.run(_worker_init, os.getpid())
     else:
@@ -252,6 +256,8 @@ def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> l
             finished(i, out[i])
         return out
     except BaseException:
+        # the cancelled tasks and stopped workers are expected now: no screenful of warnings about them
+        logging.getLogger("distributed").setLevel(logging.ERROR)
         if futs:  # a shared cluster must not go on with jobs nobody waits for
             client.cancel(futs)
         raise

@@ -1,0 +1,111 @@
+"""Run ``adaptfilt`` as a terminal would and stop it with a signal (tests of interrupts and resume).
+
+:func:`start` puts the command in a process group of its own; :func:`stop` sends a signal (to the
+group, as Ctrl-C does, or to the parent alone) and reports the seconds to exit, the status, stderr and
+the worker processes still alive afterwards, found by pid in /proc (psutil is not a dependency).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def adaptfilt(*args: str) -> list[str]:
+    return [sys.executable, "-m", "adaptfilt", *args]
+
+
+def descendants(pid: int) -> set[int]:
+    """Every live process below ``pid`` (workers, the pool's resource tracker, Dask's workers)."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                ppid = int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(d))
+    found, todo = set(), [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            found.add(c)
+            todo.append(c)
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:  # a zombie has exited: it only waits for a parent to collect its status
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+#: This checkout first, whatever is installed.
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+
+
+def start(args: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
+                            start_new_session=True)
+
+
+def run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """Run to the end; fails the test unless it exits 0."""
+    done = subprocess.run(args, cwd=cwd, capture_output=True, text=True, env=ENV, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done
+
+
+def wait_for(what, timeout: float = 240.0, proc: subprocess.Popen | None = None) -> None:
+    end = time.monotonic() + timeout
+    while not what():
+        if proc is not None and proc.poll() is not None:
+            pytest.fail(f"exited ({proc.returncode}) before the moment to stop it: {proc.communicate()[1][-2000:]}")
+        assert time.monotonic() < end, "timed out waiting"
+        time.sleep(0.05)
+
+
+def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:
+    """Send ``sig`` (to the process group, as Ctrl-C in a terminal does, or to the parent alone); return
+    the seconds to exit, the status, stderr and the workers still alive 3 s later."""
+    workers = descendants(proc.pid)
+    t0 = time.monotonic()
+    (os.killpg if group else os.kill)(proc.pid, sig)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    seconds = time.monotonic() - t0
+    end = time.monotonic() + 3
+    while any(alive(p) for p in workers) and time.monotonic() < end:
+        time.sleep(0.05)
+    left = sorted(p for p in workers if alive(p))
+    for p in left:  # do not leave them to the rest of the suite
+        os.kill(p, signal.SIGKILL)
+    print(f"{signal.Signals(sig).name}: exit {proc.returncode} after {seconds:.2f} s; "
+          f"{len(workers)} worker processes before, {len(left)} left")
+    return {"seconds": seconds, "rc": proc.returncode, "err": err, "workers": workers, "left": left}
+
+
+def one_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert lines and lines[-1].startswith("adaptfilt: interrupted: "), err[-2000:]
+    assert sum("adaptfilt:" in ln for ln in lines) == 1 and "Traceback" not in err, err[-2000:]
+    return lines[-1]
+
+
+def digests(paths) -> dict[str, str]:
+    return {Path(p).name: hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in paths}
+
+
+def lines(path: Path) -> int:
+    return len(path.read_text().splitlines()) if path.exists() else 0
