@@ -77,6 +77,9 @@ window.MathJax = {
     processEscapes: false,
     processEnvironments: true
   },
+  // Macros the notebooks use that MathJax 2 lacks and Jupyter's MathJax 3 has (mathtools' \coloneqq):
+  // the book shows what Jupyter shows, not red undefined-macro text.
+  TeX: {Macros: {coloneqq: "\\mathrel{:=}"}},
   MMLorHTML: {prefer: "HTML"},
   "HTML-CSS": {
     availableFonts: [], imageFont: null, preferredFont: null, webFont: "STIX-Web",

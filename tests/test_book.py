@@ -367,6 +367,25 @@ _PROBE = r"""
     for (var c = main.firstElementChild; c; c = c.nextElementSibling) check(c, false);
     return found;
   }
+  // What MathJax's TeX input made of a formula it could not read: an undefined macro becomes red text
+  // (the noUndefined extension: an <mtext mathcolor="red">), a TeX error an <merror> (noErrors). Both
+  // are found in the typeset formulas' MathML trees, whatever the output looks like.
+  function mathErrors() {
+    if (!window.MathJax || !MathJax.Hub || !MathJax.Hub.getAllJax) return [];
+    var found = [];
+    MathJax.Hub.getAllJax().forEach(function (jax) {
+      (function walk(node) {
+        if (!node || typeof node !== "object") return;
+        if (node.type === "merror")
+          found.push("TeX error in " + JSON.stringify(jax.originalText.trim().slice(0, 80)));
+        else if (node.type === "mtext" && node.mathcolor === "red")
+          found.push("undefined macro " + JSON.stringify(node.data.join("")) + " in "
+                     + JSON.stringify(jax.originalText.trim().slice(0, 80)));
+        (node.data || []).forEach(walk);
+      })(jax.root);
+    });
+    return found;
+  }
   function report() {
     var main = document.querySelector("main") || document.body;
     var visible = main.cloneNode(true);
@@ -379,6 +398,7 @@ _PROBE = r"""
       printed: root.getAttribute("data-printed"),
       rendered: main.querySelectorAll(".MathJax, .MathJax_Display").length,
       errors: main.querySelectorAll(".MathJax_Error, .noError, merror").length,
+      mathErrors: mathErrors(),
       text: visible.innerText,
       images: Array.prototype.map.call(document.images, function (i) {
         return {src: i.getAttribute("src"), width: i.naturalWidth};
@@ -463,6 +483,7 @@ def _problems(page: str, visit: dict) -> list[str]:
         problems.append(f"{page}: MathJax did not finish in {seen['waited']} ms")
     if seen["errors"]:
         problems.append(f"{page}: {seen['errors']} MathJax errors")
+    problems += [f"{page}: MathJax: {m}" for m in seen.get("mathErrors", [])]
     text = seen["text"]
     for raw in ("\\(", "\\)", "\\[", "\\]", "\\begin{", "$$", "Math Processing Error"):
         if raw in text:
@@ -533,8 +554,27 @@ def test_browser_probe_sees_clipped_text(browser, tmp_path):
     assert any("image missing.png did not load" in p for p in problems)
 
 
+def test_browser_probe_sees_math_errors(browser, fixture_book):
+    # The check itself: an undefined macro (MathJax shows it in red) and a TeX error are found, a good
+    # formula is not; on a page of the fixture book, with the book's MathJax and its configuration.
+    page = fixture_book / "bad-maths.html"
+    chapter = (fixture_book / "01-fixture.html").read_text(encoding="utf-8")
+    start, end = chapter.index("<main>") + len("<main>"), chapter.index("</main>")
+    page.write_text(chapter[:start] + r"<p>\(x \undefinedmacro 1\)</p><p>\(\frac{1}{\)</p><p>\(a \le b\)</p>"
+                    + chapter[end:], encoding="utf-8")
+    try:
+        problems = _problems(page.name, _visit(browser, page.as_uri()))
+    finally:
+        page.unlink()
+    maths = [p for p in problems if "MathJax: " in p]
+    assert len(maths) == 2, problems
+    assert 'undefined macro "\\\\undefinedmacro"' in maths[0] + maths[1], maths
+    assert any("TeX error in" in p and "frac" in p for p in maths), maths
+
+
 def test_browser_every_page_of_the_book(browser, repo_book, served_book):
-    """Every page: no console error, MathJax done, every image loaded, no text cut off."""
+    """Every page: no console error, MathJax done without an error or an undefined macro, every image
+    loaded, no text cut off."""
     out, notebooks = repo_book
     pages = sorted(p.name for p in out.glob("*.html"))
     assert set(p.name for p in _expected_pages(out, notebooks)) <= set(pages)
