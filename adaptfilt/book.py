@@ -44,6 +44,8 @@ __all__ = [
     "rewrite_math",
 ]
 
+#: The architecture and the decisions taken (linked from the README), the book's last page.
+ARCHITECTURE = "docs/ARCHITECTURE.md"
 NBVAL_MARKER = re.compile(r"^[ \t]*#[ \t]*NBVAL_[A-Z_]+[ \t]*$")
 ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 NOTEBOOK_NAME = re.compile(r"^\d\d-.+\.ipynb$")
@@ -522,7 +524,8 @@ def notebook_chapters(root: Path) -> list[Path]:
 
 def _link_targets(root: Path, notebooks: Sequence[Path]) -> dict[str, str]:
     """Source path -> chapter file, for rewriting links between chapters."""
-    targets = {"README.md": "introduction.md", "REPRODUCTION.md": "reproduction.md"}
+    targets = {"README.md": "introduction.md", "REPRODUCTION.md": "reproduction.md",
+               ARCHITECTURE: "architecture.md"}
     for nb in notebooks:
         chapter = nb.with_suffix(".md").name
         targets[nb.name] = chapter
@@ -614,7 +617,8 @@ def landing_chapter(root: Path, notebooks: Sequence[tuple[Path, Mapping[str, Any
 
 
 def collect_chapters(root: Path, notebooks: Sequence[Path] | None = None) -> list[Chapter]:
-    """Landing page, introduction, notebook chapters and the reproduction report, in book order."""
+    """Landing page, introduction, notebook chapters, the reproduction report and the architecture,
+    in book order."""
     paths = list(notebook_chapters(root) if notebooks is None else notebooks)
     # nbformat v4 JSON; nothing is executed
     loaded = [(p, json.loads(p.read_text(encoding="utf-8"))) for p in paths]
@@ -631,6 +635,8 @@ def collect_chapters(root: Path, notebooks: Sequence[Path] | None = None) -> lis
     chapters.extend(_notebook_chapter(p, nb, links) for p, nb in loaded)
     if report.is_file():
         chapters.append(_markdown_chapter(report, "Reproduction report", "reproduction.md", links))
+    if (root / ARCHITECTURE).is_file():  # the README links to it: a page of the book, not a dead link
+        chapters.append(_markdown_chapter(root / ARCHITECTURE, "Architecture and decisions", "architecture.md", links))
     return chapters
 
 

@@ -212,6 +212,8 @@ def _expected_pages(out: Path, notebooks: list[Path]) -> list[Path]:
     pages += [out / f"{nb.stem}.html" for nb in notebooks]
     if (ROOT / "REPRODUCTION.md").is_file():
         pages.append(out / "reproduction.html")
+    if (ROOT / "docs" / "ARCHITECTURE.md").is_file():
+        pages.append(out / "architecture.html")
     return pages
 
 
@@ -261,6 +263,13 @@ def test_fixture_book_pages_and_images(fixture_book, fixture_notebooks):
 def test_repo_book_pages_and_images(repo_book):
     out, notebooks = repo_book
     _check_built_book(out, notebooks)
+
+
+def test_readme_links_to_the_architecture_page(repo_book):
+    out, _ = repo_book
+    intro = (out / "introduction.html").read_text(encoding="utf-8")
+    assert 'href="architecture.html"' in intro and "docs/ARCHITECTURE.md\"" not in intro
+    assert "Architecture and decisions" in (out / "architecture.html").read_text(encoding="utf-8")
 
 
 def test_landing_page_is_the_first_page_with_the_course_map(repo_book):
