@@ -300,6 +300,55 @@ def test_cli_library_errors_are_one_line(capsys, tmp_path):
     assert not (tmp_path / "o").exists() and not out.exists()  # nothing was written before the error
 
 
+def _wrong_contexts(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
+    """Each sub-command where it cannot work: args, and what its one line must say."""
+    full = tmp_path / "not-a-book"
+    full.mkdir()
+    (full / "notes.txt").write_text("mine")
+    for s in (0, 1):  # resume checkpoints another training wrote: the jobs fail in their workers
+        write_npz(tmp_path / f"p-s{s}.ckpt.npz", {"a": np.zeros(1)}, {"config": {"gamma": 0.0}, "episode": 1})
+    out, p = str(tmp_path / "o"), str(tmp_path / "p.npz")
+    return {
+        "experiments": (["experiments", "ungm-ukf"], "unrecognized arguments: ungm-ukf"),
+        "evaluate": (["evaluate", "ungm-ukf", "--runs", "10", OUT, out, "--no-progress", "--policy",
+                      str(POLICIES / "ctm-ukf-adaptive-s0.npz")], "ctm-ukf-adaptive-s0.npz"),
+        "train --cluster": (["train", "ungm-ukf", "--algo", "fast", "--episodes", "1", "--seeds", "0-1", "--cluster",
+                             "tcp://127.0.0.1:1", "--no-progress", OUT, p], "Timed out trying to connect to tcp://127.0.0.1:1"),
+        "train, failing in the pool": (["train", "ungm-ukf", "--episodes", "1", "--seeds", "0-1", "--workers", "2",
+                                        "--resume", "--no-progress", OUT, p], "was written by a different training"),
+        "reproduce --data": (["reproduce", OUT, out, "--data", str(tmp_path)],
+                             f"--data {tmp_path}: no manifest.json there"),
+        "reproduce --cluster": (["reproduce", OUT, out, "--quick", "--retrain", "--no-progress", "--cluster", "nonsense"],
+                                "missing port number in address 'nonsense'"),
+        "beyond --cluster": (["beyond", OUT, out, "--quick", "--studies", "cand", "--no-progress", "--cluster",
+                              "tcp://127.0.0.1:1"], "Timed out trying to connect"),
+        "book": (["book", OUT, str(full)], "is a non-empty directory that is not a built book"),
+    }
+
+
+def test_every_subcommand_in_a_wrong_context_is_one_line(capsys, tmp_path):
+    """Errors raised deep inside -- a pool job, a Dask client, the book builder -- are one line too."""
+    dask = pytest.importorskip("dask")
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        for name, (args, expect) in _wrong_contexts(tmp_path).items():
+            line = cli_error(capsys, args)
+            assert expect in line, (name, line)
+    assert (tmp_path / "not-a-book" / "notes.txt").read_text() == "mine"
+
+
+def test_a_bug_in_a_job_keeps_its_traceback(monkeypatch, tmp_path):
+    import adaptfilt.cli as cli
+    from adaptfilt.experiments.sweep import JobFailed
+
+    def broken(args, seed, out):
+        raise ZeroDivisionError("a genuine bug")
+
+    monkeypatch.setattr(cli, "train_job", broken)
+    with pytest.raises(JobFailed, match="a genuine bug") as e:
+        main(["train", "ungm-ukf", "--seeds", "0-1", "--workers", "1", OUT, str(tmp_path / "p.npz")])
+    assert isinstance(e.value.__cause__, ZeroDivisionError)
+
+
 def test_cli_bug_keeps_its_traceback(monkeypatch):
     def broken():
         raise ZeroDivisionError("a genuine bug")

@@ -81,3 +81,16 @@ def test_ctrl_c_stops_evaluate(tmp_path):
     assert seen["rc"] == 130 and seen["seconds"] < 5
     assert one_line(seen["err"]) == "adaptfilt: interrupted: nothing was written"
     assert not (tmp_path / "o" / "results.json").exists()
+
+
+def test_ctrl_c_on_one_training_names_its_checkpoint(tmp_path):
+    out = tmp_path / "p.npz"
+    proc = start(adaptfilt("train", "ungm-ukf", "--algo", "faithful", "--episodes", "5000", "--horizon", "10",
+                           "--no-progress", "--out", str(out)), tmp_path)
+    ckpt = tmp_path / "p.ckpt.npz"
+    wait_for(ckpt.exists, proc=proc)
+    seen = stop(proc, signal.SIGINT, group=True)
+    assert seen["rc"] == 130 and seen["seconds"] < 5 and not out.exists()
+    assert one_line(seen["err"]) == (f"adaptfilt: interrupted: the checkpoint {ckpt} is kept; add --resume to the "
+                                     "same command to continue from it")
+    read_npz(ckpt)  # whole

@@ -1,5 +1,8 @@
 """The sweep runner: the same results bit for bit on one process, a process pool and a Dask cluster."""
 import hashlib
+import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -15,7 +18,7 @@ def train_job(algo: str, seed: int) -> str:
     return hashlib.sha256(b"".join(arrays[k].tobytes() for k in sorted(arrays))).hexdigest()
 
 
-def failing_job(x: int) -> int:
+def failing_job(x: int, *rest) -> int:
     if x == 2:
         raise ValueError("two is not allowed")
     return x
@@ -52,3 +55,25 @@ def test_errors_name_the_job():
         run_jobs(failing_job, [(1,), (3,)], workers=0, progress=False)
     assert run_jobs(failing_job, [], progress=False) == []
     assert np.array_equal(run_jobs(failing_job, [(1,), (3,)], workers=1, progress=False), [1, 3])
+
+
+def dying_job(x: int) -> int:
+    if x == 1:
+        os.kill(os.getpid(), signal.SIGKILL)  # as the OOM killer would
+    time.sleep(0.2)
+    return x
+
+
+def test_a_worker_that_dies_is_a_failed_job_naming_it():
+    from adaptfilt.experiments.sweep import JobFailed, run_jobs
+
+    with pytest.raises(JobFailed, match=r"a worker process died .*try fewer --workers"):
+        run_jobs(dying_job, [(0,), (1,), (2,), (3,)], workers=2, progress=False)
+
+
+def test_long_arguments_are_cut_short_in_the_error():
+    from adaptfilt.experiments.sweep import JobFailed, run_jobs
+
+    with pytest.raises(JobFailed) as e:
+        run_jobs(failing_job, [(2, "x" * 500)], workers=1, progress=False)
+    assert len(str(e.value)) < 200 and str(e.value).endswith("failed: two is not allowed")

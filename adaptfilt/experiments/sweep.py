@@ -169,8 +169,14 @@ def run_jobs(fn: Callable, jobs: Sequence[tuple], workers: int | None = None, cl
             bar.close()  # ends the bar's line: a message after it starts on a line of its own
 
 
+def _job(i: int, fn: Callable, args: tuple) -> str:
+    """``job 3 fn(args...)``, the arguments cut short: the error after them is what a reader needs."""
+    text = repr(args)
+    return f"job {i} {fn.__name__}{text if len(text) <= 100 else text[:96] + ' ...)'}"
+
+
 def _failed(i: int, fn: Callable, args: tuple, e: BaseException, where: str = "") -> JobFailed:
-    return JobFailed(f"job {i} {fn.__name__}{args!r} failed{where}: {e}")
+    return JobFailed(f"{_job(i, fn, args)} failed{where}: {e}")
 
 
 def _run_here(fn: Callable, jobs: list[tuple], finished: Callable) -> list:
@@ -197,8 +203,8 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
             try:
                 out[i] = f.result()
             except BrokenProcessPool as e:
-                raise JobFailed(f"job {i} {fn.__name__}{jobs[i]!r}: a worker process died ({e}); out of "
-                                "memory? try fewer --workers") from e
+                raise JobFailed(f"{_job(i, fn, jobs[i])}: a worker process died ({e}); out of memory? "
+                                "try fewer --workers") from e
             except Exception as e:
                 raise _failed(i, fn, jobs[i], e) from e
             finished(i, out[i])
