@@ -112,9 +112,9 @@ def _train(args: argparse.Namespace) -> int:
     progress = not args.no_progress
     args.no_progress = True  # one bar over the seeds instead of one per training
     outs = [str(seed_path(args.out, s)) for s in args.seeds]
-    journal = Journal(seeds_journal(args.out))
+    journal = Journal(_seeds_journal(args.out))
     keys = [(args.command_line or _train_command(args, s, o), s) for s, o in zip(args.seeds, outs)]
-    resumed = sum(journal.get(*k) is not None for k in keys)
+    resumed = journal.count(keys)
     if resumed:
         print(f"{resumed} of {len(keys)} seeds finished by an earlier run ({journal.path}): reused", flush=True)
     journal.run(train_job, [(args, s, o) for s, o in zip(args.seeds, outs)], keys, files=[[o] for o in outs],
@@ -125,7 +125,7 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def seeds_journal(out: str | Path) -> Path:
+def _seeds_journal(out: str | Path) -> Path:
     """``train --seeds --out DIR/p.npz``: the journal of its finished seeds, ``DIR/p.journal.jsonl``."""
     out = Path(out)
     return out.with_name(out.name.removesuffix(".npz") + ".journal.jsonl")

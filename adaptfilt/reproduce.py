@@ -329,7 +329,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     # the slow ones first, so that they do not finish last on a worker of their own
     todo.sort(key=lambda a: (ALGO[a[1]] != "faithful", a[0] not in SIF_EXPERIMENTS))
     keys = [(policy_command(e, k, s, scale), s) for e, k, s, _, _ in todo]
-    resumed = sum(journal.get(*k) is not None for k in keys)
+    resumed = journal.count(keys)
     say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
         f"{n_reused} reused")
     res_jobs = journal.run(_train_job, todo, keys, files=[[a[3]] for a in todo], workers=workers, cluster=cluster,
@@ -366,7 +366,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     order = sorted(range(len(ejobs)), key=lambda i: (not set(ejobs[i][0]) & set(SIF_EXPERIMENTS),
                                                      ejobs[i][1] != ["greedy"], len(ejobs[i][0]) == 1))
     ekeys = [(_evaluation_key(ejobs[i]), SEED) for i in order]
-    resumed = sum(journal.get(*k) is not None for k in ekeys)
+    resumed = journal.count(ekeys)
     say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs, {resumed} of them "
         f"finished by an earlier run ({JOURNAL})")
     outs = journal.run(_evaluate_job, [ejobs[i] for i in order], ekeys, save=_save_parts, load=_load_parts,

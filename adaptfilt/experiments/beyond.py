@@ -179,7 +179,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     listed = _listed_policies(out)
     todo = [(j, m) for j, m in zip(jobs, metas) if not _same_training(listed.get(m), _train_command(*j), out / m)]
     keys = [(_train_command(*j), j[3]) for j, _ in todo]
-    resumed = sum(journal.get(*k) is not None for k in keys)
+    resumed = journal.count(keys)
     say(f"[beyond] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
         f"{len(jobs) - len(todo)} listed in the manifest")
     times = journal.run(_train_job, [j for j, _ in todo], keys, files=[[out / m] for _, m in todo], workers=workers,

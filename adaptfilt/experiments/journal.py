@@ -45,8 +45,6 @@ class Journal:
         self.root = self.path.parent
         self.parts = self.path.with_name(self.path.name.removesuffix(".jsonl") + ".parts")
         self.records = self._read()
-        self.reused = 0  # jobs taken from the journal by this run
-        self.finished = 0  # jobs this run ran to the end
 
     def _read(self) -> dict[tuple[str, int], dict]:
         records: dict[tuple[str, int], dict] = {}
@@ -75,6 +73,10 @@ class Journal:
             if not p.is_file() or sha256(p) != digest:
                 return None
         return r
+
+    def count(self, keys: Sequence[tuple[str, int]]) -> int:
+        """How many of the jobs ``keys`` (command, seed) the journal holds, reusable."""
+        return sum(self.get(*k) is not None for k in keys)
 
     def add(self, command: str, seed: int, files: Sequence[str | Path] = (), value: Any = None) -> dict:
         """Record a finished job (after its files are written: they are hashed now)."""
@@ -113,14 +115,12 @@ class Journal:
                 todo.append(i)
             else:
                 values[i] = self._value(rec, load)
-                self.reused += 1
 
         def done(j: int, value: Any) -> None:
             i = todo[j]
             command, seed = keys[i]
             written, stored = save(self.folder(command, seed), value) if save else (list(files[i]) if files else [], value)
             values[i] = self._value(self.add(command, seed, written, stored), load)
-            self.finished += 1
 
         try:
             run_jobs(fn, [jobs[i] for i in todo], on_done=done, **run_kw)

@@ -62,9 +62,6 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(kept or f"{done} of {total} jobs finished")
         self.done, self.total, self.kept, self.signum = done, total, kept, int(signum)
 
-    def with_kept(self, kept: str) -> "Interrupted":
-        return Interrupted(self.done, self.total, kept, self.signum)
-
 
 def default_workers() -> int:
     """``$ADAPTFILT_JOBS`` if set, else the number of cores this process may use."""
