@@ -52,9 +52,15 @@ def alive(pid: int) -> bool:
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
 
 
+def _default_sigint() -> None:
+    # a shell starts background jobs (`pytest &`, nohup) with SIGINT ignored, and a child inherits that:
+    # the command must get Ctrl-C as it does in a terminal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(args: list[str], cwd: Path) -> subprocess.Popen:
     return subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_sigint)
 
 
 def run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
