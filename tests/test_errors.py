@@ -328,7 +328,9 @@ def _wrong_contexts(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
 
 def test_every_subcommand_in_a_wrong_context_is_one_line(capsys, tmp_path):
     """Errors raised deep inside -- a pool job, a Dask client, the book builder -- are one line too."""
-    dask = pytest.importorskip("dask")
+    pytest.importorskip("distributed")  # first: it adds its defaults to dask's config, which set() then keeps
+    import dask
+
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
         for name, (args, expect) in _wrong_contexts(tmp_path).items():
             line = cli_error(capsys, args)
