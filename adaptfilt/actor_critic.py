@@ -307,7 +307,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
             write_npz(checkpoint, arrays, meta)
 
         def features(dec) -> torch.Tensor:
-            return torch.from_numpy(scaler(observe(dec, fs)).astype(np.float32))
+            return torch.from_numpy(scaler.network_input(observe(dec, fs)))
 
         gamma_t = float(gamma)
         bar = None

@@ -20,7 +20,7 @@ from pathlib import Path
 
 __all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
            "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
-           "verify_beyond"]
+           "verify_beyond", "load_archive"]
 
 
 def data_dir() -> Path:
@@ -165,6 +165,20 @@ def verify_beyond(root: str | Path | None = None) -> list[str]:
             json.loads(p.read_text())
 
     return _check_files(d, json.loads((d / "manifest.json").read_text())["files"], load, "data/beyond")
+
+
+def load_archive(name: str, what: str, root: str | Path | None = None) -> dict:
+    """An archived summary, ``data/archive/{name}/{what}.json`` (e.g. ``load_archive("onepass", "table1")``:
+    the verdicts before the SIF form, the compute charge and the margins changed, kept as comparison
+    rows), after checking it against its manifest."""
+    d = _d(root) / "archive" / name
+    man = json.loads((d / "manifest.json").read_text())
+    rel = f"{what}.json"
+    entry = [e for e in man["files"] if e["path"] == rel]
+    if not entry:
+        raise KeyError(f"no {rel} in {d}; have: {', '.join(e['path'] for e in man['files'])}")
+    _check_files(d, entry, None, f"data/archive/{name}")
+    return json.loads((d / rel).read_text())
 
 
 def _experiments() -> list[str]:

@@ -274,10 +274,12 @@ def _features(text: str) -> str:
 
 
 def _experiment(text: str) -> str:
-    from adaptfilt.experiments import EXPERIMENTS
+    from adaptfilt.experiments import get_experiment
 
-    if text not in EXPERIMENTS:
-        raise argparse.ArgumentTypeError(f"unknown experiment {text!r}; known: {', '.join(EXPERIMENTS)}")
+    try:
+        get_experiment(text)
+    except KeyError as e:
+        raise argparse.ArgumentTypeError(e.args[0]) from None
     return text
 
 

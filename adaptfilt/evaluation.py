@@ -26,9 +26,14 @@ What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 ``rmse_run_median``       median over runs of the run's own RMS error ``sqrt(mean_k e^T e)``
 ``objective``             mean of ``log(1 + L)`` over runs and steps: what the trainers minimise
                           (their default ``cost_transform``), far less heavy-tailed than ``cost``
-``cost_charged``          ``cost`` plus ``compute_weight`` times the iterations the policy spent
-                          *looking* (the SIF innovation feature, the greedy/ML candidates): the
-                          paper charges only the chosen ``n_iter``
+``cost_charged``          ``cost`` plus ``compute_weight`` times what the policy computed *to
+                          decide* (the SIF innovation feature, the greedy/ML candidates), per
+                          run: the paper's cost term charges only the chosen ``n_iter``, a
+                          policy pays here for all it computes. The verdict metric of every
+                          SIF comparison (equal to ``cost`` when ``compute_weight`` is 0)
+``spent``                 compute per step in the rule's unit (``config["compute_unit"]``: SIF
+                          iterations, UKF updates): the update that happened plus
+                          ``extra_spent``, what the policy computed to decide
 ``anees_run_median``      median over runs of the run's time-averaged NEES
 ``divergent_frac``        fraction of runs that diverged: time-averaged NEES above ``1e4 nx``
                           (no consistent filter gets there) or a non-finite estimate
@@ -36,8 +41,9 @@ What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 ``*_ci``                  95 % percentile bootstrap interval (runs resampled)
 ``usage (G,)``            how many (run, step) pairs used each grid value
 ``choices (T, G)``        fraction of runs using each grid value at each step
-``n_repairs``             run-steps whose covariance the filter repaired (``on_indefinite="clip"``;
-                          ML/greedy: P_pred once per step, Pzz once per grid value tried)
+``n_repairs``             run-steps in which the filter that ran repaired a covariance
+                          (``on_indefinite="clip"``); repairs made only to decide (features,
+                          candidates not chosen) are not counted
 ``wall_time_s``           seconds spent on the policy (filtering + metrics)
 ========================  ==================================================================
 
@@ -83,11 +89,13 @@ _CIS = ("rmse_ci", "anees_ci", "cost_ci")
 _ARRAYS = ("rmse_t", "rmse_t_band", "anees_t", "anees_t_band", "nis_t", "choices", "usage",
            "boot_rmse", "boot_anees", "boot_cost", "run_rmse", "run_anees", "run_cost")
 # Added later: results written before them load with NaN / empty values.
-_SCALARS_NEW = ("objective", "cost_charged", "anees_run_median", "divergent_frac", "extra_spent")
-_CIS_NEW = ("objective_ci",)
-_ARRAYS_NEW = ("boot_objective", "cost_t")
+_SCALARS_NEW = ("objective", "cost_charged", "anees_run_median", "divergent_frac", "extra_spent", "spent")
+_CIS_NEW = ("objective_ci", "cost_charged_ci")
+_ARRAYS_NEW = ("boot_objective", "cost_t", "boot_cost_charged")
 #: A run has diverged when its time-averaged NEES exceeds this many times nx.
 DIVERGED_NEES = 1e4
+#: Metrics with run-level bootstrap replicates (``boot_<metric>``): paired differences and seed statistics.
+PAIRED_METRICS = ("rmse", "anees", "cost", "objective", "cost_charged")
 
 
 @dataclass
@@ -135,8 +143,11 @@ class PolicyResult:
     anees_run_median: float = float("nan")
     divergent_frac: float = float("nan")
     extra_spent: float = float("nan")
+    spent: float = float("nan")
+    cost_charged_ci: tuple[float, float] = (float("nan"), float("nan"))
     boot_objective: np.ndarray = field(default_factory=lambda: np.empty(0))
     cost_t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    boot_cost_charged: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     def scalars(self) -> dict:
         """The JSON-able scalar summaries (CIs as ``[lo, hi]``, usage as counts)."""
@@ -183,8 +194,8 @@ class Results:
         same counts, so the interval is that of the difference itself: it
         excludes 0 when the difference is significant at ``level``.
         """
-        if metric not in ("rmse", "anees", "cost", "objective"):
-            raise ValueError(f"metric must be 'rmse', 'anees', 'cost' or 'objective', got {metric!r}")
+        if metric not in PAIRED_METRICS:
+            raise ValueError(f"metric must be one of {', '.join(map(repr, PAIRED_METRICS))}, got {metric!r}")
         pa, pb = self[a], self[b]
         diff = float(getattr(pa, metric) - getattr(pb, metric))
         lo, hi = metrics.percentile_ci(getattr(pa, "boot_" + metric) - getattr(pb, "boot_" + metric), level)
@@ -322,21 +333,28 @@ def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.
     nx = x.shape[-1]
     bad = ~np.isfinite(run.mean).all(axis=(1, 2)) | ~(run_anees <= DIVERGED_NEES * nx)
     out["divergent_frac"] = float(bad.mean())
-    spent = run.info.get("extra_spent") if getattr(run, "info", None) else None
-    out["extra_spent"] = float(np.mean(spent)) if spent is not None else 0.0
+    info = getattr(run, "info", None) or {}
+    extra = np.broadcast_to(np.asarray(info.get("extra_spent", 0.0), dtype=float), (M,))
+    out["extra_spent"] = float(extra.mean())
+    out["spent"] = float(np.mean(info["spent"])) if "spent" in info else float("nan")
     nan = float("nan")
     if cost is None:
         out.update(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
                    boot_cost=np.full(counts.shape[0], nan), run_cost=np.full(M, nan), objective=nan,
                    objective_ci=(nan, nan), boot_objective=np.full(counts.shape[0], nan), cost_charged=nan,
+                   cost_charged_ci=(nan, nan), boot_cost_charged=np.full(counts.shape[0], nan),
                    cost_t=np.full(T, nan))
     else:
         run_cost = cost.mean(axis=1)
         q = np.quantile(cost, COST_QUANTILES)
+        # per run, so that a charged difference between two policies is paired like any other
+        run_charged = run_cost + compute_weight * extra
         out.update(cost=float(cost.mean()), run_cost=run_cost, boot_cost=metrics.bootstrap_mean(run_cost, counts),
                    cost_median=float(q[0]), cost_q99=float(q[1]), cost_q999=float(q[2]), cost_max=float(cost.max()),
-                   cost_t=cost.mean(axis=0), cost_charged=float(cost.mean()) + compute_weight * out["extra_spent"])
+                   cost_t=cost.mean(axis=0), cost_charged=float(cost.mean() + compute_weight * extra.mean()),
+                   boot_cost_charged=metrics.bootstrap_mean(run_charged, counts))
         out["cost_ci"] = metrics.percentile_ci(out["boot_cost"], level)
+        out["cost_charged_ci"] = metrics.percentile_ci(out["boot_cost_charged"], level)
         # What the trainers minimise: log(1 + L) (a non-finite cost counts as the largest float, as in training).
         obj = np.log1p(np.where(np.isfinite(cost), np.maximum(cost, 0.0), np.finfo(float).max))
         out["objective"] = float(obj.mean())
@@ -522,6 +540,7 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
         "description": "" if exp is None else exp.description,
         "model": env.model.name, "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
         "filter": repr(filt), "param_name": filt.rule.param_name, "default": filt.param,
+        "compute_unit": filt.rule.compute_unit,
         "grid": env.grid.tolist(), "cost": None if env.cost is None else env.cost.name,
         "n_runs": M, "seed": int(seed), "n_boot": int(n_boot), "level": float(level),
         "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",

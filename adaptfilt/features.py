@@ -140,6 +140,10 @@ def feature_names(nx: int, nz: int) -> list[str]:
             + [f"z[{i}]" for i in range(nz)] + [f"innov_default[{i}]" for i in range(nz)])
 
 
+#: Bound of every network input (:meth:`FeatureScaler.network_input`); the Gymnasium observation space.
+OBS_LIMIT = 50.0
+
+
 @dataclass
 class FeatureScaler:
     """Feature scaling ``squash((s - center) / scale)``; travels with a trained policy.
@@ -186,6 +190,13 @@ class FeatureScaler:
             raise ValueError(f"features have {f.shape[-1]} columns, the scaler was fitted on {self.center.shape[0]}")
         u = (f - self.center) / self.scale
         return np.arcsinh(u) if self.squash == "asinh" else np.clip(u, -self.clip, self.clip)
+
+    def network_input(self, features: np.ndarray) -> np.ndarray:
+        """What a network sees, in training and in acting alike: the scaled features as float32,
+        finite and within ``+-OBS_LIMIT`` (a diverging filter's state, ``1e300``, ``inf`` or
+        ``nan``, would otherwise reach the network as such: ``nan`` reads as 0)."""
+        s = np.nan_to_num(self(features), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+        return np.clip(s, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
 
     def to_dict(self) -> dict:
         return {"center": self.center.tolist(), "scale": self.scale.tolist(), "clip": self.clip,

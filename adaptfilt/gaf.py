@@ -330,11 +330,12 @@ class GaussianAssumedFilter:
         return self._finish_update(m, P, z, t, z_pred, S, Pxz, n_iter)
 
     def candidates_spent(self, grid) -> float:
-        """What :meth:`update_candidates_rl` spends, in units of the parameter (SIF iterations):
-        ``max(grid)`` when the candidates share one pass of draws (prefix averages), else ``sum(grid)``."""
-        grid = np.asarray(grid, dtype=float)
+        """What :meth:`update_candidates_rl` spends, in the rule's ``compute_unit`` (:meth:`MomentRule.spent`):
+        one update per grid value for the UKF; for the SIF ``max(grid)`` iterations when the candidates
+        share one set of draws (prefix averages), else ``sum(grid)``."""
+        cost = self.rule.spent(np.asarray(grid, dtype=float))
         shared = self.model.H is None and self.candidate_prefixes and self.rule.supports_prefixes
-        return float(grid.max() if shared else grid.sum())
+        return float(cost.max() if shared else cost.sum())
 
     def update_candidates_rl(
         self,
@@ -580,9 +581,11 @@ class SIF(GaussianAssumedFilter):
     ``P_pred`` and ``Pzz``), and ``tol`` / ``n_min`` (stop each run once the
     estimated integration error is below ``tol``; ``n_iter`` is then the
     maximum; ``tol_predict`` for the predict step, default ``tol``).
-    The defaults are the degree-3 fixed-count rule without the error term,
-    which is what the paper's experiments and ``data/`` use;
-    :meth:`SIF.reference` builds the authors' Stone Soup SIF. With a
+    The defaults are the degree-3, one-pass, fixed-count rule without the
+    error term (the NEF toolbox's form). The paper's experiments and ``data/``
+    use ``passes=2, integration_error="diag"``, the degree-3 form tested draw
+    for draw against Stone Soup; :meth:`SIF.reference` builds the authors'
+    Stone Soup SIF with its defaults (degree 5, tolerance stopping). With a
     stochastic rule, ``FilterRun.info["n_iter_spent"]`` reports the iterations
     each run spent at each step.
 

@@ -55,14 +55,11 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
+from adaptfilt.features import OBS_LIMIT, FeatureScaler, FeatureSet, fit_scaler, observe
 
 __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vector_env", "make_env",
            "as_policy", "to_learned_policy", "rewards"]
 
-#: |observation| never exceeds this: asinh of the largest finite float is about 710, and
-#: a diverged run's infinite feature must not reach a network as inf or NaN.
-OBS_LIMIT = 50.0
 
 
 def _filter_env(env_or_experiment, seed: int, n_steps: int | None):
@@ -99,9 +96,7 @@ class _Observer:
         self.dim = int(self.scaler.center.shape[0])
 
     def __call__(self, decision) -> np.ndarray:
-        s = self.scaler(observe(decision, self.features))
-        return np.clip(np.nan_to_num(s, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT),
-                       -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
+        return self.scaler.network_input(observe(decision, self.features))
 
     def space(self) -> spaces.Box:
         return spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.dim,), dtype=np.float32)
@@ -349,9 +344,7 @@ class CallablePolicy:
         if self.grid is not None and (decision.grid.shape != self.grid.shape or not np.allclose(decision.grid, self.grid)):
             raise ValueError(f"policy {self.name!r} was made for the grid {self.grid.tolist()}, "
                              f"the environment uses {decision.grid.tolist()}")
-        s = self.scaler(observe(decision, self.features))
-        obs = np.clip(np.nan_to_num(s, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT), -OBS_LIMIT, OBS_LIMIT)
-        a = np.asarray(self.fn(obs.astype(np.float32))).reshape(-1)
+        a = np.asarray(self.fn(self.scaler.network_input(observe(decision, self.features)))).reshape(-1)
         if a.shape != (decision.n_runs,):
             raise ValueError(f"policy {self.name!r} returned {a.shape} actions for {decision.n_runs} runs")
         return a.astype(np.int64)

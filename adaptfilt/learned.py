@@ -252,13 +252,13 @@ class LearnedPolicy:
     # --------------------------------------------------------- policy API
     def logits(self, features: np.ndarray) -> np.ndarray:
         """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``."""
-        s = torch.from_numpy(self.scaler(features).astype(np.float32))
+        s = torch.from_numpy(self.scaler.network_input(features))
         with torch.no_grad(), one_torch_thread():
             return self.actor(s).double().numpy()
 
     def probs(self, features: np.ndarray) -> np.ndarray:
         """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)``."""
-        s = torch.from_numpy(self.scaler(features).astype(np.float32))
+        s = torch.from_numpy(self.scaler.network_input(features))
         with torch.no_grad(), one_torch_thread():
             return torch.softmax(self.actor(s), dim=-1).double().numpy()
 
@@ -329,8 +329,9 @@ def _describe_target(experiment, features=None) -> dict:
 
 
 def describe_env(env, features=None) -> dict:
-    """Model name, rule parameter, grid, feature names (of feature set ``features``,
-    default the paper's) and cost of an environment."""
+    """Model name, filter, rule parameter, grid, feature names (of feature set ``features``,
+    default the paper's) and cost of an environment. The filter (its ``repr``: rule and options,
+    e.g. the SIF's passes) tells a policy trained on one form of a filter from one trained on another."""
     model = getattr(env, "model", None)
     filt = getattr(env, "filt", None)
     names = getattr(env, "feature_names", None)
@@ -339,6 +340,7 @@ def describe_env(env, features=None) -> dict:
     cost = getattr(env, "cost", None)
     return {
         "model": getattr(model, "name", getattr(env, "name", None)),
+        "filter": None if filt is None else repr(filt),
         "param_name": getattr(getattr(filt, "rule", None), "param_name", getattr(env, "param_name", None)),
         "grid": np.asarray(env.grid, float).tolist(),
         "feature_names": list(names) if names is not None else None,
@@ -367,7 +369,7 @@ def _matches(own, env_grid) -> np.ndarray:
 
 def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> None:
     """ValueError naming the first field in which ``meta`` and ``target`` disagree."""
-    for key in ("experiment", "model", "param_name", "feature_names", "grid", "cost"):
+    for key in ("experiment", "model", "filter", "param_name", "feature_names", "grid", "cost"):
         want = target.get(key)
         have = meta.get(key)
         if want is None or (have is None and key != "experiment"):
@@ -419,7 +421,7 @@ def load_policy(path: str | os.PathLike, experiment=None, name: str | None = Non
 
     ``experiment`` (a name, an :class:`~adaptfilt.experiments.Experiment`, a
     :class:`~adaptfilt.mdp.FilterEnv` or a dict of expected fields), if given,
-    is checked against the file: a different experiment, model, rule
+    is checked against the file: a different experiment, model, filter (e.g. another SIF form), rule
     parameter, grid, feature layout or cost is a ``ValueError`` naming it.
 
     A file that is not a policy (random bytes, empty, truncated, an ``.npz``

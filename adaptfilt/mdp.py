@@ -102,9 +102,12 @@ class Decision:
     Features are computed on first access and cached: the innovation feature
     costs an extra update with the default parameter, which fixed, ML and
     greedy policies never need. What a decision computed beyond the chosen
-    update is counted in ``extra_spent`` (in units of the parameter: SIF
-    iterations), so that an evaluation can report, and a cost can charge,
-    what looking at the information state costs. A decision keeps its own
+    update is counted in ``extra_spent``, in the rule's unit of compute
+    (:meth:`~adaptfilt.rules.MomentRule.spent`: SIF iterations, UKF updates),
+    so that an evaluation can report, and a cost can charge, what looking at
+    the information state costs. Covariance repairs made only to decide
+    (features, candidates not chosen) are not repairs of the filter that ran:
+    they are not counted (``info["repaired"]``). A decision keeps its own
     predicted moments, so its features and candidates stay correct even when
     read after the environment has stepped on.
     """
@@ -161,7 +164,7 @@ class Decision:
     def _innovation(self, param: float) -> np.ndarray:
         if param not in self._innov:
             self._innov[param] = self._env._innovation(self._m, self._P, self._z, self.t, self._stream, param)
-            self.extra_spent += float(param)
+            self.extra_spent += float(self._env.filt.rule.spent(param))
         return self._innov[param]
 
 
@@ -380,7 +383,7 @@ class FilterEnv:
         info = {"t": t, "theta": theta, "update": u, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
                 "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0),
                 # the chosen candidate is the update that happens: not spent on top of it
-                "extra_spent": d.extra_spent - (theta if d._cand is not None else 0.0),
+                "extra_spent": d.extra_spent - (self.filt.rule.spent(theta) if d._cand is not None else 0.0),
                 "repaired": repaired, "terminated": False, "truncated": False}
         done = t + 1 >= self.n_steps
         if done and self._zs.shape[0] <= self.n_steps:
@@ -409,9 +412,15 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     other costs to charge the same steps, ``run.info["extra_costs"]`` (one
     ``(M, T)`` array each): what the episode would cost in environments that
     differ from ``env`` in their cost only.
+
+    Compute, per run and averaged over steps, in the rule's ``compute_unit``
+    (SIF iterations, UKF updates): ``run.info["extra_spent"] (M,)``, what the
+    policy computed to decide (features, candidates), and
+    ``run.info["spent"] (M,)``, that plus the update that happened.
+    ``run.n_repairs``: the run-steps in which the filter that ran repaired a
+    covariance (``info["repaired"]``; repairs made only to decide are not counted).
     """
     d = env.reset(n_runs=n_runs, rng=rng, traj=traj, stream=stream)
-    rep0 = env.filt.n_repairs  # the filter's counter is cumulative; report this episode's repairs
     M, T, nx = d.n_runs, env.n_steps, env.nx
     # Time-major buffers: each step writes one contiguous block (a run-major
     # (M, T, ...) buffer would be written with a stride of T elements).
@@ -426,11 +435,13 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
 
         steps = tqdm(steps, desc=getattr(policy, "name", "policy"), leave=False)
     predict_param = getattr(policy, "predict_param", None)  # a policy fixed in both steps
-    spent = np.empty(T)
+    extra_spent, spent, n_repairs = np.zeros(M), np.zeros(M), 0
     extra = [np.empty((T, M)) for _ in extra_costs]
     for t in steps:
         d, c, done, info = env.step(policy.act(d), predict_param=predict_param)
-        spent[t] = np.mean(info["extra_spent"])
+        extra_spent += info["extra_spent"]
+        spent += env.filt.rule.spent(info["theta"])
+        n_repairs += int(np.count_nonzero(info["repaired"]))
         for buf, cost_fn in zip(extra, extra_costs):
             buf[t] = cost_fn(info["update"], info["theta"], env.nz)
         mean[t], cov[t], nis[t], ll[t], params[t] = (
@@ -441,8 +452,9 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
             xp[t], Pp[t] = info["x_pred"], info["P_pred"]
     tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
     return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
-                     x_pred=tr(xp), P_pred=tr(Pp), n_repairs=env.filt.n_repairs - rep0,
-                     info={"extra_spent": spent, "extra_costs": [tr(b) for b in extra]}), tr(costs)
+                     x_pred=tr(xp), P_pred=tr(Pp), n_repairs=n_repairs,
+                     info={"extra_spent": extra_spent / T, "spent": (spent + extra_spent) / T,
+                           "extra_costs": [tr(b) for b in extra]}), tr(costs)
 
 
 def run_policy(filt: GaussianAssumedFilter, z: np.ndarray, policy, keep_pred: bool = False, progress: bool = False) -> FilterRun:

@@ -21,6 +21,7 @@ from adaptfilt.linalg import NotPositiveDefinite, chol, solve_spd
 __all__ = [
     "errors", "squared_error", "rmse", "nees", "anees", "time_average", "rmse_time_average",
     "bootstrap_counts", "bootstrap_rmse", "bootstrap_mean", "percentile_ci", "mean_ci", "chi2_bounds",
+    "rate_ci",
 ]
 
 
@@ -92,10 +93,11 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
         * ``"nan"``: NaN there (an explicit opt-in; average with ``np.nanmean``);
         * ``"solve"``: ``e^T P^{-1} e`` of the indefinite matrix itself through a
           plain solve (it may be negative; a singular ``P`` is still an error).
-          A filter with ``on_indefinite="clip"`` stores the filtering covariance
-          *before* the next step repairs it, so its rare indefinite ``P_{k|k}``
-          reach the metrics; :func:`adaptfilt.evaluation.evaluate` uses this
-          mode, as every stored evaluation in ``data/`` did.
+
+        The filters return positive definite ``P_{k|k}`` (with
+        ``on_indefinite="clip"`` they repair it before returning it), so
+        :func:`adaptfilt.evaluation.evaluate` keeps the default ``"raise"``: an
+        indefinite covariance reaching the metrics would be a bug.
 
     Example
     -------
@@ -221,3 +223,22 @@ def chi2_bounds(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
     a = (1.0 - level) / 2.0
     lo, hi = stats.chi2.ppf([a, 1.0 - a], dof * n) / n
     return float(lo), float(hi)
+
+
+def rate_ci(k: int, n: int, level: float = 0.95) -> tuple[float, float, float]:
+    """A rate ``k / n`` (e.g. divergent runs) and its exact (Clopper-Pearson) interval ``(rate, lo, hi)``.
+
+    Zero events in ``n`` runs is not a rate of zero: the interval's upper end is about
+    ``3.7 / n`` at 95 % (``3 / n``, the rule of three, one-sided).
+
+    >>> rate, lo, hi = rate_ci(0, 10_000)
+    >>> rate, lo, round(hi, 6)
+    (0.0, 0.0, 0.000369)
+    """
+    from scipy.stats import binomtest
+
+    k, n = int(k), int(n)
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n and n >= 1, got k = {k}, n = {n}")
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
+    return k / n, float(ci.low), float(ci.high)

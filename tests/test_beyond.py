@@ -97,11 +97,12 @@ def test_beyond_resumes_from_its_journal_to_identical_files(tmp_path, monkeypatc
 def test_committed_beyond_studies_match_their_manifest_and_summary():
     """data/beyond (``adaptfilt beyond --out data``): every file matches its manifest and loads; the
     summary's seed-level numbers are what the stored evaluations give; the policies are what their
-    recorded commands say (8 seeds, the fast mode, the safe SIF policies on SAFE_ACTIONS only)."""
+    recorded commands say (8 seeds, the fast mode, the safe SIF policies on the set chosen on the
+    selection runs, which are not the evaluation's)."""
     import shlex
 
     from adaptfilt import artefacts
-    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SAFE_ACTIONS, SIF_EXPERIMENTS
+    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SELECTION_SEED, SIF_EXPERIMENTS
     from adaptfilt.experiments.seeds import aggregate, difference, iqm, seed_groups
     from adaptfilt.learned import load_policy
 
@@ -111,6 +112,9 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
     assert len(checked) == len(man["files"]) and man["scale"] == "full"
     summary = artefacts.load_beyond()
     assert set(summary) >= {"cand", "sif", "ood"} and set(summary["cand"]) == set(CAND_EXPERIMENTS)
+    sel = summary["sif-selection"]
+    assert sel["seed"] == SELECTION_SEED != 0 and sel["n_runs"] == 10_000
+    assert list(sel["safe"]) == [float(v) for v, k in sel["divergent_runs"].items() if k == 0]
     for study, exps, groups in (("cand", CAND_EXPERIMENTS, ("adaptive-cand", "myopic-cand")),
                                 ("sif", SIF_EXPERIMENTS, ("adaptive-penalised", "adaptive-safe"))):
         for e in exps:
@@ -121,6 +125,7 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
                 assert sg[g] == [f"{g}-s{s}" for s in range(8)], (e, g)
                 row = summary[study][e][g]
                 assert row["cost"]["iqm"] == aggregate(res, sg[g], "cost").iqm
+                assert row["cost_charged"]["iqm"] == aggregate(res, sg[g], "cost_charged").iqm
                 assert row["minus_greedy"]["rmse"] == list(difference(res, sg[g], ["greedy"], "rmse")["iqm"])
                 assert row["divergent_frac_max"] == max(res[n].divergent_frac for n in sg[g])
             for s in (0, 7):
@@ -131,7 +136,7 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
                     assert argv[argv.index("--algo") + 1] == "fast"
                     pol = load_policy(root / entry["path"], experiment=e)
                     if g == "adaptive-safe":
-                        assert pol.grid.tolist() == list(SAFE_ACTIONS) and "--actions" in argv
+                        assert pol.grid.tolist() == list(sel["safe"]) and "--actions" in argv
                     elif g == "adaptive-penalised":
                         assert float(argv[argv.index("--repair-penalty") + 1]) == PENALTY
                     else:
@@ -158,9 +163,10 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
 
 def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     """The SIF study at toy scale: both families per seed, the safe ones never choose an iteration count
-    outside SAFE_ACTIONS (usage in the evaluation), the cheapest divergence-free fixed value is reported,
-    and a later study run adds to the same summary and manifest instead of replacing them."""
-    from adaptfilt.experiments.beyond import SAFE_ACTIONS, run, summary_md
+    outside the set chosen on the selection runs (usage in the evaluation), the cheapest fixed value of
+    that set is reported with its charged cost, divergence is a rate with an interval, and a later study
+    run adds to the same summary and manifest instead of replacing them."""
+    from adaptfilt.experiments.beyond import SELECTION_SEED, run, select_safe_actions, summary_md
     from adaptfilt.experiments.seeds import seed_groups
     from adaptfilt.evaluation import Results
 
@@ -170,12 +176,18 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     groups = seed_groups(res.names)
     assert groups["adaptive-penalised"] == ["adaptive-penalised-s0", "adaptive-penalised-s1"]
     grid = np.asarray(res.grid)
-    unsafe = ~np.isin(grid, SAFE_ACTIONS)
+    sel = summary["sif-selection"]
+    assert sel["seed"] == SELECTION_SEED and res.config["seed"] == 0  # chosen on other runs than judged
+    assert sel == select_safe_actions("ctm-sif-stateinnov", 100, 20)  # what the selection runs give, again
+    unsafe = ~np.isin(grid, sel["safe"])
     for n in groups["adaptive-safe"]:
         assert res[n].usage[unsafe].sum() == 0 and res[n].usage.sum() > 0
     row = summary["sif"][e]["best safe fixed"]
-    assert res[row["policy"]].divergent_frac == 0 and row["cost"] == res[row["policy"]].cost
-    assert "best safe fixed (" in summary_md(summary)
+    assert float(row["policy"].split("=")[1]) in sel["safe"] and row["cost_charged"] == res[row["policy"]].cost_charged
+    assert row["divergent_rate_ci"][0] <= row["divergent_rate"] <= row["divergent_rate_ci"][1] and row["divergent_rate_ci"][1] > 0
+    assert "best safe fixed (" in summary_md(summary) and "Safe action set, chosen on selection runs" in summary_md(summary)
+    with pytest.raises(ValueError, match="selection seed"):
+        select_safe_actions(e, 10, 5, seed=0)
     before = {f["path"] for f in json.loads((tmp_path / "beyond" / "manifest.json").read_text())["files"]}
     summary2 = run(tmp_path, quick=True, workers=1, studies=("cand",), progress=False)
     after = {f["path"] for f in json.loads((tmp_path / "beyond" / "manifest.json").read_text())["files"]}

@@ -166,3 +166,57 @@ def test_evaluate_costs_refuses_what_it_cannot_share():
         evaluate_costs(["ctm-sif-nis", "ctm-ukf"], [FixedPolicy(10.0)], n_runs=4, progress=False, n_steps=3)
     with pytest.raises(ValueError, match="distinct"):
         evaluate_costs(["ctm-sif-nis", "ctm-sif-nis"], fixed, n_runs=4, progress=False, n_steps=3)
+
+
+def test_the_charged_cost_makes_greedy_pay_for_its_candidates():
+    """On a SIF cost (N_it / 50) greedy computes every candidate (max(grid) = 30 iterations from one set
+    of draws) each step: its charged cost is its estimation cost plus 30/50 per step exactly, per run, and
+    its paired difference to a constant is taken on the same resampled runs; a constant pays nothing extra."""
+    exp = get_experiment("ctm-sif-logmaxnis")
+    pols = [p for p in exp.baselines() if p.name in ("default", "fixed-n_iter=2", "greedy")]
+    res = evaluate(exp, pols, n_runs=40, seed=1, progress=False, n_steps=20, n_boot=300)
+    g, d = res["greedy"], res["default"]
+    assert d.cost_charged == d.cost and np.array_equal(d.boot_cost_charged, d.boot_cost) and d.extra_spent == 0
+    assert d.spent == 10 and res["fixed-n_iter=2"].spent == 2 and res.config["compute_unit"] == "iteration"
+    # greedy: chosen N_it / 50 is in ``cost``; the rest of the 30 iterations is charged on top
+    assert g.spent == pytest.approx(30.0) and g.extra_spent == pytest.approx(30.0 - (g.usage * res.grid).sum() / g.usage.sum())
+    assert g.cost_charged == pytest.approx(g.cost + g.extra_spent / 50, rel=1e-12)
+    assert g.cost_charged_ci[0] < g.cost_charged < g.cost_charged_ci[1]
+    diff, lo, hi = res.paired_difference("greedy", "default", "cost_charged")
+    assert diff == pytest.approx(g.cost_charged - d.cost_charged)
+    np.testing.assert_allclose(np.quantile(g.boot_cost_charged - d.boot_cost_charged, [0.025, 0.975]), [lo, hi])
+    ukf = evaluate("ungm-ukf", [p for p in get_experiment("ungm-ukf").baselines() if p.name == "greedy"],
+                   n_runs=10, progress=False, n_steps=5, n_boot=50)
+    assert ukf["greedy"].spent == 13 and ukf.config["compute_unit"] == "update"  # 13 candidate updates per step
+
+
+def test_a_learned_policy_sees_the_features_sb3_trained_on():
+    """One transform from information state to network input, in training (the Gymnasium observer) and in
+    acting (LearnedPolicy): a diverged run's 1e300, inf or nan reaches the network finite and bounded."""
+    import adaptfilt.gym as afg
+    from adaptfilt.features import OBS_LIMIT, FeatureScaler
+    from adaptfilt.learned import Actor, LearnedPolicy
+
+    scaler = FeatureScaler(np.zeros(3), np.ones(3), squash="asinh")
+    x = np.array([[np.nan, np.inf, 1e300], [1.0, -np.inf, -2.0]])
+    s = scaler.network_input(x)
+    np.testing.assert_array_equal(s, np.float32([[0.0, OBS_LIMIT, OBS_LIMIT], [np.arcsinh(1.0), -OBS_LIMIT, np.arcsinh(-2.0)]]))
+    pol = LearnedPolicy(Actor(3, 4, hidden=(8,)), scaler, grid=[0.0, 1.0, 2.0, 5.0])
+    import torch
+
+    with torch.no_grad():
+        want = pol.actor(torch.from_numpy(s)).double().numpy()
+    np.testing.assert_array_equal(pol.logits(x), want)
+    assert afg._Observer.__call__.__code__.co_names.count("network_input") == 1  # the observer uses the same function
+
+
+def test_a_policy_records_its_filter_and_is_refused_by_another_form():
+    """The SIF form is part of what a policy was trained for: a file made on the one-pass SIF is refused by
+    the experiment that runs the reference (two-pass) form, naming the filter."""
+    from adaptfilt.learned import _describe_target, check_compatible
+
+    ref, one = _describe_target("ctm-sif-nis"), _describe_target("ctm-sif-nis-onepass")
+    assert "passes=2" in ref["filter"] and "passes" not in one["filter"]
+    with pytest.raises(ValueError, match="mismatch in filter"):
+        check_compatible({**ref, "filter": one["filter"]}, ref)
+    check_compatible({k: v for k, v in ref.items() if k != "filter"}, ref)  # files written before the record: accepted

@@ -75,6 +75,45 @@ def test_extra_spent_counts_features_and_candidates():
     assert d.extra_spent == sum(env.grid)
 
 
+def test_ukf_compute_is_counted_in_updates_not_kappa_values():
+    """A UKF update costs one set of sigma points whatever kappa: greedy's candidates on UNGM are 13
+    updates (not the 14,102 that a sum of the kappa values would say), the innovation feature one."""
+    env = get_experiment("ungm-ukf").make_env(n_steps=3)
+    d = env.reset(n_runs=4, rng=np.random.default_rng(0))
+    d.features
+    assert d.extra_spent == 1
+    d.candidates()
+    assert d.extra_spent == 1 + env.grid.size == 14
+    _, _, _, info = env.step(np.full(4, env.grid.size - 1))  # kappa = 10^4 chosen: one of the 13, not extra
+    np.testing.assert_array_equal(info["extra_spent"], 13)
+    assert env.filt.rule.compute_unit == "update" and get_experiment("ctm-sif-nis").make_filter().rule.compute_unit == "iteration"
+
+
+def test_repairs_made_only_to_decide_are_not_counted():
+    """A policy that reads the one-iteration innovation feature and then chooses n_iter = 1 runs the same
+    filter as the fixed n_iter = 1 (the feature's update is the chosen update's draws): it reports the
+    same repairs, not twice as many."""
+    from adaptfilt.mdp import rollout
+    from adaptfilt.policies import FixedPolicy
+
+    class LooksThenOne:
+        name, grid = "looks", None
+
+        def act(self, d):
+            d.observe("paper+circ+innov@1")
+            return np.zeros(d.n_runs, dtype=int)
+
+    exp = get_experiment("ctm-sif-logmaxnis")
+    env = exp.make_env(n_steps=60)
+    traj = env.truth.simulate(300, 61, rng=np.random.default_rng(0))
+    looks, _ = rollout(env, LooksThenOne(), traj=traj)
+    fixed, _ = rollout(env, FixedPolicy(1.0, "n_iter", grid=env.grid), traj=traj)
+    np.testing.assert_array_equal(looks.mean, fixed.mean)
+    assert fixed.n_repairs > 0 and looks.n_repairs == fixed.n_repairs
+    np.testing.assert_array_equal(looks.info["extra_spent"], 1.0)  # but it did pay for looking
+    np.testing.assert_array_equal(looks.info["spent"], 2.0)
+
+
 def test_final_decision_is_the_next_state_of_a_longer_episode():
     """At the horizon the env predicts one step on: exactly the state a longer episode sees."""
     exp = get_experiment("ctm-sif-logmaxnis")

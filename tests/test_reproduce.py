@@ -286,3 +286,19 @@ def test_stored_medium_check_matches_and_agrees_with_the_full_reproduction():
     assert {e: v["n_runs"] for e, v in ff.items()} == {"ungm-ukf": 2000, "ctm-ukf": 2000}
     report = (Path(__file__).resolve().parents[1] / "REPRODUCTION.md").read_text()
     assert f"{stored['n_same']} of the {stored['n']} seed-level comparisons" in report
+
+
+def test_archived_one_pass_verdicts_are_the_comparison_rows():
+    """data/archive/onepass keeps the verdicts before the honest-verdicts change, checked against its
+    manifest: there, learned logmaxNIS minus greedy was +0.027 on the uncharged cost of the one-pass SIF,
+    and the fast mode passed "not worse" on UNGM ANEES with an interval reaching +2.9."""
+    from adaptfilt import artefacts
+
+    old = artefacts.load_archive("onepass", "table1")
+    d = old["ctm-sif-logmaxnis"]["differences"]["adaptive-greedy"]["cost"]
+    assert d["diff"] == pytest.approx(0.027, abs=0.001) and d["verdict"] == "contradicted"
+    ff = artefacts.load_archive("onepass", "fast-vs-faithful")
+    anees = next(r for r in ff["ungm-ukf"]["rows"] if r["metric"] == "anees")
+    assert anees["verdict"] == "not worse" and anees["diff_iqm"][2] > 2.5
+    with pytest.raises(KeyError, match="no nothing.json"):
+        artefacts.load_archive("onepass", "nothing")

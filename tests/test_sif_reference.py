@@ -249,6 +249,27 @@ def test_update_equals_stone_soup_draw_for_draw(monkeypatch, name, order, N):
     np.testing.assert_allclose(mo.mean_var[:, :, 0], np.diag(np.diag(mo.mean_var[:, :, 0])), rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("experiment", ["ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis"])
+def test_the_experiments_run_the_sif_checked_here(monkeypatch, experiment):
+    """The Table I experiments' filter is the form above, draw for draw Stone Soup's (its ``-onepass``
+    variant, the experiments' form until 2026-11-25, is not)."""
+    from adaptfilt.experiments import get_experiment
+
+    N, seed = 3, 321
+    x, P = POINTS["ctm"]
+    sif = get_experiment(experiment).make_filter()
+    z = sif.model.h(x, 1)[:, None]
+    u = sif.update_rl(x[:, None], P[:, :, None], z, 0, N, rng=np.random.default_rng(seed))
+    feed_stone_soup(monkeypatch, Feed(3, sif.model.nx, pass_draws(3, sif.model.nx, seed, N)))
+    zp, Pzz, Pxz = ss_measurement_prediction(ss_updater(sif.model, 3, N, N, 0.0), x, P)
+    assert_close(u.z_pred[:, 0], zp, what="z_pred")
+    assert_close(u.Pzz[:, :, 0], Pzz, what="Pzz")
+    assert_close(u.Pxz[:, :, 0], Pxz, what="Pxz")
+    one = get_experiment(experiment + "-onepass").make_filter().update_rl(
+        x[:, None], P[:, :, None], z, 0, N, rng=np.random.default_rng(seed))
+    assert np.abs(one.Pzz[:, :, 0] - Pzz).max() > 1e-8 * np.abs(Pzz).max()
+
+
 @pytest.mark.parametrize("name,order,eps", [("ctm", 3, 1e-6), ("ctm", 5, 1e-13), ("ct-rb", 3, 1e-3), ("ct-rb", 5, 1e-11)])
 def test_update_tolerance_stopping_equals_stone_soup(monkeypatch, name, order, eps):
     """Nmin = 2, Nmax = 12 and a tolerance: Stone Soup stops each pass where we do. Its pass

@@ -10,8 +10,8 @@
 ``from adaptfilt.experiments import get_experiment`` keeps working: the
 registry's names are re-exported here.
 """
-from adaptfilt.experiments.registry import (CTM_KAPPA_GRID, EXPERIMENTS, SIF_ITER_GRID, UNGM_KAPPA_GRID, Experiment,
-                                            describe_experiments, get_experiment)
+from adaptfilt.experiments.registry import (CTM_KAPPA_GRID, EXPERIMENTS, SIF_FORMS, SIF_ITER_GRID, UNGM_KAPPA_GRID,
+                                            VARIANTS, Experiment, describe_experiments, get_experiment)
 
-__all__ = ["Experiment", "EXPERIMENTS", "get_experiment", "describe_experiments",
+__all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "SIF_FORMS", "get_experiment", "describe_experiments",
            "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID"]

@@ -19,9 +19,10 @@ __all__ = ["agreement", "agreement_md"]
 
 
 def _rows(claims: dict) -> dict[tuple, dict]:
+    """The verdict rows (an uncharged-cost row, ``role="uncharged"``, is a comparison, not a verdict)."""
     return {(c, r["experiment"], r["a"], r["b"], r["metric"]): r
             for c, rows in claims.items() if isinstance(rows, list)
-            for r in rows if isinstance(r, dict) and "verdict" in r}
+            for r in rows if isinstance(r, dict) and "verdict" in r and r.get("role", "verdict") == "verdict"}
 
 
 def agreement(claims: dict, reference: dict) -> dict:

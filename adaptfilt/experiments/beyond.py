@@ -11,9 +11,11 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    with greedy and ML on the cost, the objective, RMSE and ANEES.
 2. **SIF policies and divergence** (``sif``): on the three Table I costs, policies trained with a
    penalty on covariance repairs (``adaptive-penalised``) and policies restricted to the iteration
-   counts that never diverged as fixed values (``adaptive-safe``, :data:`SAFE_ACTIONS`), against the
-   default n_it = 10, greedy, the fixed values and the unpenalised policies of the reproduction;
-   the fraction of divergent runs beside each cost.
+   counts that never diverged as fixed values on *selection* runs (``adaptive-safe``,
+   :func:`select_safe_actions`: seed :data:`SELECTION_SEED`, never the evaluation's runs), against
+   the default n_it = 10, greedy, the fixed values and the unpenalised policies of the reproduction;
+   costs with compute charged (the verdict) and uncharged, and the divergent runs on the evaluation
+   runs as a rate with its exact 95 % interval.
 3. **Out of distribution and retuning** (``ood``): the reproduction's adaptive UNGM-UKF policies
    (8 seeds) on a 3 x 3 grid of mismatched process and measurement noise
    (:mod:`adaptfilt.experiments.ood`), against default, best fixed in hindsight and greedy; then
@@ -43,7 +45,8 @@ import numpy as np
 from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SAFE_ACTIONS", "STUDIES"]
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SELECTION_SEED", "select_safe_actions",
+           "STUDIES"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"
@@ -52,9 +55,9 @@ JOURNAL = "journal.jsonl"
 CAND_ALGO = "fast"
 #: Repair penalty (in units of the transformed cost) of the SIF study.
 PENALTY = 20.0
-#: The safe action set of the SIF study: the iteration counts that never diverged in 10^4 fixed-value runs
-#: (n_it = 1, 2, 3 diverge in 5.6 %, 0.32 %, 0.06 % of the reproduction's runs).
-SAFE_ACTIONS = (5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
+#: Seed of every choice made before an evaluation (the SIF study's safe action set): its trajectories and
+#: filter draws are not those of the evaluation (seed 0), so that no set is judged on the runs it was chosen on.
+SELECTION_SEED = 1
 #: Per-run arrays left out of the stored evaluations (about 85 % of each file); the seed-level aggregates,
 #: paired differences (bootstrap replicates), usage and per-step curves stay.
 COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
@@ -118,6 +121,40 @@ def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: t
     return res
 
 
+def select_safe_actions(experiment: str, n_runs: int, n_steps: int | None = None, seed: int = SELECTION_SEED) -> dict:
+    """The safe action set of ``experiment``: the grid values that, as fixed values, left no run divergent
+    (:data:`adaptfilt.evaluation.DIVERGED_NEES`) on ``n_runs`` selection runs (``seed``, not the evaluation's).
+
+    Returns ``{"safe": [values...], "divergent_runs": {value: k}, "n_runs", "seed", "experiment"}``.
+    ValueError when the experiment's default diverged there (a policy on a subset must hold the default).
+    """
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.experiments import get_experiment
+
+    if seed == 0:
+        raise ValueError("the selection seed must differ from the evaluation seed 0")
+    exp = get_experiment(experiment)
+    fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
+    res = evaluate(exp, fixed, n_runs=n_runs, seed=seed, progress=False, n_steps=n_steps)
+    diverged = {float(p.value): int(round(res[p.name].divergent_frac * n_runs)) for p in fixed}
+    safe = tuple(v for v in exp.grid if diverged[float(v)] == 0)
+    if exp.default_value not in safe:
+        raise ValueError(f"the default {exp.param_name} = {exp.default_value:g} diverged on the selection runs: "
+                         "no safe subset holding it")
+    return {"experiment": experiment, "safe": list(safe), "divergent_runs": {f"{v:g}": k for v, k in diverged.items()},
+            "n_runs": int(n_runs), "seed": int(seed)}
+
+
+def _divergence(res, names: list[str]) -> dict:
+    """Divergent runs of ``names`` pooled over them, as a rate with its exact 95 % interval, and the worst one's."""
+    from adaptfilt.metrics import rate_ci
+
+    n = res.config["n_runs"]
+    k = [int(round(res[x].divergent_frac * n)) for x in names]
+    rate, lo, hi = rate_ci(sum(k), n * len(k))
+    return {"divergent_runs": k, "n_runs": n, "divergent_rate": rate, "divergent_rate_ci": [lo, hi]}
+
+
 def _ood_job(condition, files: list[str], scale: BeyondScale, retune_seed: int = 0):
     """One condition: the stored policies, and each retuned there, on the same runs."""
     from adaptfilt.experiments.ood import evaluate_condition, retune
@@ -164,8 +201,16 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                     jobs.append((e, kind, g, s, str(out / rel), scale, feats, CAND_ALGO, 0.0))
                     metas.append(rel)
     if "sif" in studies:
+        # one selection serves the three costs: fixed counts filter identically in all of them
+        say(f"[beyond] choosing the safe action set on {scale.eval_runs} selection runs (seed {SELECTION_SEED})")
+        sel_job = (SIF_EXPERIMENTS[0], scale.eval_runs, scale.n_steps)
+        selection = journal.run(select_safe_actions, [sel_job],
+                                [(f"select_safe_actions{sel_job!r}", SELECTION_SEED)],
+                                workers=workers, cluster=cluster, progress=False)[0]
+        summary["sif-selection"] = selection
+        say(f"[beyond] safe action set: {', '.join(f'{v:g}' for v in selection['safe'])}")
         for e in SIF_EXPERIMENTS:
-            for kind, pen, acts in (("adaptive-penalised", PENALTY, None), ("adaptive-safe", 0.0, SAFE_ACTIONS)):
+            for kind, pen, acts in (("adaptive-penalised", PENALTY, None), ("adaptive-safe", 0.0, selection["safe"])):
                 for s in scale.seeds:
                     rel = f"policies/{e}-{kind}-s{s}.npz"
                     jobs.append((e, kind, 0.5, s, str(out / rel), scale, None, "fast", pen, acts))
@@ -189,7 +234,6 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
 
     # ---- evaluations
     ejobs, names = [], []
-    data = root if quick else Path(data_dir())
 
     def reproduction(e: str) -> list[str]:
         """The reproduction's adaptive policies of ``e`` (those there are)."""
@@ -227,27 +271,33 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         rows = {}
         groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
                   ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw", "adaptive")}
+        metrics = ("cost", "cost_charged", "objective", "rmse", "anees")
         for g, members in groups.items():
             if not members:
                 continue
-            rows[g] = {m: aggregate(res, members, m).to_dict() for m in ("cost", "objective", "rmse", "anees")}
+            rows[g] = {m: aggregate(res, members, m).to_dict() for m in metrics}
             for ref in ("greedy", "default"):
-                rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"])
-                                           for m in ("cost", "objective", "rmse", "anees")}
+                rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"]) for m in metrics}
             rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
+            rows[g].update(_divergence(res, members))
+            rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
         if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
             rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
                                                                          groups["adaptive"], m)["iqm"])
                                                       for m in ("cost", "objective", "rmse", "anees")}
-        # the cheapest fixed value that never diverged: what a constant can do safely
-        safe = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")
-                and res[n].divergent_frac == 0]
-        best_safe = min(safe, key=lambda n: res[n].cost) if safe else None
-        for ref, name in (("greedy", "greedy"), ("default", "default"), ("ml", "ml"), ("best safe fixed", best_safe)):
+        # what a constant can do: the cheapest fixed value, among the safe ones where the study chose a safe set
+        # (on its selection runs: a value that happened not to diverge on these runs was not chosen on them)
+        fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+        if study == "sif":
+            fixed = [n for n in fixed if any(n == f"fixed-{res.config['param_name']}={v:g}" for v in selection["safe"])]
+        label = "best safe fixed" if study == "sif" else "best fixed"
+        best = min(fixed, key=lambda n: res[n].cost_charged) if fixed else None
+        for ref, name in (("greedy", "greedy"), ("default", "default"), ("ml", "ml"), (label, best)):
             if name in res:
                 p = res[name]
-                rows[ref] = {"cost": p.cost, "objective": p.objective, "rmse": p.rmse, "anees": p.anees,
-                             "divergent_frac": p.divergent_frac, "policy": name}
+                rows[ref] = {"cost": p.cost, "cost_charged": p.cost_charged, "objective": p.objective, "rmse": p.rmse,
+                             "anees": p.anees, "divergent_frac": p.divergent_frac, "policy": name, "spent": p.spent,
+                             **_divergence(res, [name])}
         summary.setdefault(study, {})[e] = rows
 
     if "ood" in studies:
@@ -360,27 +410,44 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
     f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
     d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
     parts = []
+    if "sif-selection" in summary and "sif" in summary:
+        sel = summary["sif-selection"]
+        parts.append(f"**Safe action set, chosen on selection runs** ({sel['n_runs']} runs of seed {sel['seed']}, not "
+                     f"the evaluation's): divergent runs per fixed {'N_it'}: "
+                     + ", ".join(f"{v}: {k}" for v, k in sel["divergent_runs"].items())
+                     + f"; safe set {', '.join(f'{v:g}' for v in sel['safe'])}.\n")
+    rate = lambda r: (f"{1e4 * r['divergent_rate']:.3g} [{1e4 * r['divergent_rate_ci'][0]:.2g}, "  # noqa: E731
+                      f"{1e4 * r['divergent_rate_ci'][1]:.2g}]" + (f" ({', '.join(map(str, r['divergent_runs']))})"
+                                                                    if len(r["divergent_runs"]) > 1 else ""))
     for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies: a repair penalty, a safe action set"),
                          ("raw", "Training on the untransformed cost (adaptive-raw) against log(1 + L) (adaptive)")):
         if study not in summary:
             continue
-        lines = [f"**{title}** (IQM over seeds [two-level 95 % CI]; differences to greedy)", "",
-                 "| experiment | policy | cost | log(1+L) | RMSE | ANEES | cost - greedy | cost - default | "
-                 "RMSE - greedy | divergent runs (worst seed) |", "|---|---|---|---|---|---|---|---|---|---|"]
-        refs = ("greedy", "default", "ml", "best safe fixed")
+        charged = study == "sif"
+        cost = "cost_charged" if charged else "cost"
+        lines = [f"**{title}** (IQM over seeds [two-level 95 % CI]; differences to greedy and the default; "
+                 + ("cost with compute charged, the verdict, and the paper's uncharged cost; " if charged else "")
+                 + "compute per step in SIF iterations or UKF updates; divergent runs per 10^4 [exact 95 % CI] "
+                 "(per seed))", "",
+                 "| experiment | policy | " + ("cost charged | cost uncharged" if charged else "cost") + " | log(1+L) | "
+                 "RMSE | ANEES | compute per step | cost - greedy | cost - default | RMSE - greedy | divergent runs |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if charged else "")]
+        refs = ("greedy", "default", "ml", "best safe fixed", "best fixed")
         for e, rows in summary[study].items():
             for ref in refs:
                 if ref in rows:
                     r = rows[ref]
-                    label = ref if ref != "best safe fixed" else f"best safe fixed ({r['policy']})"
-                    lines.append(f"| {e} | {label} | {r['cost']:.4g} | {r['objective']:.4g} | {r['rmse']:.4g} | "
-                                 f"{r['anees']:.4g} | | | | {100 * r['divergent_frac']:.2g} % |")
+                    label = ref if not ref.startswith("best") else f"{ref} ({r['policy']})"
+                    costs = f"{r['cost_charged']:.4g} | {r['cost']:.4g}" if charged else f"{r['cost']:.4g}"
+                    lines.append(f"| {e} | {label} | {costs} | {r['objective']:.4g} | {r['rmse']:.4g} | "
+                                 f"{r['anees']:.4g} | {r['spent']:.3g} | | | | {rate(r)} |")
             for g, r in rows.items():
                 if g in refs:
                     continue
-                lines.append(f"| {e} | {g} | {f(r['cost'])} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
-                             f"| {d(r['minus_greedy']['cost'])} | {d(r['minus_default']['cost'])} "
-                             f"| {d(r['minus_greedy']['rmse'])} | {100 * r['divergent_frac_max']:.2g} % |")
+                costs = f"{f(r['cost_charged'])} | {f(r['cost'])}" if charged else f(r["cost"])
+                lines.append(f"| {e} | {g} | {costs} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
+                             f"| {r['spent']:.3g} | {d(r['minus_greedy'][cost])} | {d(r['minus_default'][cost])} "
+                             f"| {d(r['minus_greedy']['rmse'])} | {rate(r)} |")
         paired = [(e, rows["adaptive-raw"]["minus_adaptive"]) for e, rows in summary[study].items()
                   if "minus_adaptive" in rows.get("adaptive-raw", {})] if study == "raw" else []
         if paired:
