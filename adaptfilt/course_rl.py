@@ -363,8 +363,11 @@ def claims_table(claims: Mapping, experiment: str, keys: Sequence[str] = ("C1", 
                  only_held: bool = True) -> str:
     r"""A Markdown table of the stored claims (:func:`adaptfilt.artefacts.load_claims`) of one
     experiment: the seed-level verdict beside the number of seeds that hold it *alone*
-    (each seed's own paired interval; defined where ``b`` is a single policy).
-    ``only_held``: only the rows where that count exists."""
+    (each seed's own paired interval; defined where ``b`` is a single policy). A verdict judged
+    with a margin ("equal", "not worse") shows it, and the verdict without it where that differs
+    (:func:`adaptfilt.experiments.report.verdict_text`). ``only_held``: only the rows where that
+    count exists."""
+    from adaptfilt.experiments.report import verdict_text
     rows = ["| claim | comparison | metric | a - b, IQM [seed-level 95 % CI] | seed-level verdict | seeds holding alone |",
             "|---|---|---|---|---|---|"]
     seen = set()
@@ -377,8 +380,9 @@ def claims_table(claims: Mapping, experiment: str, keys: Sequence[str] = ("C1", 
                 continue
             seen.add(key)
             held = "" if r.get("seeds_holding") is None else f"{r['seeds_holding']}/{r['n_seeds']}"
-            rows.append(f"| {k} | {r['claim']} | {r['metric']} | {r['diff']:+.3g} [{r['ci'][0]:+.3g}, {r['ci'][1]:+.3g}] "
-                        f"| {r['verdict']} | {held} |")
+            claim = r["claim"].replace(" equal than ", " equal to ")
+            rows.append(f"| {k} | {claim} | {r['metric']} | {r['diff']:+.3g} [{r['ci'][0]:+.3g}, {r['ci'][1]:+.3g}] "
+                        f"| {verdict_text(r)} | {held} |")
     return "\n".join(rows) + "\n"
 
 

@@ -135,6 +135,14 @@ def test_claims_table_keeps_rows_with_per_seed_counts():
     assert len(crl.claims_table(claims, "e", only_held=False).strip().splitlines()) == 4
 
 
+def test_claims_table_shows_the_margin_of_an_equal_claim():
+    claims = {"C2": [{"experiment": "e", "claim": "adaptive equal than fixed", "metric": "rmse", "diff": -0.2,
+                      "ci": [-0.24, -0.15], "verdict": "contradicted (lower)", "seeds_holding": 2, "n_seeds": 8,
+                      "margin": 0.154, "verdict_no_margin": "contradicted (lower)"}]}
+    row = crl.claims_table(claims, "e").strip().splitlines()[2]
+    assert "adaptive equal to fixed" in row and "contradicted (lower) (margin 0.154)" in row and "2/8" in row
+
+
 def test_seed_spread_and_differences_figures(ungm_results):
     fig = crl.plot_seed_spread(ungm_results, ["a", "b"], "rmse")
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
