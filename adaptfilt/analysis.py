@@ -472,9 +472,11 @@ def sif_spread(filt_factory, n_iters: Sequence[int], traj, n_filters: int = 500,
 def table1_before_after_md(t1: dict, before: dict, metrics: Sequence[str] = ("rmse", "anees", "cost", "mean_n_iter"),
                            columns: Sequence[str] | None = None) -> str:
     """Table I now (:func:`adaptfilt.experiments.claims.table1`; seed groups: the IQM over seeds)
-    beside an earlier release's values (e.g. :data:`adaptfilt.experiments.history.TABLE1_BEFORE`),
+    beside an earlier release's values (e.g. :data:`adaptfilt.experiments.history.TABLE1_BEFORE`, or
+    ``{e: d["ours"] for e, d in artefacts.load_archive("onepass", "table1").items()}``),
     "before -> now" per metric, for the columns both have (or ``columns``)."""
-    names = {"rmse": "RMSE", "anees": "ANEES", "cost": "cost", "mean_n_iter": "N_it chosen"}
+    names = {"rmse": "RMSE", "anees": "ANEES", "cost": "cost", "mean_n_iter": "N_it chosen",
+             "cost_charged": "cost charged", "divergent_frac": "divergent runs (worst seed)"}
     rows = []
     for e, d in t1.items():
         if e not in before:
@@ -483,7 +485,8 @@ def table1_before_after_md(t1: dict, before: dict, metrics: Sequence[str] = ("rm
         for col in cols:
             now, old = d["ours"][col], before[e][col]
             rows.append([d["cost_label"], col + (f" ({now['n_seeds']} seeds)" if now["n_seeds"] > 1 else "")] +
-                        [f"{old[m]:.4g} → {now[m]:.4g}" for m in metrics])
+                        [f"{100 * old[m]:.2g} % → {100 * now[m]:.2g} %" if m == "divergent_frac" else
+                         f"{old[m]:.4g} → {now[m]:.4g}" for m in metrics])
     if not rows:
         raise ValueError("no experiment of Table I is in the earlier release given")
     return _md(["cost", "policy"] + [f"{names.get(m, m)}: before → now" for m in metrics], rows)

@@ -113,6 +113,8 @@ def test_table1_before_after_pairs_the_releases(sif_results):
     assert md.count("\n") == 2 + 2 * 3
     now = t1["ctm-sif-nis"]["ours"]["greedy"]["cost"]
     assert f"| L_NIS + N_it/50 | greedy | 32 → {t1['ctm-sif-nis']['ours']['greedy']['rmse']:.4g} | 3.561 → {now:.4g} |" in md
+    same = analysis.table1_before_after_md(t1, {e: d["ours"] for e, d in t1.items()}, ["divergent_frac"], columns=["fixed"])
+    assert "| divergent runs (worst seed): before → now |" in same and same.count("| 0 % → 0 % |") == 3
     with pytest.raises(ValueError, match="no experiment"):
         analysis.table1_before_after_md(t1, {"ungm-ukf": {}})
 
