@@ -23,9 +23,17 @@ a simulated continuation: predict to ``t + h``, draw a measurement
 candidate tried, as greedy does), and so on for ``H`` steps. The filter's
 own predict and update run the continuation at the right ``t`` (so the
 time-varying UNGM dynamics ``f(x, k)`` are those of step ``k``). With
-``H = 0`` it is greedy, bit for bit. The continuation stops at the
-episode's last step (``H_eff = min(H, n_steps - 1 - t)``): costs beyond
-the horizon are not the MDP's, so the last step is always greedy's.
+``H = 0`` (or ``gamma = 0``) it is greedy, bit for bit. The continuation
+stops at the episode's last step (``H_eff = min(H, n_steps - 1 - t)``):
+costs beyond the horizon are not the MDP's, so the last step is always
+greedy's.
+
+Cost improvement: rollout with exact expectations over the whole remaining
+horizon costs no more than its base policy (Bertsekas). Here the horizon is
+truncated, the expectation sampled and taken under the filter's belief, not
+the truth's law, so the property is a thing to measure, not a theorem: on
+200 UNGM runs of 30 steps, ``H = 1``, ``S = 10``, rollout's mean cost is
+0.027 +- 0.023 below greedy's (``tests/test_lookahead.py``).
 
 Measurements of the continuation (``measurements``):
 
@@ -47,8 +55,11 @@ noise (``v``, ``w``, ``x_t``'s standard normals) and, for a stochastic rule
 come from ``default_rng([seed, KEY, stage, t, h, chunk, stream])`` (the
 decision's ``t`` and episode ``stream``): same seed, same choices. The
 predict right after the decision uses the environment's own random numbers
-for that step (``filt.rng(predict, t, stream)``), so the chosen branch's
-first predict is the one the environment makes.
+for that step (``filt.rng(predict, t, stream)``), so that, when all runs fit
+in one chunk (see Memory), the chosen branch's first predict is the one the
+environment makes (this matters only for a stochastic rule on nonlinear
+dynamics). The continuation runs the filter's model (``env.model``), not the
+environment's truth: what a real filter knows.
 
 **Exhaustive two-step look-ahead** (:class:`TwoStepPolicy`), a cross-check:
 
@@ -67,7 +78,8 @@ an evaluation reports and charges it like greedy's candidates:
 .. math::
 
     c_\text{cand} + G\,p + G S (H_\text{eff} - 1)\, p + G S H_\text{eff}\, c_\text{cand}
-    \quad (H_\text{eff} \ge 1;\ c_\text{cand} \text{ alone for } H_\text{eff} = 0),
+    \quad (H_\text{eff} \ge 1;\ c_\text{cand} \text{ alone for } H_\text{eff} = 0,
+    \text{ and for } \gamma = 0),
 
 ``c_cand = filt.candidates_spent(grid)`` (all ``G`` candidate updates: ``G``
 UKF updates; ``max(grid)`` SIF iterations with shared draws), ``p`` one
@@ -330,7 +342,7 @@ class RolloutPolicy(_Lookahead):
         ``decision.extra_spent`` (each call computes anew)."""
         model = self._model(decision)
         L0, Y0 = model.root()
-        H = min(self.horizon, model.steps_left)
+        H = min(self.horizon, model.steps_left) if self.gamma > 0 else 0
         if H == 0:
             return L0
         G, M = L0.shape
@@ -374,7 +386,7 @@ class TwoStepPolicy(_Lookahead):
         """``L_0 + gamma * mean_i min_theta1 L_1^{(i)}`` ``(G, M)``; adds its compute to ``decision.extra_spent``."""
         model = self._model(decision)
         L0, Y0 = model.root()
-        if model.steps_left == 0:
+        if model.steps_left == 0 or self.gamma == 0:
             return L0
         G, M = L0.shape
         S = self.samples

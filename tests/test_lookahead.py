@@ -38,8 +38,11 @@ def test_rollout_without_horizon_is_greedy_bit_for_bit(name):
     np.testing.assert_array_equal(run.info["extra_spent"], ref.info["extra_spent"])
     assert len(np.unique(ref.params)) > 1  # greedy moves: the comparison can fail
     d = _decision(env)
-    q = RolloutPolicy(exp.grid, horizon=0).q(d)
-    assert q is d.candidates()["cost"]
+    assert RolloutPolicy(exp.grid, horizon=0).q(d) is d.candidates()["cost"]
+    spent = d.extra_spent
+    for pol in (RolloutPolicy(exp.grid, horizon=2, gamma=0.0), TwoStepPolicy(exp.grid, gamma=0.0)):
+        assert pol.q(d) is d.candidates()["cost"]  # no discount, nothing to look ahead for
+    assert d.extra_spent == spent
 
 
 # ---------------------------------------------------------- the toy optimum
