@@ -30,6 +30,10 @@ rollout-H2-S16     0.209 (270)        1.122 (383)        5642 / 4620
 rollout-H4-S4      0.094 (121)        0.481 (164)        2886 / 2316
 =================  =================  =================  ===========================
 
+``--experiments ctm-sif-nis --runs 50 --steps 8`` (unit: SIF iterations; 5
+timed steps): greedy 0.026 s (30), twostep-S4 0.41 s (16x; 1110),
+rollout-H1-S4 0.20 s (7.7x; 1110), rollout-H2-S4 0.31 s (12x; 2190).
+
 The time follows the compute count: about 0.4 us per UKF update of one run
 on UNGM (``nx = 1``) and 2.5-3 us on the CTM (``nx = 4``), so an episode
 costs about ``spent * M * T`` times that (UNGM, ``H = 2``, ``S = 16``,
