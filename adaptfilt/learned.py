@@ -19,7 +19,8 @@ It holds the actor weights (``actor/<parameter>``), the feature scaling
 and one JSON document (``__metadata__``, UTF-8 bytes) with the experiment,
 model, rule parameter, grid, feature names, gamma, cost, seed, episodes,
 parallel, hyperparameters, package version, the training command and a
-learning-curve summary. The zip is written with a fixed date and sorted
+learning-curve summary; a policy anchored on greedy (:mod:`adaptfilt.anchor`) also records
+``anchor = {policy, strength, kl}``, which ``act`` applies. The zip is written with a fixed date and sorted
 entries and the JSON with sorted keys, so the same training gives a
 byte-identical file.
 
@@ -47,6 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from adaptfilt.anchor import Anchor, greedy_onehot
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
@@ -250,27 +252,45 @@ class LearnedPolicy:
         self.sample = bool(sample)
         self.rng = np.random.default_rng(rng)
         self.feature_set = FeatureSet.parse(self.metadata.get("feature_set"))
+        #: a policy anchored on greedy adds ``c * onehot(greedy's choice)`` to the actor's logits (:mod:`adaptfilt.anchor`)
+        self.anchor = Anchor.from_dict(self.metadata.get("anchor"))
 
     # --------------------------------------------------------- policy API
-    def logits(self, features: np.ndarray) -> np.ndarray:
-        """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``."""
+    def _logits(self, features: np.ndarray, anchor: np.ndarray | None) -> torch.Tensor:
         s = torch.from_numpy(self.scaler.network_input(features))
         with torch.no_grad(), one_torch_thread():
-            return self.actor(s).double().numpy()
+            out = self.actor(s)
+            if self.anchor is None:
+                if anchor is not None:
+                    raise ValueError(f"policy {self.name!r} is not anchored: give no anchor")
+                return out
+            a = None if anchor is None else np.asarray(anchor, dtype=np.float32)
+            if a is None or a.shape != tuple(out.shape):
+                raise ValueError(f"policy {self.name!r} is anchored on {self.anchor.policy}: its logits need "
+                                 f"anchor=greedy_onehot(decision) of shape {tuple(out.shape)}"
+                                 + ("" if a is None else f", got {a.shape}"))
+            # float32 as in the SB3 model that was trained, so that the file acts exactly as it did
+            return out + self.anchor.strength * torch.from_numpy(a)
 
-    def probs(self, features: np.ndarray) -> np.ndarray:
-        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)``."""
-        s = torch.from_numpy(self.scaler.network_input(features))
-        with torch.no_grad(), one_torch_thread():
-            return torch.softmax(self.actor(s), dim=-1).double().numpy()
+    def logits(self, features: np.ndarray, anchor: np.ndarray | None = None) -> np.ndarray:
+        """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``; an anchored policy
+        (:mod:`adaptfilt.anchor`) also needs greedy's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it."""
+        return self._logits(features, anchor).double().numpy()
+
+    def probs(self, features: np.ndarray, anchor: np.ndarray | None = None) -> np.ndarray:
+        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)`` (``anchor``: see :meth:`logits`)."""
+        return torch.softmax(self._logits(features, anchor), dim=-1).double().numpy()
 
     def act(self, decision) -> np.ndarray:
         """Grid indices ``(M,)``: ``argmax pi`` (or a draw from ``pi`` if ``sample``)."""
         to_env = grid_indices(self.grid, decision.grid, self.name)
         s = observe(decision, self.feature_set)
+        anchor = None
+        if self.anchor is not None:
+            anchor = greedy_onehot(decision, self.grid)
         if not self.sample:
-            return to_env[np.argmax(self.logits(s), axis=1)]
-        p = self.probs(s)
+            return to_env[np.argmax(self.logits(s, anchor), axis=1)]
+        p = self.probs(s, anchor)
         u = self.rng.random(p.shape[0])
         return to_env[np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)]
 
@@ -416,6 +436,10 @@ def _check_policy_file(path, arrays: Mapping[str, np.ndarray], meta: Mapping) ->
             raise bad(f"{k} has shape {arrays[k].shape}, the actor expects ({in_dim},)")
     if min(hidden, default=1) < 1 or in_dim < 1 or n_actions < 1:
         raise bad(f"an empty network layer in {a}")
+    try:
+        Anchor.from_dict(meta.get("anchor"))
+    except ValueError as e:
+        raise bad(str(e)) from None
 
 
 def load_policy(path: str | os.PathLike, experiment=None, name: str | None = None) -> LearnedPolicy:

@@ -47,6 +47,14 @@ class ToyDecision:
     def n_runs(self) -> int:
         return self.features.shape[0]
 
+    def candidates(self) -> dict:
+        """One-step cost of every action, ``{"cost": (G, M)}`` (TrapEnv only): what greedy and a
+        policy anchored on greedy (:mod:`adaptfilt.anchor`) read."""
+        make = getattr(self._env, "_candidate_costs", None)
+        if make is None:
+            raise TypeError(f"{type(self._env).__name__} has no candidate costs")
+        return {"cost": make(self)}
+
     def lookahead_model(self):
         """What :mod:`adaptfilt.lookahead` simulates from this decision (TrapEnv only)."""
         make = getattr(self._env, "_lookahead_model", None)
@@ -139,6 +147,11 @@ class TrapEnv(_ToyEnv):
         cost = np.where(self._bad, 1.0, np.where(a == 0, 0.0, self.c1))
         self._bad = self._bad | (a == 0)
         return cost
+
+    def _candidate_costs(self, d: ToyDecision) -> np.ndarray:
+        """``(2, M)``: action 0 is free in *good* (greedy's choice), every action costs 1 in *bad*."""
+        bad = d.features[:, 0] > 0.5
+        return np.stack([np.where(bad, 1.0, 0.0), np.where(bad, 1.0, self.c1)])
 
     def _lookahead_model(self, d: ToyDecision) -> "_TrapLookahead":
         return _TrapLookahead(self, d)

@@ -1,0 +1,208 @@
+r"""Learned policies anchored on greedy: a residual over greedy's choice, kept near it by a KL term.
+
+Issue 23, item 2: a learned policy that starts *as* greedy (the exact one-step optimum, the bar every
+learned policy is measured against) and moves away only where the learner finds that it pays.
+
+**The policy.** With ``g(s)`` greedy's choice (the argmin of the one-step cost over the grid,
+:class:`~adaptfilt.policies.GreedyPolicy`) and ``f(s)`` the actor network's logits,
+
+.. math::
+    \pi(\theta \mid s) \propto \exp\big(f(s)_\theta + c\,[\theta = g(s)]\big),
+    \qquad \pi_0(\theta \mid s) \propto \exp\big(c\,[\theta = g(s)]\big).
+
+``c`` is the anchor *strength*. The actor's output layer starts at exactly zero (weights and bias),
+so the untrained policy is ``pi_0``: its most probable action (what the policy does at evaluation,
+Algorithm 3) **is** greedy's, exactly, whatever the network's hidden layers; during training it
+samples greedy's action with probability ``e^c / (e^c + G - 1)`` (``c = 3``, ``G = 13``: 0.63) and
+explores the rest. The deterministic policy leaves greedy at a state only once the learned logits
+prefer another value by more than ``c``.
+
+This is the form of the optimum of KL-regularised RL, ``pi ∝ pi_0 exp(Q / alpha)`` (Todorov 2007;
+Rawlik, Toussaint and Vijayakumar 2012; Levine 2018, "Reinforcement learning and control as
+inference"): the network plays the role of ``Q / alpha`` relative to the prior ``pi_0``. It is also
+the discrete-action form of residual policy learning (Silver et al. 2018; Johannink et al. 2019), in
+which a learned correction is added to a fixed base controller and starts at zero.
+
+**The KL term.** The loss also carries ``beta * KL(pi(.|s) || pi_0(.|s))`` (``kl``) averaged over
+the minibatch, which pulls the policy back to greedy where the advantage does not push it away.
+PPO's entropy bonus ``- ent_coef * H(pi)`` is the special case ``pi_0`` uniform (``-H(pi) =
+KL(pi || U) - log G``), so :func:`anchored_policy_class` puts ``-KL(pi || pi_0)`` where SB3's
+``evaluate_actions`` returns the entropy and the trainer sets ``ent_coef = beta``: SB3's own PPO
+(and A2C) loss then is ``policy loss + beta KL + vf_coef * value loss`` without a subclass of the
+algorithm (SB3 logs the mean KL as ``train/entropy_loss``). No maintained library we know of has an
+anchor-KL option for PPO; this keeps SB3's algorithm untouched.
+
+**What the network sees.** The anchor is not a feature: the network sees the scaled information
+state of its feature set as every learned policy does (``paper+time+cand`` etc.), and greedy's
+choice reaches the logits only through ``c``. In training, the Gymnasium adapter appends greedy's
+one-hot to each observation (``FilterVectorEnv(anchor="greedy")``) and the policy's features
+extractor drops it before the networks (the critic never sees it); in acting,
+:class:`~adaptfilt.learned.LearnedPolicy` computes it from the decision's candidates
+(:func:`greedy_onehot`, the same ``argmin`` as greedy) and adds it in float32 as SB3 does, so a
+policy file acts exactly as the trained model. Greedy's candidates are computed every step and
+charged like greedy's (``Decision.extra_spent``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["ANCHORS", "Anchor", "greedy_index", "greedy_onehot", "anchored_policy_class", "DEFAULT_STRENGTH",
+           "DEFAULT_KL"]
+
+#: Policies a learned policy can be anchored on.
+ANCHORS = ("greedy",)
+#: Default anchor strength ``c`` (logit added to greedy's choice). Chosen on selection runs: see
+#: ``benchmarks/bench_anchor.py``.
+DEFAULT_STRENGTH = 3.0
+#: Default KL coefficient ``beta`` (in units of PPO's per-minibatch normalised advantage).
+DEFAULT_KL = 0.01
+
+
+@dataclass(frozen=True)
+class Anchor:
+    """What a policy is anchored on (``policy``), with the strength ``c`` and the KL coefficient ``beta``
+    it was trained with (``kl``; recorded, not used in acting).
+
+    >>> Anchor("greedy", 3.0, 0.01).to_dict()
+    {'policy': 'greedy', 'strength': 3.0, 'kl': 0.01}
+    """
+
+    policy: str = "greedy"
+    strength: float = DEFAULT_STRENGTH
+    kl: float = DEFAULT_KL
+
+    def __post_init__(self):
+        if self.policy not in ANCHORS:
+            raise ValueError(f"unknown anchor {self.policy!r}; choose one of {', '.join(ANCHORS)}")
+        try:
+            s, k = float(self.strength), float(self.kl)
+        except (TypeError, ValueError):
+            raise ValueError(f"anchor strength and kl must be numbers, got {self.strength!r}, {self.kl!r}") from None
+        if not (np.isfinite(s) and s > 0):
+            raise ValueError(f"anchor strength must be finite and > 0 (0 would not anchor), got {self.strength!r}")
+        if not (np.isfinite(k) and k >= 0):
+            raise ValueError(f"anchor kl must be finite and >= 0, got {self.kl!r}")
+        object.__setattr__(self, "strength", s)
+        object.__setattr__(self, "kl", k)
+
+    def to_dict(self) -> dict:
+        return {"policy": self.policy, "strength": self.strength, "kl": self.kl}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None) -> "Anchor | None":
+        """The anchor recorded in a policy file's metadata (None: not anchored); ValueError if malformed."""
+        if d is None:
+            return None
+        if not isinstance(d, Mapping) or "policy" not in d or "strength" not in d:
+            raise ValueError(f"malformed anchor metadata {d!r}: expected {{'policy', 'strength', 'kl'}}")
+        return cls(d["policy"], d["strength"], d.get("kl", 0.0))
+
+
+def greedy_index(decision, grid: Sequence[float] | None = None) -> np.ndarray:
+    """Greedy's choice ``(M,)`` as an index into ``grid`` (default: the decision's grid): the ``argmin``
+    of the candidates' one-step cost, exactly as :class:`~adaptfilt.policies.GreedyPolicy` (first index
+    on a tie). ``grid`` may be a subset of the decision's grid (a policy on a restricted action set):
+    greedy over that subset."""
+    cost = decision.candidates()["cost"]
+    if cost is None:
+        raise ValueError("an anchor on greedy needs an environment with a cost")
+    cost = np.asarray(cost)
+    if grid is not None:
+        from adaptfilt.learned import grid_indices
+
+        cost = cost[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
+    return np.argmin(cost, axis=0)
+
+
+def greedy_onehot(decision, grid: Sequence[float] | None = None) -> np.ndarray:
+    """Greedy's choice as a float32 one-hot ``(M, G)`` over ``grid`` (see :func:`greedy_index`)."""
+    idx = greedy_index(decision, grid)
+    G = decision.grid.size if grid is None else len(grid)
+    out = np.zeros((idx.size, G), dtype=np.float32)
+    out[np.arange(idx.size), idx] = 1.0
+    return out
+
+
+def anchored_policy_class():
+    """The SB3 ``ActorCriticPolicy`` subclass of an anchored policy (built on first use: SB3 is optional).
+
+    Its observations are ``[scaled features (d), greedy's one-hot (G)]``; keyword arguments
+    ``strength`` (``c``) and ``kl`` (whether the entropy slot carries ``-KL(pi || pi_0)``: always, see
+    the module docstring; with ``ent_coef = 0`` the term has no weight). Only shared feature extractors
+    (SB3's default for ``MlpPolicy``) are supported.
+    """
+    global _ANCHORED
+    if _ANCHORED is not None:
+        return _ANCHORED
+    import torch as th
+    from gymnasium import spaces
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+    class DropAnchor(BaseFeaturesExtractor):
+        """The observation without its last ``n_anchor`` columns (greedy's one-hot): what the networks see."""
+
+        def __init__(self, observation_space: spaces.Box, n_anchor: int):
+            super().__init__(observation_space, int(observation_space.shape[0]) - int(n_anchor))
+            self.n_keep = int(observation_space.shape[0]) - int(n_anchor)
+
+        def forward(self, obs: th.Tensor) -> th.Tensor:
+            return obs[:, : self.n_keep]
+
+    class AnchoredActorCriticPolicy(ActorCriticPolicy):
+        """``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer initialised at zero."""
+
+        def __init__(self, observation_space, action_space, lr_schedule, *, strength: float = DEFAULT_STRENGTH,
+                     **kwargs):
+            if not isinstance(action_space, spaces.Discrete):
+                raise ValueError("an anchored policy needs a Discrete action space (grid indices)")
+            if kwargs.get("share_features_extractor", True) is not True:
+                raise ValueError("an anchored policy shares its features extractor (SB3's default)")
+            self.n_anchor = int(action_space.n)
+            self.strength = float(strength)
+            kwargs.update(features_extractor_class=DropAnchor, features_extractor_kwargs={"n_anchor": self.n_anchor})
+            super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+            with th.no_grad():  # the untrained policy is pi_0: greedy at its argmax, exactly
+                self.action_net.weight.zero_()
+                self.action_net.bias.zero_()
+
+        def _split(self, obs):
+            features = self.extract_features(obs)
+            latent_pi, latent_vf = self.mlp_extractor(features)
+            onehot = obs[:, -self.n_anchor:].float()
+            return latent_pi, latent_vf, onehot
+
+        def _dist(self, latent_pi, onehot):
+            logits = self.action_net(latent_pi) + self.strength * onehot
+            return self.action_dist.proba_distribution(action_logits=logits)
+
+        def _minus_kl(self, dist, onehot) -> th.Tensor:
+            """``-KL(pi || pi_0)`` per row: what PPO's entropy slot carries (module docstring)."""
+            logp = dist.distribution.logits  # normalised log-probabilities
+            logp0 = th.log_softmax(self.strength * onehot, dim=-1)
+            return -(logp.exp() * (logp - logp0)).sum(dim=-1)
+
+        def forward(self, obs, deterministic: bool = False):
+            latent_pi, latent_vf, onehot = self._split(obs)
+            dist = self._dist(latent_pi, onehot)
+            actions = dist.get_actions(deterministic=deterministic)
+            log_prob = dist.log_prob(actions)
+            return actions.reshape((-1, *self.action_space.shape)), self.value_net(latent_vf), log_prob
+
+        def evaluate_actions(self, obs, actions):
+            latent_pi, latent_vf, onehot = self._split(obs)
+            dist = self._dist(latent_pi, onehot)
+            return self.value_net(latent_vf), dist.log_prob(actions), self._minus_kl(dist, onehot)
+
+        def get_distribution(self, obs):
+            latent_pi = self.mlp_extractor.forward_actor(self.extract_features(obs))
+            return self._dist(latent_pi, obs[:, -self.n_anchor:].float())
+
+    _ANCHORED = AnchoredActorCriticPolicy
+    return _ANCHORED
+
+
+_ANCHORED = None
