@@ -138,3 +138,19 @@ def test_on_the_trap_the_anchored_learner_leaves_greedy_where_that_pays():
         d, c, _, _ = env.step(pol.act(d))
         costs.append(c)
     assert np.allclose(costs, 0.25)  # the non-myopic optimum, every step
+
+
+def test_the_command_line_records_the_anchor(tmp_path, capsys):
+    from adaptfilt.cli import main
+
+    out = tmp_path / "a.npz"
+    assert main(["train", "ungm-ukf", "--algo", "fast", "--episodes", "1", "--horizon", "3", "--parallel", "2",
+                 "--anchor", "greedy", "--anchor-kl", "0.05", "--out", str(out), "--no-progress"]) == 0
+    pol = load_policy(out, "ungm-ukf")
+    assert pol.anchor == Anchor("greedy", 3.0, 0.05)
+    assert "--anchor greedy --anchor-kl 0.05 --out" in pol.metadata["command"]
+    for argv, match in [(["--anchor-kl", "0.1"], "give --anchor greedy too"),
+                        (["--anchor", "greedy", "--algo", "batched"], "needs an SB3 trainer")]:
+        with pytest.raises(SystemExit):
+            main(["train", "ungm-ukf", "--episodes", "1", "--horizon", "3", "--out", str(out)] + argv)
+        assert match in capsys.readouterr().err
