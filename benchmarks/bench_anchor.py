@@ -1,0 +1,181 @@
+"""Learned policies anchored on greedy against greedy, seed by seed (issue 23, item 2).
+
+    python benchmarks/bench_anchor.py --out results/anchor [--experiments ungm-ukf ctm-ukf]
+        [--seeds 0-7] [--runs 10000] [--eval-seed 0] [--strength 3] [--kl 0.01]
+        [--features cand|paper] [--cost-transform log1p|none] [--episodes 1000] [--gamma 0.5]
+        [--horizon T] [--workers 2] [--tag anchored]
+
+Trains one anchored policy per seed and experiment (:mod:`adaptfilt.anchor`: a residual over greedy's
+choice with strength ``c`` and the penalty ``beta KL(pi || pi_0)``, the PPO fast mode, on the
+candidate-aware information state unless ``--features paper``), with the command recorded in each
+file, into ``OUT/policies/EXP-TAG-sN.npz`` (a file already there with the same command is reused),
+then evaluates them with greedy, ML and the default on ``--runs`` paired runs (``--eval-seed``: 1,
+the selection runs, while a recipe is chosen; 0, the evaluation runs, once for the chosen one) and
+prints, per experiment:
+
+* per seed: cost, cost / RMSE / ANEES minus greedy with their run-level paired 95 % intervals,
+  divergent runs, the share of steps on which the policy chose as greedy (on the first 200 runs),
+  the training wall and CPU time;
+* over seeds: IQM of the differences to greedy with the two-level bootstrap interval
+  (:mod:`adaptfilt.experiments.seeds`; greedy is one policy, so only the anchored seeds are resampled),
+  and the verdicts of the goal: cost lower than greedy on every seed (each seed's own interval below 0),
+  RMSE and ANEES not worse (seed level, the margins of ``seeds.MARGINS``), no divergent run.
+
+The evaluation (``OUT/results/EXP``, :meth:`~adaptfilt.evaluation.Results.save`) and the table
+(``OUT/summary-EXP.md``, ``OUT/summary.json``) are written too.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+CAND = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
+
+
+def train_one(experiment: str, seed: int, out: str, kw: dict, command: str) -> dict:
+    """One anchored policy (module level: runs in a worker); reused when ``out`` holds this command."""
+    from adaptfilt.learned import read_npz
+    from adaptfilt.trainers import train_policy
+
+    if Path(out).exists():
+        _, meta = read_npz(out)
+        if meta.get("command") == command:
+            return {"reused": True, "wall_time_s": float("nan"), "cpu_time_s": float("nan")}
+    t0, c0 = time.perf_counter(), time.process_time()
+    train_policy(experiment, "fast", seed=seed, progress=False, out=out, command=command, **kw)
+    return {"reused": False, "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
+
+
+def agreement(exp, pol, runs: int, seed: int, n_steps: int | None) -> float:
+    """Share of (run, step) pairs, along the policy's own trajectories, on which it chose as greedy."""
+    import numpy as np
+
+    from adaptfilt.anchor import greedy_index
+    from adaptfilt.learned import grid_indices
+
+    env = exp.make_env(n_steps=n_steps)
+    d, same, n = env.reset(n_runs=runs, rng=np.random.default_rng([0xA9, seed]), stream=seed), 0, 0
+    while d is not None:
+        a = pol.act(d)
+        g = grid_indices(pol.grid, d.grid)[greedy_index(d, pol.grid)]
+        same, n = same + int((a == g).sum()), n + a.size
+        d, _, _, _ = env.step(a)
+    return same / n
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",")]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--experiments", nargs="+", default=["ungm-ukf", "ctm-ukf"], choices=sorted(CAND))
+    ap.add_argument("--seeds", type=_seeds, default=list(range(8)))
+    ap.add_argument("--runs", type=int, default=10_000)
+    ap.add_argument("--eval-seed", type=int, default=0)
+    ap.add_argument("--strength", type=float, default=None, help="anchor strength c (default: the library's)")
+    ap.add_argument("--kl", type=float, default=None, help="KL coefficient beta (default: the library's)")
+    ap.add_argument("--features", choices=("cand", "paper"), default="cand")
+    ap.add_argument("--cost-transform", choices=("log1p", "none"), default="log1p")
+    ap.add_argument("--episodes", type=int, default=1000)
+    ap.add_argument("--gamma", type=float, default=0.5)
+    ap.add_argument("--horizon", type=int, default=None)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--agree-runs", type=int, default=200)
+    ap.add_argument("--tag", default="anchored")
+    args = ap.parse_args(argv)
+
+    import numpy as np
+
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiments.seeds import MARGINS, difference, margin_for, seed_verdict
+    from adaptfilt.experiments.sweep import run_jobs
+    from adaptfilt.learned import load_policy
+
+    out = Path(args.out)
+    (out / "policies").mkdir(parents=True, exist_ok=True)
+    summary: dict = {"args": vars(args), "experiments": {}}
+    for e in args.experiments:
+        exp = get_experiment(e)
+        feats = CAND[e] if args.features == "cand" else exp.features
+        kw = {"gamma": args.gamma, "episodes": args.episodes, "features": feats, "n_steps": args.horizon,
+              "anchor": "greedy", "anchor_strength": args.strength, "anchor_kl": args.kl,
+              "cost_transform": args.cost_transform}
+        jobs = []
+        for s in args.seeds:
+            f = out / "policies" / f"{e}-{args.tag}-s{s}.npz"
+            cmd = (f"adaptfilt train {e} --algo fast --gamma {args.gamma:g} --episodes {args.episodes} --seed {s} "
+                   f"--features {feats}" + (f" --horizon {args.horizon}" if args.horizon else "")
+                   + (f" --cost-transform {args.cost_transform}" if args.cost_transform != "log1p" else "")
+                   + " --anchor greedy" + (f" --anchor-strength {args.strength:g}" if args.strength is not None else "")
+                   + (f" --anchor-kl {args.kl:g}" if args.kl is not None else "") + f" --out {f}")
+            jobs.append((e, s, str(f), kw, cmd))
+        t0 = time.perf_counter()
+        times = run_jobs(train_one, jobs, workers=args.workers, desc=f"train {e}")
+        train_wall = time.perf_counter() - t0
+        names = [f"{args.tag}-s{s}" for s in args.seeds]
+        pols = [p for p in exp.baselines() if p.name in ("greedy", "ml", "default")]
+        pols += [load_policy(j[2], experiment=exp, name=n) for j, n in zip(jobs, names)]
+        t0 = time.perf_counter()
+        res = evaluate(exp, pols, n_runs=args.runs, seed=args.eval_seed, progress=False, n_steps=args.horizon)
+        eval_wall = time.perf_counter() - t0
+        res.save(out / "results" / e, arrays=False)
+        agree = [agreement(exp, p, min(args.agree_runs, args.runs), args.eval_seed, args.horizon) for p in pols[3:]]
+
+        g = res["greedy"]
+        lines = [f"## {e}: anchored ({feats}, c = {pols[-1].anchor.strength:g}, beta = {pols[-1].anchor.kl:g}, "
+                 f"{args.cost_transform}, gamma {args.gamma:g}, {args.episodes} episodes) against greedy, "
+                 f"M = {args.runs}, evaluation seed {args.eval_seed}", "",
+                 "| policy | cost | cost - greedy | RMSE - greedy | ANEES - greedy | divergent | as greedy | train s (wall / CPU) |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for b in ("greedy", "ml", "default"):
+            p = res[b]
+            lines.append(f"| {b} | {p.cost:.4g} | | {p.rmse - g.rmse:+.3g} | {p.anees - g.anees:+.3g} | "
+                         f"{p.divergent_frac:.2%} | | |")
+        per_seed = []
+        for n, a, t in zip(names, agree, times):
+            d = {m: res.paired_difference(n, "greedy", m) for m in ("cost", "rmse", "anees")}
+            per_seed.append({"name": n, "cost": res[n].cost, "diff": d, "divergent_frac": res[n].divergent_frac,
+                             "as_greedy": a, **t})
+            cell = lambda x: f"{x[0]:+.3g} [{x[1]:+.3g}, {x[2]:+.3g}]"
+            lines.append(f"| {n} | {res[n].cost:.4g} | {cell(d['cost'])} | {cell(d['rmse'])} | {cell(d['anees'])} | "
+                         f"{res[n].divergent_frac:.2%} | {a:.1%} | {t['wall_time_s']:.0f} / {t['cpu_time_s']:.0f} |")
+        agg = {m: difference(res, names, ["greedy"], m) for m in ("cost", "rmse", "anees", "objective")}
+        cell = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"
+        lines += ["", "| over seeds, IQM (mean) [two-level 95 % CI] | cost - greedy | RMSE - greedy | ANEES - greedy | log(1+L) - greedy |",
+                  "|---|---|---|---|---|",
+                  f"| {args.tag}, {len(names)} seeds | " + " | ".join(f"{cell(agg[m]['iqm'])} (mean {agg[m]['mean'][0]:+.4g})"
+                                                               for m in ("cost", "rmse", "anees", "objective")) + " |"]
+        lower = sum(s["diff"]["cost"][0] < 0 for s in per_seed)
+        lower_ci = sum(s["diff"]["cost"][2] < 0 for s in per_seed)
+        verdicts = {
+            "cost lower than greedy on every seed": f"{lower} of {len(names)} seeds lower, {lower_ci} with their run-level interval below 0",
+            "cost lower, seed level (IQM)": seed_verdict(agg["cost"]["iqm"], "lower"),
+            "RMSE not worse (margin 5 %)": seed_verdict(agg["rmse"]["iqm"], "not worse", margin_for("rmse", g.rmse)),
+            "ANEES not worse (margin 10 %)": seed_verdict(agg["anees"]["iqm"], "not worse", margin_for("anees", g.anees)),
+            "RMSE not worse on every seed": f"{sum(s['diff']['rmse'][2] < margin_for('rmse', g.rmse) for s in per_seed)} of {len(names)}",
+            "ANEES not worse on every seed": f"{sum(s['diff']['anees'][2] < margin_for('anees', g.anees) for s in per_seed)} of {len(names)}",
+            "no divergent run": f"{sum(s['divergent_frac'] > 0 for s in per_seed)} seeds with a divergent run",
+        }
+        lines += [""] + [f"* {k}: **{v}**" for k, v in verdicts.items()]
+        lines += [f"* train {train_wall:.0f} s wall for {len(jobs)} policies ({args.workers} workers), "
+                  f"evaluate {eval_wall:.0f} s; margins {MARGINS['rmse']:.0%} RMSE, {MARGINS['anees']:.0%} ANEES"]
+        text = "\n".join(lines)
+        print(text + "\n", flush=True)
+        (out / f"summary-{e}.md").write_text(text + "\n")
+        summary["experiments"][e] = {"per_seed": per_seed, "aggregate": agg, "verdicts": verdicts,
+                                     "greedy": {"cost": g.cost, "rmse": g.rmse, "anees": g.anees},
+                                     "train_wall_s": train_wall, "eval_wall_s": eval_wall}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    return summary
+
+
+if __name__ == "__main__":
+    main()
