@@ -24,7 +24,7 @@ __version__ = "0.1.0"
 # Modules that pull in torch or matplotlib load on first use: `import adaptfilt`
 # stays fast for filtering alone.
 _LAZY = ("plots", "learned", "actor_critic", "toy", "course", "course_rl", "book", "reproduce", "artefacts", "cli", "style",
-         "gym", "trainers", "features", "analysis", "coursemap", "course_rl")
+         "gym", "trainers", "features", "analysis", "coursemap", "course_rl", "anchor")
 
 
 def __getattr__(name: str):

@@ -41,6 +41,10 @@ transitions (rounded up to whole rollouts). Why these values:
 ``a2c`` (:data:`A2C_FAST`, the first fast mode) deviates differently: 64 runs,
 5-step returns, RMSprop at 7e-4, the paper's entropy bonus 1e-3.
 
+**Anchored on greedy** (``anchor="greedy"``, ``adaptfilt train ... --anchor greedy``; SB3 trainers):
+the policy is a residual over greedy's choice that acts exactly as greedy before training, kept near
+it by ``beta KL(pi || pi_0)`` in the place of PPO's entropy term (:mod:`adaptfilt.anchor`).
+
 All trainers return a :class:`~adaptfilt.learned.LearnedPolicy` whose file is
 byte-identical for the same command (one torch thread, seeded everything) on the
 same kind of CPU; on another instruction set the floating-point kernels round
