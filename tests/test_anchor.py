@@ -110,6 +110,10 @@ def test_bad_options_are_named():
         train_policy("ungm-ukf", "batched", episodes=1, n_steps=3, progress=False, anchor="greedy")
     with pytest.raises(ValueError, match="malformed anchor"):
         Anchor.from_dict({"strength": 3})
+    from adaptfilt.gym import make_vec
+
+    with pytest.raises(ValueError, match="unknown anchor 'ml'"):
+        make_vec("ungm-ukf", n_envs=2, n_steps=3, anchor="ml")
 
 
 def test_a_damaged_anchor_in_a_policy_file_is_named(tmp_path):
