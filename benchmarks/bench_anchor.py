@@ -34,8 +34,9 @@ from pathlib import Path
 CAND = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 
 
-def train_one(experiment: str, seed: int, out: str, kw: dict, command: str) -> dict:
+def train_one(experiment: str, seed: int, out: str, kw: dict, command: str, method: str = "ppo") -> dict:
     """One anchored policy (module level: runs in a worker); reused when ``out`` holds this command."""
+    from adaptfilt.anchor import distill_rollout
     from adaptfilt.learned import read_npz
     from adaptfilt.trainers import train_policy
 
@@ -44,7 +45,10 @@ def train_one(experiment: str, seed: int, out: str, kw: dict, command: str) -> d
         if meta.get("command") == command:
             return {"reused": True, "wall_time_s": float("nan"), "cpu_time_s": float("nan")}
     t0, c0 = time.perf_counter(), time.process_time()
-    train_policy(experiment, "fast", seed=seed, progress=False, out=out, command=command, **kw)
+    if method == "ppo":
+        train_policy(experiment, "fast", seed=seed, progress=False, out=out, command=command, **kw)
+    else:
+        distill_rollout(experiment, seed, command=command, **kw).save(out)
     return {"reused": False, "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
 
 
@@ -89,6 +93,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--agree-runs", type=int, default=200)
     ap.add_argument("--tag", default="anchored")
+    ap.add_argument("--method", choices=("ppo", "distill"), default="ppo",
+                    help="ppo: train_policy(..., anchor='greedy'); distill: adaptfilt.anchor.distill_rollout")
+    ap.add_argument("--distill-runs", type=int, default=500)
+    ap.add_argument("--teacher", default="1:4", help="distill: rollout H:S")
+    ap.add_argument("--epochs", type=int, default=20)
     args = ap.parse_args(argv)
 
     import numpy as np
@@ -109,8 +118,18 @@ def main(argv: list[str] | None = None) -> dict:
               "anchor": "greedy", "anchor_strength": args.strength, "anchor_kl": args.kl,
               "cost_transform": args.cost_transform}
         jobs = []
+        if args.method == "distill":
+            H, S = (int(x) for x in args.teacher.split(":"))
+            kw = {"runs": args.distill_runs, "features": feats, "n_steps": args.horizon, "horizon": H, "samples": S,
+                  "gamma": args.gamma, "epochs": args.epochs}
+            kw.update({k: v for k, v in (("strength", args.strength), ("kl", args.kl)) if v is not None})
         for s in args.seeds:
             f = out / "policies" / f"{e}-{args.tag}-s{s}.npz"
+            if args.method == "distill":
+                call = ", ".join(f"{k}={v!r}" for k, v in kw.items())
+                jobs.append((e, s, str(f), kw, f"adaptfilt.anchor.distill_rollout({e!r}, {s}, {call}).save({str(f)!r})",
+                             "distill"))
+                continue
             cmd = (f"adaptfilt train {e} --algo fast --gamma {args.gamma:g} --episodes {args.episodes} --seed {s} "
                    f"--features {feats}" + (f" --horizon {args.horizon}" if args.horizon else "")
                    + (f" --cost-transform {args.cost_transform}" if args.cost_transform != "log1p" else "")
@@ -130,8 +149,10 @@ def main(argv: list[str] | None = None) -> dict:
         agree = [agreement(exp, p, min(args.agree_runs, args.runs), args.eval_seed, args.horizon) for p in pols[3:]]
 
         g = res["greedy"]
-        lines = [f"## {e}: anchored ({feats}, c = {pols[-1].anchor.strength:g}, beta = {pols[-1].anchor.kl:g}, "
-                 f"{args.cost_transform}, gamma {args.gamma:g}, {args.episodes} episodes) against greedy, "
+        how = (f"{args.cost_transform}, gamma {args.gamma:g}, {args.episodes} episodes" if args.method == "ppo" else
+               f"distilled from rollout H:S = {args.teacher}, {args.distill_runs} runs, {args.epochs} epochs")
+        lines = [f"## {e}: {args.tag} ({feats}, c = {pols[-1].anchor.strength:g}, beta = {pols[-1].anchor.kl:g}, "
+                 f"{how}) against greedy, "
                  f"M = {args.runs}, evaluation seed {args.eval_seed}", "",
                  "| policy | cost | cost - greedy | RMSE - greedy | ANEES - greedy | divergent | as greedy | train s (wall / CPU) |",
                  "|---|---|---|---|---|---|---|---|"]
