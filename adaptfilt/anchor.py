@@ -230,8 +230,12 @@ def rollout_data(experiment, seed: int = 0, *, runs: int = 500, features: str | 
     from adaptfilt.lookahead import RolloutPolicy
 
     exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
-    fs = features or exp.features
-    env = exp.make_env(seed=seed, n_steps=n_steps)
+    if hasattr(exp, "make_env"):
+        fs, env, label = features or exp.features, exp.make_env(seed=seed, n_steps=n_steps), exp.name
+    else:  # an environment of one's own (a FilterEnv, or a toy MDP with a look-ahead model): its horizon is its own
+        if n_steps is not None and n_steps != exp.n_steps:
+            raise ValueError(f"n_steps={n_steps} for an environment with horizon {exp.n_steps}")
+        fs, env, label = features or "paper", exp, getattr(exp, "experiment", None)
     teacher = RolloutPolicy(env.grid, horizon=horizon, samples=samples, gamma=gamma, seed=seed)
     d = env.reset(n_runs=int(runs), rng=np.random.default_rng([seed, _DISTILL_KEY]), stream=seed)
     X, g, Q = [], [], []
@@ -239,7 +243,7 @@ def rollout_data(experiment, seed: int = 0, *, runs: int = 500, features: str | 
     if progress:
         from tqdm.auto import tqdm
 
-        steps = tqdm(steps, desc=f"rollout data {exp.name} seed={seed}", leave=False)
+        steps = tqdm(steps, desc=f"rollout data {label} seed={seed}", leave=False)
     for _ in steps:
         X.append(observe(d, fs))
         g.append(greedy_index(d))
@@ -247,7 +251,7 @@ def rollout_data(experiment, seed: int = 0, *, runs: int = 500, features: str | 
         Q.append(q.T)
         d, _, _, _ = env.step(np.argmin(np.where(np.isnan(q), np.inf, q), axis=0))
     return {"features": np.concatenate(X), "greedy": np.concatenate(g), "q": np.concatenate(Q),
-            "feature_set": fs, "env": env, "experiment": exp.name}
+            "feature_set": fs, "env": env, "experiment": label}
 
 
 def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str | None = None,
@@ -276,8 +280,8 @@ def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str
     and stays at greedy where rollout finds nothing. Weighting by the saving itself (not counting
     choices) is what the mean cost needs: rare steps with large savings are most of it.
 
-    Policy acts from its information state (``features``, default the experiment's) and greedy's
-    candidates only: no look-ahead at run time. Deterministic for a seed (data, network
+    The policy acts from its information state (``features``, default the experiment's) and greedy's
+    candidates only: no look-ahead at run time. ``epochs=0`` returns the untrained policy (greedy). Deterministic for a seed (data, network
     initialisation and minibatches; one torch thread). Returns a
     :class:`~adaptfilt.learned.LearnedPolicy` with ``anchor`` metadata (acts identically from its file).
     """
@@ -288,9 +292,9 @@ def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str
     from adaptfilt.learned import Actor, LearnedPolicy, describe_env, one_torch_thread
 
     spec = Anchor("greedy", strength, kl)
-    for k, v in (("runs", runs), ("epochs", epochs), ("batch_size", batch_size)):
-        if int(v) != v or v < 1:
-            raise ValueError(f"{k} must be a positive integer, got {v!r}")
+    for k, v, lo in (("runs", runs, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1)):
+        if not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
     if not (np.isfinite(lr) and lr > 0) or not (np.isfinite(clip) and clip > 0):
         raise ValueError(f"lr and clip must be finite and > 0, got {lr!r}, {clip!r}")
     data = data or rollout_data(experiment, seed, runs=runs, features=features, n_steps=n_steps, horizon=horizon,

@@ -158,3 +158,38 @@ def test_the_command_line_records_the_anchor(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main(["train", "ungm-ukf", "--episodes", "1", "--horizon", "3", "--out", str(out)] + argv)
         assert match in capsys.readouterr().err
+
+
+def test_distilled_before_training_is_greedy_and_its_file_acts_identically(tmp_path):
+    from adaptfilt.anchor import distill_rollout, rollout_data
+
+    data = rollout_data("ctm-ukf", 1, runs=6, n_steps=6, features="paper+circ+cand")
+    assert data["features"].shape[0] == data["q"].shape[0] == 36 and data["q"].shape[1] == 12
+    env = get_experiment("ctm-ukf").make_env(n_steps=6)
+    untrained = distill_rollout("ctm-ukf", 1, epochs=0, data=data)
+    assert np.array_equal(_choices(env, untrained, 40, 3), _choices(env, GreedyPolicy(env.grid), 40, 3))
+    pol = distill_rollout("ctm-ukf", 1, epochs=3, lr=0.05, kl=0.01, data=data, command="distill_rollout(...)")
+    assert pol.metadata["algo"] == "rollout-distill" and pol.anchor == Anchor("greedy", 3.0, 0.01)
+    pol.save(tmp_path / "d.npz")
+    back = load_policy(tmp_path / "d.npz", "ctm-ukf")
+    assert np.array_equal(_choices(env, back, 40, 3), _choices(env, pol, 40, 3))
+    again = distill_rollout("ctm-ukf", 1, epochs=3, lr=0.05, kl=0.01, data=data, command="distill_rollout(...)")
+    assert again.to_arrays()[0]["actor/net.4.weight"].tobytes() == pol.to_arrays()[0]["actor/net.4.weight"].tobytes()
+    with pytest.raises(ValueError, match="epochs must be an integer >= 0"):
+        distill_rollout("ctm-ukf", 1, epochs=-1, data=data)
+    with pytest.raises(ValueError, match="kl must be finite"):
+        distill_rollout("ctm-ukf", 1, kl=-1.0, data=data)
+
+
+def test_on_the_trap_the_distilled_policy_takes_the_non_myopic_optimum():
+    from adaptfilt.anchor import distill_rollout
+
+    env = TrapEnv(n_steps=10)
+    # every good step saves the same (the mean saving): the margin beta * c must be below one mean saving
+    pol = distill_rollout(env, 0, runs=64, horizon=1, samples=1, epochs=30, lr=1e-2, kl=0.1)
+    d = env.reset(n_runs=8, rng=np.random.default_rng(0))
+    costs = []
+    while d is not None:
+        d, c, _, _ = env.step(pol.act(d))
+        costs.append(c)
+    assert np.allclose(costs, 0.25)
