@@ -49,7 +49,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["ANCHORS", "Anchor", "greedy_index", "greedy_onehot", "anchored_policy_class", "rollout_data", "distill_rollout", "DEFAULT_STRENGTH",
+__all__ = ["ANCHORS", "Anchor", "greedy_index", "greedy_onehot", "allowed_mask", "anchored_logits", "anchored_policy_class",
+           "rollout_data", "distill_rollout", "DEFAULT_STRENGTH",
            "DEFAULT_KL"]
 
 #: Policies a learned policy can be anchored on.
@@ -73,6 +74,9 @@ class Anchor:
     policy: str = "greedy"
     strength: float = DEFAULT_STRENGTH
     kl: float = DEFAULT_KL
+    #: a shield (None: none): candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than this are
+    #: masked out, in training and in acting (:func:`allowed_mask`)
+    shield: float | None = None
 
     def __post_init__(self):
         if self.policy not in ANCHORS:
@@ -87,9 +91,20 @@ class Anchor:
             raise ValueError(f"anchor kl must be finite and >= 0, got {self.kl!r}")
         object.__setattr__(self, "strength", s)
         object.__setattr__(self, "kl", k)
+        if self.shield is not None:
+            try:
+                sh = float(self.shield)
+            except (TypeError, ValueError):
+                raise ValueError(f"anchor shield must be a number or None, got {self.shield!r}") from None
+            if not (np.isfinite(sh) and sh > 0):
+                raise ValueError(f"anchor shield must be finite and > 0 (or None: no shield), got {self.shield!r}")
+            object.__setattr__(self, "shield", sh)
 
     def to_dict(self) -> dict:
-        return {"policy": self.policy, "strength": self.strength, "kl": self.kl}
+        d = {"policy": self.policy, "strength": self.strength, "kl": self.kl}
+        if self.shield is not None:
+            d["shield"] = self.shield
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None) -> "Anchor | None":
@@ -98,7 +113,7 @@ class Anchor:
             return None
         if not isinstance(d, Mapping) or "policy" not in d or "strength" not in d:
             raise ValueError(f"malformed anchor metadata {d!r}: expected {{'policy', 'strength', 'kl'}}")
-        return cls(d["policy"], d["strength"], d.get("kl", 0.0))
+        return cls(d["policy"], d["strength"], d.get("kl", 0.0), d.get("shield"))
 
 
 def greedy_index(decision, grid: Sequence[float] | None = None) -> np.ndarray:
@@ -124,6 +139,24 @@ def greedy_onehot(decision, grid: Sequence[float] | None = None) -> np.ndarray:
     out = np.zeros((idx.size, G), dtype=np.float32)
     out[np.arange(idx.size), idx] = 1.0
     return out
+
+
+def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None) -> np.ndarray:
+    """The shield's float32 mask ``(M, G)`` over ``grid`` (default the decision's): 1 where a candidate's
+    one-step ``log(1 + L)`` is at most ``shield`` above greedy's (greedy's own choice always), 0 elsewhere
+    (also where the candidate's cost is not finite). ``shield = 1``: a deviation may cost at most
+    ``e (1 + L_greedy) - 1`` now."""
+    cost = np.asarray(decision.candidates()["cost"], dtype=float)
+    if grid is not None:
+        from adaptfilt.learned import grid_indices
+
+        cost = cost[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
+    g = np.argmin(cost, axis=0)
+    with np.errstate(invalid="ignore"):
+        lc = np.log1p(np.maximum(cost, 0.0))
+        ok = np.isfinite(lc) & (lc - lc[g, np.arange(g.size)] <= float(shield))
+    ok[g, np.arange(g.size)] = True
+    return ok.T.astype(np.float32)
 
 
 def anchored_policy_class():
@@ -156,56 +189,76 @@ def anchored_policy_class():
         """``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer initialised at zero."""
 
         def __init__(self, observation_space, action_space, lr_schedule, *, strength: float = DEFAULT_STRENGTH,
-                     **kwargs):
+                     shield: bool = False, **kwargs):
             if not isinstance(action_space, spaces.Discrete):
                 raise ValueError("an anchored policy needs a Discrete action space (grid indices)")
             if kwargs.get("share_features_extractor", True) is not True:
                 raise ValueError("an anchored policy shares its features extractor (SB3's default)")
             self.n_anchor = int(action_space.n)
             self.strength = float(strength)
-            kwargs.update(features_extractor_class=DropAnchor, features_extractor_kwargs={"n_anchor": self.n_anchor})
+            self.shield = bool(shield)  # the observation also carries the shield's mask (G more columns)
+            n_extra = self.n_anchor * (2 if self.shield else 1)
+            kwargs.update(features_extractor_class=DropAnchor, features_extractor_kwargs={"n_anchor": n_extra})
             super().__init__(observation_space, action_space, lr_schedule, **kwargs)
             with th.no_grad():  # the untrained policy is pi_0: greedy at its argmax, exactly
                 self.action_net.weight.zero_()
                 self.action_net.bias.zero_()
 
+        def _extra(self, obs):
+            """(greedy's one-hot, the shield's mask or None) from the observation's last columns."""
+            G = self.n_anchor
+            if not self.shield:
+                return obs[:, -G:].float(), None
+            return obs[:, -2 * G:-G].float(), obs[:, -G:].float()
+
         def _split(self, obs):
             features = self.extract_features(obs)
             latent_pi, latent_vf = self.mlp_extractor(features)
-            onehot = obs[:, -self.n_anchor:].float()
-            return latent_pi, latent_vf, onehot
+            return latent_pi, latent_vf, self._extra(obs)
 
-        def _dist(self, latent_pi, onehot):
-            logits = self.action_net(latent_pi) + self.strength * onehot
-            return self.action_dist.proba_distribution(action_logits=logits)
+        def _dist(self, latent_pi, extra):
+            return self.action_dist.proba_distribution(action_logits=anchored_logits(
+                self.action_net(latent_pi), extra[0], self.strength, extra[1]))
 
-        def _minus_kl(self, dist, onehot) -> th.Tensor:
+        def _minus_kl(self, dist, extra) -> th.Tensor:
             """``-KL(pi || pi_0)`` per row: what PPO's entropy slot carries (module docstring)."""
             logp = dist.distribution.logits  # normalised log-probabilities
-            logp0 = th.log_softmax(self.strength * onehot, dim=-1)
+            logp0 = th.log_softmax(anchored_logits(th.zeros_like(logp), extra[0], self.strength, extra[1]), dim=-1)
             return -(logp.exp() * (logp - logp0)).sum(dim=-1)
 
         def forward(self, obs, deterministic: bool = False):
-            latent_pi, latent_vf, onehot = self._split(obs)
-            dist = self._dist(latent_pi, onehot)
+            latent_pi, latent_vf, extra = self._split(obs)
+            dist = self._dist(latent_pi, extra)
             actions = dist.get_actions(deterministic=deterministic)
             log_prob = dist.log_prob(actions)
             return actions.reshape((-1, *self.action_space.shape)), self.value_net(latent_vf), log_prob
 
         def evaluate_actions(self, obs, actions):
-            latent_pi, latent_vf, onehot = self._split(obs)
-            dist = self._dist(latent_pi, onehot)
-            return self.value_net(latent_vf), dist.log_prob(actions), self._minus_kl(dist, onehot)
+            latent_pi, latent_vf, extra = self._split(obs)
+            dist = self._dist(latent_pi, extra)
+            return self.value_net(latent_vf), dist.log_prob(actions), self._minus_kl(dist, extra)
 
         def get_distribution(self, obs):
             latent_pi = self.mlp_extractor.forward_actor(self.extract_features(obs))
-            return self._dist(latent_pi, obs[:, -self.n_anchor:].float())
+            return self._dist(latent_pi, self._extra(obs))
 
     _ANCHORED = AnchoredActorCriticPolicy
     return _ANCHORED
 
 
 _ANCHORED = None
+
+#: the logit of a candidate the shield masks out: finite, so that softmax, log-probabilities and the KL stay finite
+MASKED_LOGIT = -1e4
+
+
+def anchored_logits(net, onehot, strength: float, allowed=None):
+    """``net + c * onehot``, and ``MASKED_LOGIT`` where the shield's mask ``allowed`` is 0 (torch tensors,
+    float32): the one formula of training (SB3 and :func:`distill_rollout`) and acting (``LearnedPolicy``)."""
+    import torch as th
+
+    out = net + strength * onehot
+    return out if allowed is None else th.where(allowed > 0, out, th.full_like(out, MASKED_LOGIT))
 
 
 # ------------------------------------------------------------------ rollout distillation

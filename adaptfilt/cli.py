@@ -7,7 +7,7 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
     adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
                          [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy
-                         [--anchor-strength C] [--anchor-kl BETA]] --out FILE [--resume]
+                         [--anchor-strength C] [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
     adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw] [--workers N] [--cluster ADDRESS]
@@ -78,6 +78,8 @@ def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
             words += ["--anchor-strength", f"{args.anchor_strength:g}"]
         if args.anchor_kl is not None:
             words += ["--anchor-kl", f"{args.anchor_kl:g}"]
+        if args.anchor_shield is not None:
+            words += ["--anchor-shield", f"{args.anchor_shield:g}"]
     return " ".join(words + ["--out", out])
 
 
@@ -90,13 +92,13 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
                  features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
                  out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions,
                  cost_transform=args.cost_transform, anchor=args.anchor, anchor_strength=args.anchor_strength,
-                 anchor_kl=args.anchor_kl)
+                 anchor_kl=args.anchor_kl, anchor_shield=args.anchor_shield)
     return out
 
 
 def _train(args: argparse.Namespace) -> int:
-    if args.anchor is None and (args.anchor_strength is not None or args.anchor_kl is not None):
-        raise ValueError("--anchor-strength and --anchor-kl set the anchor: give --anchor greedy too")
+    if args.anchor is None and any(v is not None for v in (args.anchor_strength, args.anchor_kl, args.anchor_shield)):
+        raise ValueError("--anchor-strength, --anchor-kl and --anchor-shield set the anchor: give --anchor greedy too")
     if args.anchor is not None and args.algo not in ("fast", "a2c", "ppo"):
         raise ValueError(f"--anchor needs an SB3 trainer (--algo fast, a2c or ppo), not {args.algo}")
     if args.seeds is None:
@@ -367,6 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"logit added to greedy's choice (default {DEFAULT_STRENGTH:g}; needs --anchor)")
     p.add_argument("--anchor-kl", type=_nonnegative, default=None,
                    help=f"weight of KL(pi || greedy's prior) in the loss (default {DEFAULT_KL:g}; needs --anchor)")
+    p.add_argument("--anchor-shield", type=_positive, default=None,
+                   help="never choose a value whose one-step log(1 + L) exceeds greedy's by more than this "
+                        "(default: no shield; needs --anchor)")
     p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,

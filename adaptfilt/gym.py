@@ -55,7 +55,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from adaptfilt.anchor import ANCHORS, greedy_onehot
+from adaptfilt.anchor import ANCHORS, Anchor, allowed_mask, greedy_onehot
 from adaptfilt.features import OBS_LIMIT, FeatureScaler, FeatureSet, fit_scaler, observe
 
 __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vector_env", "make_env",
@@ -88,10 +88,15 @@ class _Observer:
     """Information state -> network input: feature set, scaler, float32, bounded; with an anchor
     (:mod:`adaptfilt.anchor`), greedy's one-hot appended (the anchored policy drops it before its networks)."""
 
-    def __init__(self, env, features, scaler: FeatureScaler | None, scaler_seed: int, anchor: str | None = None):
-        if anchor is not None and anchor not in ANCHORS:
-            raise ValueError(f"unknown anchor {anchor!r}; choose one of {', '.join(ANCHORS)} (or None)")
-        self.anchor = anchor
+    def __init__(self, env, features, scaler: FeatureScaler | None, scaler_seed: int, anchor=None):
+        if isinstance(anchor, str):
+            if anchor not in ANCHORS:
+                raise ValueError(f"unknown anchor {anchor!r}; choose one of {', '.join(ANCHORS)} (or None)")
+            anchor = Anchor(anchor)
+        if anchor is not None and not isinstance(anchor, Anchor):
+            raise ValueError(f"anchor must be None, a name or an adaptfilt.anchor.Anchor, got {anchor!r}")
+        self.anchor = None if anchor is None else anchor.policy
+        self.shield = None if anchor is None else anchor.shield
         self.features = FeatureSet.parse(features)
         self.scaler = scaler if scaler is not None else fit_scaler(env, self.features, seed=scaler_seed)
         model = getattr(env, "model", None)  # the toy MDPs have none: their names are the scaler's
@@ -99,12 +104,16 @@ class _Observer:
         if self.scaler.names and list(self.scaler.names) != list(names):
             raise ValueError(f"the scaler was fitted on features {list(self.scaler.names)}, "
                              f"the environment's feature set {self.features.name!r} has {names}")
-        self.n_anchor = 0 if anchor is None else int(np.asarray(env.grid).size)
+        G = int(np.asarray(env.grid).size)
+        self.n_anchor = 0 if anchor is None else G * (2 if self.shield is not None else 1)
         self.dim = int(self.scaler.center.shape[0]) + self.n_anchor
 
     def __call__(self, decision) -> np.ndarray:
         s = self.scaler.network_input(observe(decision, self.features))
-        return s if self.anchor is None else np.concatenate([s, greedy_onehot(decision)], axis=1)
+        if self.anchor is None:
+            return s
+        extra = [greedy_onehot(decision)] + ([] if self.shield is None else [allowed_mask(decision, self.shield)])
+        return np.concatenate([s] + extra, axis=1)
 
     def space(self) -> spaces.Box:
         return spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.dim,), dtype=np.float32)
@@ -134,9 +143,10 @@ class FilterVectorEnv(VectorEnv):
         trajectories come from ``reset(seed=...)``.
     n_steps : int, optional
         Horizon (default: the model's).
-    anchor : "greedy" or None
+    anchor : "greedy", an Anchor or None
         Append greedy's choice as a one-hot ``(G,)`` to each observation, for an anchored policy
-        (:mod:`adaptfilt.anchor`; default None: the scaled features only).
+        (:mod:`adaptfilt.anchor`; default None: the scaled features only), and with the anchor's
+        shield its mask ``(G,)`` (:func:`~adaptfilt.anchor.allowed_mask`).
 
     Example
     -------
@@ -151,7 +161,7 @@ class FilterVectorEnv(VectorEnv):
 
     def __init__(self, env_or_experiment="ungm-ukf", num_envs: int = 64, features="paper",
                  scaler: FeatureScaler | None = None, cost_transform: str = "log1p", seed: int = 0,
-                 n_steps: int | None = None, repair_penalty: float = 0.0, anchor: str | None = None):
+                 n_steps: int | None = None, repair_penalty: float = 0.0, anchor=None):
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.env, self.experiment = _filter_env(env_or_experiment, seed, n_steps)
@@ -426,9 +436,11 @@ def to_learned_policy(model, venv=None, gamma: float | None = None, name: str | 
     if anchor is not None:  # the policy adds c * onehot(greedy) to the actor's logits (adaptfilt.anchor)
         from adaptfilt.anchor import Anchor
 
-        if not hasattr(pol, "n_anchor"):
-            raise ValueError("the environment appends greedy's one-hot but the model is not an anchored policy")
-        meta["anchor"] = Anchor(anchor, pol.strength, float(getattr(model, "ent_coef", 0.0))).to_dict()
+        if not hasattr(pol, "n_anchor") or pol.shield != (venv_.observer.shield is not None):
+            raise ValueError("the environment appends greedy's one-hot (and the shield's mask) but the model is not "
+                             "an anchored policy with the same shield")
+        meta["anchor"] = Anchor(anchor, pol.strength, float(getattr(model, "ent_coef", 0.0)),
+                                venv_.observer.shield).to_dict()
     from adaptfilt.learned import describe_env
 
     meta = {**describe_env(venv_.env, venv_.features), **meta}

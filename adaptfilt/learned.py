@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from adaptfilt.anchor import Anchor, greedy_onehot
+from adaptfilt.anchor import Anchor, allowed_mask, anchored_logits, greedy_onehot
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
@@ -256,41 +256,50 @@ class LearnedPolicy:
         self.anchor = Anchor.from_dict(self.metadata.get("anchor"))
 
     # --------------------------------------------------------- policy API
-    def _logits(self, features: np.ndarray, anchor: np.ndarray | None) -> torch.Tensor:
+    def _logits(self, features: np.ndarray, anchor: np.ndarray | None, allowed: np.ndarray | None) -> torch.Tensor:
         s = torch.from_numpy(self.scaler.network_input(features))
         with torch.no_grad(), one_torch_thread():
             out = self.actor(s)
             if self.anchor is None:
-                if anchor is not None:
+                if anchor is not None or allowed is not None:
                     raise ValueError(f"policy {self.name!r} is not anchored: give no anchor")
                 return out
+            shape = tuple(out.shape)
             a = None if anchor is None else np.asarray(anchor, dtype=np.float32)
-            if a is None or a.shape != tuple(out.shape):
+            if a is None or a.shape != shape:
                 raise ValueError(f"policy {self.name!r} is anchored on {self.anchor.policy}: its logits need "
-                                 f"anchor=greedy_onehot(decision) of shape {tuple(out.shape)}"
-                                 + ("" if a is None else f", got {a.shape}"))
-            # float32 as in the SB3 model that was trained, so that the file acts exactly as it did
-            return out + self.anchor.strength * torch.from_numpy(a)
+                                 f"anchor=greedy_onehot(decision) of shape {shape}" + ("" if a is None else f", got {a.shape}"))
+            m = None if allowed is None else np.asarray(allowed, dtype=np.float32)
+            if (self.anchor.shield is None) != (m is None) or (m is not None and m.shape != shape):
+                raise ValueError(f"policy {self.name!r}: " + (f"its shield needs allowed=allowed_mask(decision, "
+                                 f"{self.anchor.shield:g}) of shape {shape}" if self.anchor.shield is not None
+                                 else "it has no shield: give no allowed mask"))
+            # float32 and one formula with training (adaptfilt.anchor.anchored_logits): the file acts as the model did
+            return anchored_logits(out, torch.from_numpy(a), self.anchor.strength, None if m is None else torch.from_numpy(m))
 
-    def logits(self, features: np.ndarray, anchor: np.ndarray | None = None) -> np.ndarray:
+    def logits(self, features: np.ndarray, anchor: np.ndarray | None = None, allowed: np.ndarray | None = None) -> np.ndarray:
         """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``; an anchored policy
-        (:mod:`adaptfilt.anchor`) also needs greedy's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it."""
-        return self._logits(features, anchor).double().numpy()
+        (:mod:`adaptfilt.anchor`) also needs greedy's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it,
+        and with a shield its mask ``allowed (M, |Theta|)`` (masked candidates get ``MASKED_LOGIT``)."""
+        return self._logits(features, anchor, allowed).double().numpy()
 
-    def probs(self, features: np.ndarray, anchor: np.ndarray | None = None) -> np.ndarray:
-        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)`` (``anchor``: see :meth:`logits`)."""
-        return torch.softmax(self._logits(features, anchor), dim=-1).double().numpy()
+    def probs(self, features: np.ndarray, anchor: np.ndarray | None = None, allowed: np.ndarray | None = None) -> np.ndarray:
+        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)`` (``anchor``, ``allowed``:
+        see :meth:`logits`)."""
+        return torch.softmax(self._logits(features, anchor, allowed), dim=-1).double().numpy()
 
     def act(self, decision) -> np.ndarray:
         """Grid indices ``(M,)``: ``argmax pi`` (or a draw from ``pi`` if ``sample``)."""
         to_env = grid_indices(self.grid, decision.grid, self.name)
         s = observe(decision, self.feature_set)
-        anchor = None
+        anchor = allowed = None
         if self.anchor is not None:
             anchor = greedy_onehot(decision, self.grid)
+            if self.anchor.shield is not None:
+                allowed = allowed_mask(decision, self.anchor.shield, self.grid)
         if not self.sample:
-            return to_env[np.argmax(self.logits(s, anchor), axis=1)]
-        p = self.probs(s, anchor)
+            return to_env[np.argmax(self.logits(s, anchor, allowed), axis=1)]
+        p = self.probs(s, anchor, allowed)
         u = self.rng.random(p.shape[0])
         return to_env[np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)]
 

@@ -167,7 +167,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         target, n_steps = _restricted(target, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
                     repair_penalty=repair_penalty, cost_transform=cost_transform,
-                    anchor=None if anchor is None else anchor.policy)
+                    anchor=anchor)
     T = venv.venv.env.n_steps
     total = int(episodes) * T
     kwargs = {"policy_kwargs": {"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
@@ -177,7 +177,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         from adaptfilt.anchor import anchored_policy_class
 
         policy_class = anchored_policy_class()
-        kwargs["policy_kwargs"]["strength"] = anchor.strength
+        kwargs["policy_kwargs"].update(strength=anchor.strength, shield=anchor.shield is not None)
         kwargs["ent_coef"] = anchor.kl
     curve: list[float] = []
     with one_torch_thread(), torch.random.fork_rng(devices=[]):
@@ -310,7 +310,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
                  repair_penalty: float = 0.0, actions: Sequence[float] | None = None,
                  cost_transform: str = "log1p", anchor: str | None = None, anchor_strength: float | None = None,
-                 anchor_kl: float | None = None):
+                 anchor_kl: float | None = None, anchor_shield: float | None = None):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
     ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
@@ -325,6 +325,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     ``anchor_strength`` (``c``, default :data:`adaptfilt.anchor.DEFAULT_STRENGTH`) and the penalty
     ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as greedy
     before training (:mod:`adaptfilt.anchor`); recorded in the file's ``anchor`` metadata.
+    ``anchor_shield``: mask out candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than it
+    (:func:`adaptfilt.anchor.allowed_mask`; default None: no shield).
 
     >>> import adaptfilt as af                                        # doctest: +SKIP
     >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
@@ -334,13 +336,13 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         raise ValueError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGOS)}")
     spec = None
     if anchor is None:
-        if anchor_strength is not None or anchor_kl is not None:
-            raise ValueError("anchor_strength and anchor_kl set the anchor: give anchor='greedy' too")
+        if anchor_strength is not None or anchor_kl is not None or anchor_shield is not None:
+            raise ValueError("anchor_strength, anchor_kl and anchor_shield set the anchor: give anchor='greedy' too")
     else:
         from adaptfilt.anchor import DEFAULT_KL, DEFAULT_STRENGTH, Anchor
 
         spec = Anchor(anchor, DEFAULT_STRENGTH if anchor_strength is None else anchor_strength,
-                      DEFAULT_KL if anchor_kl is None else anchor_kl)
+                      DEFAULT_KL if anchor_kl is None else anchor_kl, anchor_shield)
     if algo in ("faithful", "batched"):
         from adaptfilt.actor_critic import train_experiment
 

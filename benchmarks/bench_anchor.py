@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--eval-seed", type=int, default=0)
     ap.add_argument("--strength", type=float, default=None, help="anchor strength c (default: the library's)")
     ap.add_argument("--kl", type=float, default=None, help="KL coefficient beta (default: the library's)")
+    ap.add_argument("--shield", type=float, default=None, help="anchor shield (default: none)")
     ap.add_argument("--features", choices=("cand", "paper"), default="cand")
     ap.add_argument("--cost-transform", choices=("log1p", "none"), default="log1p")
     ap.add_argument("--episodes", type=int, default=1000)
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> dict:
         exp = get_experiment(e)
         feats = CAND[e] if args.features == "cand" else exp.features
         kw = {"gamma": args.gamma, "episodes": args.episodes, "features": feats, "n_steps": args.horizon,
-              "anchor": "greedy", "anchor_strength": args.strength, "anchor_kl": args.kl,
+              "anchor": "greedy", "anchor_strength": args.strength, "anchor_kl": args.kl, "anchor_shield": args.shield,
               "cost_transform": args.cost_transform}
         jobs = []
         if args.method == "distill":
@@ -134,7 +135,8 @@ def main(argv: list[str] | None = None) -> dict:
                    f"--features {feats}" + (f" --horizon {args.horizon}" if args.horizon else "")
                    + (f" --cost-transform {args.cost_transform}" if args.cost_transform != "log1p" else "")
                    + " --anchor greedy" + (f" --anchor-strength {args.strength:g}" if args.strength is not None else "")
-                   + (f" --anchor-kl {args.kl:g}" if args.kl is not None else "") + f" --out {f}")
+                   + (f" --anchor-kl {args.kl:g}" if args.kl is not None else "")
+                   + (f" --anchor-shield {args.shield:g}" if args.shield is not None else "") + f" --out {f}")
             jobs.append((e, s, str(f), kw, cmd))
         t0 = time.perf_counter()
         times = run_jobs(train_one, jobs, workers=args.workers, desc=f"train {e}")
@@ -151,7 +153,9 @@ def main(argv: list[str] | None = None) -> dict:
         g = res["greedy"]
         how = (f"{args.cost_transform}, gamma {args.gamma:g}, {args.episodes} episodes" if args.method == "ppo" else
                f"distilled from rollout H:S = {args.teacher}, {args.distill_runs} runs, {args.epochs} epochs")
+        shield = pols[-1].anchor.shield
         lines = [f"## {e}: {args.tag} ({feats}, c = {pols[-1].anchor.strength:g}, beta = {pols[-1].anchor.kl:g}, "
+                 + (f"shield {shield:g}, " if shield is not None else "") +
                  f"{how}) against greedy, "
                  f"M = {args.runs}, evaluation seed {args.eval_seed}", "",
                  "| policy | cost | cost - greedy | RMSE - greedy | ANEES - greedy | divergent | as greedy | train s (wall / CPU) |",

@@ -193,3 +193,34 @@ def test_on_the_trap_the_distilled_policy_takes_the_non_myopic_optimum():
         d, c, _, _ = env.step(pol.act(d))
         costs.append(c)
     assert np.allclose(costs, 0.25)
+
+
+def test_the_shield_masks_candidates_far_above_greedys_cost_in_training_and_acting(tmp_path):
+    from adaptfilt.anchor import allowed_mask
+
+    env = get_experiment("ungm-ukf").make_env(n_steps=10)
+    d = env.reset(n_runs=40, rng=np.random.default_rng(0))
+    m = allowed_mask(d, 1.0)
+    lc = np.log1p(d.candidates()["cost"]).T
+    g = greedy_index(d)
+    assert np.array_equal(m > 0, lc - lc[np.arange(40), g][:, None] <= 1.0) and (m[np.arange(40), g] == 1).all()
+    kw = dict(episodes=2, seed=0, parallel=8, n_steps=10, progress=False, features="paper+time+cand", anchor="greedy")
+    untrained = train_policy("ungm-ukf", "fast", 0.5, sb3={"learning_rate": 0.0}, anchor_shield=1.0, **kw)
+    assert untrained.anchor.shield == 1.0
+    assert np.array_equal(_choices(env, untrained, 32, 1), _choices(env, GreedyPolicy(env.grid), 32, 1))
+    # weakly anchored and trained: it leaves greedy, but only for candidates inside the shield
+    out = tmp_path / "s.npz"
+    pol = train_policy("ungm-ukf", "fast", 0.5, anchor_strength=0.3, anchor_shield=0.5, out=out,
+                       **{**kw, "episodes": 40})
+    back = load_policy(out, "ungm-ukf")
+    assert back.metadata["anchor"]["shield"] == 0.5
+    d, left = env.reset(n_runs=64, rng=np.random.default_rng(2)), 0
+    while d is not None:
+        a = pol.act(d)
+        assert np.array_equal(a, back.act(d))
+        assert (allowed_mask(d, 0.5)[np.arange(64), a] == 1).all()
+        left += int((a != greedy_index(d)).sum())
+        d, _, _, _ = env.step(a)
+    assert left > 0
+    with pytest.raises(ValueError, match="shield must be finite and > 0"):
+        train_policy("ungm-ukf", "fast", anchor_shield=0.0, **kw)
