@@ -19,7 +19,9 @@ prints, per experiment:
 * over seeds: IQM of the differences to greedy with the two-level bootstrap interval
   (:mod:`adaptfilt.experiments.seeds`; greedy is one policy, so only the anchored seeds are resampled),
   and the verdicts of the goal: cost lower than greedy on every seed (each seed's own interval below 0),
-  RMSE and ANEES not worse (seed level, the margins of ``seeds.MARGINS``), no divergent run.
+  RMSE and ANEES not worse (seed level, the margins of ``seeds.MARGINS``), no divergent run;
+* with ``--compare TAG=DIR``, another group of policies of the same seeds on the same runs, against
+  greedy and against this one.
 
 The evaluation (``OUT/results/EXP``, :meth:`~adaptfilt.evaluation.Results.save`) and the table
 (``OUT/summary-EXP.md``, ``OUT/summary.json``) are written too.
@@ -99,6 +101,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--distill-runs", type=int, default=500)
     ap.add_argument("--teacher", default="1:4", help="distill: rollout H:S")
     ap.add_argument("--epochs", type=int, default=20)
+    ap.add_argument("--compare", action="append", default=[], metavar="TAG=DIR",
+                    help="also evaluate DIR/policies/EXP-TAG-sN.npz (same seeds) on the same runs (repeatable)")
     args = ap.parse_args(argv)
 
     import numpy as np
@@ -144,11 +148,18 @@ def main(argv: list[str] | None = None) -> dict:
         names = [f"{args.tag}-s{s}" for s in args.seeds]
         pols = [p for p in exp.baselines() if p.name in ("greedy", "ml", "default")]
         pols += [load_policy(j[2], experiment=exp, name=n) for j, n in zip(jobs, names)]
+        n_own = len(pols)
+        compare = {}
+        for spec in args.compare:
+            tag, root = spec.split("=", 1)
+            compare[tag] = [f"{tag}-s{s}" for s in args.seeds]
+            pols += [load_policy(Path(root) / "policies" / f"{e}-{tag}-s{s}.npz", experiment=exp, name=f"{tag}-s{s}")
+                     for s in args.seeds]
         t0 = time.perf_counter()
         res = evaluate(exp, pols, n_runs=args.runs, seed=args.eval_seed, progress=False, n_steps=args.horizon)
         eval_wall = time.perf_counter() - t0
         res.save(out / "results" / e, arrays=False)
-        agree = [agreement(exp, p, min(args.agree_runs, args.runs), args.eval_seed, args.horizon) for p in pols[3:]]
+        agree = [agreement(exp, p, min(args.agree_runs, args.runs), args.eval_seed, args.horizon) for p in pols[3:n_own]]
 
         g = res["greedy"]
         how = (f"{args.cost_transform}, gamma {args.gamma:g}, {args.episodes} episodes" if args.method == "ppo" else
@@ -189,6 +200,13 @@ def main(argv: list[str] | None = None) -> dict:
             "ANEES not worse on every seed": f"{sum(s['diff']['anees'][2] < margin_for('anees', g.anees) for s in per_seed)} of {len(names)}",
             "no divergent run": f"{sum(s['divergent_frac'] > 0 for s in per_seed)} seeds with a divergent run",
         }
+        for tag, other in compare.items():
+            lines += ["", f"Compared on the same runs: {tag} (per seed, cost - greedy: "
+                      + ", ".join(f"{res.paired_difference(n, 'greedy', 'cost')[0]:+.3g}" for n in other) + ")", "",
+                      f"| IQM [two-level 95 % CI] | cost | RMSE | ANEES |", "|---|---|---|---|"]
+            for label, a, b in ((f"{tag} - greedy", other, ["greedy"]), (f"{args.tag} - {tag}", names, other)):
+                lines.append(f"| {label} | " + " | ".join(cell(difference(res, a, b, m)["iqm"])
+                                                          for m in ("cost", "rmse", "anees")) + " |")
         lines += [""] + [f"* {k}: **{v}**" for k, v in verdicts.items()]
         lines += [f"* train {train_wall:.0f} s wall for {len(jobs)} policies ({args.workers} workers), "
                   f"evaluate {eval_wall:.0f} s; margins {MARGINS['rmse']:.0%} RMSE, {MARGINS['anees']:.0%} ANEES"]
