@@ -31,16 +31,13 @@ Measured 2026-11-25 (2 cores shared with a data regeneration, load 3-9; c = 3, b
 
 Choosing the recipe (tuning seeds 100-103, selection runs: ``--seeds 100-103 --runs 2000 --eval-seed 1``):
 
-==========================================  =====================================  ================  ========
-recipe                                      UNGM-UKF cost - greedy                 CTM-UKF           as greedy
-==========================================  =====================================  ================  ========
-PPO, anchored (defaults)                    -0.075 [-0.081, -0.065] (4 of 4 lower)  +0.35 [-0.13, +1.31] (0 of 4)  98.5 / 99.8 %
-... ``--cost-transform none`` (CTM)                                                +0 [+0, +0.26]: 3 seeds are greedy exactly
-... ``--episodes 4000`` (CTM)                                                      +0.54 [-0.13, +1.53]  97-99 %
-... ``--strength 1`` (CTM)                                                         +1.16 [+0.30, +2.22]  85-89 %
-... ``--shield 1``                          -0.071 [-0.083, -0.065] (4 of 4)       +0.47 [-0.05, +1.43]  98.7 / 99.7 %
-``--method distill --kl 1`` (CTM, 2 seeds)                                         +0.46 [-0.01, +1.42]  97 %
-==========================================  =====================================  ================  ========
+* PPO, anchored (the defaults): UNGM -0.075 [-0.081, -0.065] (4 of 4 seeds lower, 98.5 % as greedy);
+  CTM +0.35 [-0.13, +1.31] (0 of 4 lower, 99.8 % as greedy);
+* the same with ``--shield 1``: UNGM -0.071 [-0.083, -0.065] (4 of 4); CTM +0.47 [-0.05, +1.43] (0 of 4);
+* CTM only: ``--cost-transform none`` +0 [+0, +0.26] (3 of 4 seeds act exactly as greedy, one worse);
+  ``--episodes 4000`` +0.54 [-0.13, +1.53] (97-99 % as greedy); ``--strength 1`` +1.16 [+0.30, +2.22]
+  (85-89 % as greedy): the further from greedy, the dearer; ``--method distill --kl 1`` (2 seeds)
+  +0.46 [-0.01, +1.42] (97 % as greedy).
 
 The rollout reference, not learned (:mod:`adaptfilt.lookahead`, H = 1, S = 4, 400 selection runs of
 the CTM): cost -1.31 [-2.88, -0.12], RMSE -1.65 [-3.54, +0.05] against greedy (paired runs).
