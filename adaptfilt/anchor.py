@@ -33,10 +33,10 @@ algorithm (SB3 logs the mean KL as ``train/entropy_loss``). No maintained librar
 anchor-KL option for PPO; this keeps SB3's algorithm untouched.
 
 **The shield** (``shield = D``, optional). The residual is trained on ``log(1 + L)``, which weighs a
-step that costs ``10^6`` like a few dozen ordinary steps; a UNGM policy of the fast mode left greedy
-on 1.3 % of its steps and in a few of them chose kappa = 50 where greedy's kappa = 10^4 cost about
-100 and kappa = 50 about ``10^6`` *at that very step* (mean cost 331 against greedy's 0.80 on 10^4
-runs; ``benchmarks/bench_anchor.py``). A shield (Alshiekh et al. 2018, "Safe reinforcement learning
+step that costs ``10^6`` like a few dozen ordinary steps; one of eight anchored UNGM policies had a
+mean cost of 331 against greedy's 0.80 on 10^4 runs, and on selection runs its steps that cost more
+than 10^3 were all steps where it chose kappa = 50 while greedy's kappa = 10^4 would have cost about
+100 *at that very step* (``benchmarks/bench_anchor.py``). A shield (Alshiekh et al. 2018, "Safe reinforcement learning
 via shielding") removes such choices before they are made: candidates whose one-step
 ``log(1 + L)`` exceeds greedy's by more than ``D`` get the logit :data:`MASKED_LOGIT`, in training
 (PPO never samples them; invalid-action masking, Huang and Ontañón 2022) and in acting alike
