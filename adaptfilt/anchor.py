@@ -63,7 +63,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["ANCHORS", "Anchor", "greedy_index", "greedy_onehot", "allowed_mask", "anchored_logits", "anchored_policy_class",
+__all__ = ["ANCHORS", "Anchor", "DEFAULT_SHIELD", "greedy_index", "greedy_onehot", "allowed_mask", "anchored_logits", "anchored_policy_class",
            "rollout_data", "distill_rollout", "DEFAULT_STRENGTH",
            "DEFAULT_KL"]
 
@@ -74,6 +74,9 @@ ANCHORS = ("greedy",)
 DEFAULT_STRENGTH = 3.0
 #: Default KL coefficient ``beta`` (in units of PPO's per-minibatch normalised advantage).
 DEFAULT_KL = 0.01
+#: Default shield of the trainers (``train_policy(..., anchor="greedy")``; 0 there: none): without it one of
+#: eight UNGM policies had rare steps that cost 10^6 (see the module docstring).
+DEFAULT_SHIELD = 1.0
 
 
 @dataclass(frozen=True)

@@ -369,9 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"logit added to greedy's choice (default {DEFAULT_STRENGTH:g}; needs --anchor)")
     p.add_argument("--anchor-kl", type=_nonnegative, default=None,
                    help=f"weight of KL(pi || greedy's prior) in the loss (default {DEFAULT_KL:g}; needs --anchor)")
-    p.add_argument("--anchor-shield", type=_positive, default=None,
+    p.add_argument("--anchor-shield", type=_nonnegative, default=None,
                    help="never choose a value whose one-step log(1 + L) exceeds greedy's by more than this "
-                        "(default: no shield; needs --anchor)")
+                        "(default 1; 0: no shield; needs --anchor)")
     p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,

@@ -326,7 +326,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as greedy
     before training (:mod:`adaptfilt.anchor`); recorded in the file's ``anchor`` metadata.
     ``anchor_shield``: mask out candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than it
-    (:func:`adaptfilt.anchor.allowed_mask`; default None: no shield).
+    (:func:`adaptfilt.anchor.allowed_mask`; default :data:`adaptfilt.anchor.DEFAULT_SHIELD`, 0: no shield).
 
     >>> import adaptfilt as af                                        # doctest: +SKIP
     >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
@@ -339,10 +339,12 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         if anchor_strength is not None or anchor_kl is not None or anchor_shield is not None:
             raise ValueError("anchor_strength, anchor_kl and anchor_shield set the anchor: give anchor='greedy' too")
     else:
-        from adaptfilt.anchor import DEFAULT_KL, DEFAULT_STRENGTH, Anchor
+        from adaptfilt.anchor import DEFAULT_KL, DEFAULT_SHIELD, DEFAULT_STRENGTH, Anchor
 
+        shield = DEFAULT_SHIELD if anchor_shield is None else anchor_shield
         spec = Anchor(anchor, DEFAULT_STRENGTH if anchor_strength is None else anchor_strength,
-                      DEFAULT_KL if anchor_kl is None else anchor_kl, anchor_shield)
+                      DEFAULT_KL if anchor_kl is None else anchor_kl,
+                      None if shield == 0 else shield)  # 0: no shield (Anchor's None)
     if algo in ("faithful", "batched"):
         from adaptfilt.actor_critic import train_experiment
 

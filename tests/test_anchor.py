@@ -21,7 +21,8 @@ def _choices(env, pol, runs: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("experiment", ["ungm-ukf", "ctm-ukf"])
 def test_before_any_improvement_step_the_anchored_policy_is_greedy_exactly(experiment):
     # learning_rate 0: SB3 collects a rollout and takes its Adam steps, which change nothing
-    kw = dict(episodes=2, seed=3, parallel=8, n_steps=12, progress=False, features=CAND[experiment], anchor="greedy")
+    kw = dict(episodes=2, seed=3, parallel=8, n_steps=12, progress=False, features=CAND[experiment], anchor="greedy",
+              anchor_shield=0)
     pol = train_policy(experiment, "fast", 0.5, sb3={"learning_rate": 0.0}, **kw)
     env = get_experiment(experiment).make_env(n_steps=12)
     assert np.array_equal(_choices(env, pol, 64, 5), _choices(env, GreedyPolicy(env.grid), 64, 5))
@@ -39,8 +40,8 @@ def test_the_saved_file_loads_and_acts_as_the_trained_model(tmp_path):
                        features="paper+time+cand", anchor="greedy", anchor_strength=0.5, anchor_kl=0.02, out=out,
                        command="adaptfilt train ungm-ukf --anchor greedy ...")
     back = load_policy(out, "ungm-ukf")
-    assert back.anchor == Anchor("greedy", 0.5, 0.02) == pol.anchor
-    assert back.metadata["anchor"] == {"policy": "greedy", "strength": 0.5, "kl": 0.02}
+    assert back.anchor == Anchor("greedy", 0.5, 0.02, 1.0) == pol.anchor  # the default shield
+    assert back.metadata["anchor"] == {"policy": "greedy", "strength": 0.5, "kl": 0.02, "shield": 1.0}
     env = get_experiment("ungm-ukf").make_env(n_steps=10)
     a, b = _choices(env, pol, 64, 2), _choices(env, back, 64, 2)
     assert np.array_equal(a, b)
@@ -151,8 +152,11 @@ def test_the_command_line_records_the_anchor(tmp_path, capsys):
     assert main(["train", "ungm-ukf", "--algo", "fast", "--episodes", "1", "--horizon", "3", "--parallel", "2",
                  "--anchor", "greedy", "--anchor-kl", "0.05", "--out", str(out), "--no-progress"]) == 0
     pol = load_policy(out, "ungm-ukf")
-    assert pol.anchor == Anchor("greedy", 3.0, 0.05)
+    assert pol.anchor == Anchor("greedy", 3.0, 0.05, 1.0)
     assert "--anchor greedy --anchor-kl 0.05 --out" in pol.metadata["command"]
+    assert main(["train", "ungm-ukf", "--algo", "fast", "--episodes", "1", "--horizon", "3", "--parallel", "2",
+                 "--anchor", "greedy", "--anchor-shield", "0", "--out", str(out), "--no-progress"]) == 0
+    assert load_policy(out).anchor == Anchor("greedy", 3.0, 0.01, None)
     for argv, match in [(["--anchor-kl", "0.1"], "give --anchor greedy too"),
                         (["--anchor", "greedy", "--algo", "batched"], "needs an SB3 trainer")]:
         with pytest.raises(SystemExit):
@@ -223,4 +227,4 @@ def test_the_shield_masks_candidates_far_above_greedys_cost_in_training_and_acti
         d, _, _, _ = env.step(a)
     assert left > 0
     with pytest.raises(ValueError, match="shield must be finite and > 0"):
-        train_policy("ungm-ukf", "fast", anchor_shield=0.0, **kw)
+        train_policy("ungm-ukf", "fast", anchor_shield=-1.0, **kw)
