@@ -68,6 +68,19 @@ unshielded policies (``--compare anchored=...``): ``--seeds 0-7 --runs 10000 --e
   -0.083); IQM cost -0.078 [-0.082, -0.074], RMSE -0.091 [-0.100, -0.082], ANEES -4.05 [-4.18, -3.88];
   no divergent run; 97.8-98.9 % of the steps as greedy; 31-33 CPU-s per policy. The unshielded
   policies on the same runs: seed 0 again +345, the other seven -0.064 to -0.083.
+* CTM-UKF: 1 of 8 seeds lower (-0.008 [-0.19, +0.20]), none with its interval below 0; IQM cost
+  +0.178 [-0.027, +0.413], RMSE +0.076 [-0.080, +0.514], ANEES +0.055 [+0.006, +0.124] (not worse
+  within the margins); no divergent run; 99.6-99.9 % as greedy; 13-16 CPU-s per policy. The shield
+  changes nothing measurable here (shielded - unshielded: -0.022 [-0.24, +0.22]).
+
+Why the CTM goal is not met (selection runs, seed 1, M = 2000, the shielded seed-2 policy, +1.19 against
+greedy there): it leaves greedy on 0.41 % of its steps; all of its extra cost comes from the 831 runs
+with a deviation, about 30 % of it at the deviating steps themselves (+87 on average, allowed by the
+shield because greedy's own cost is already large there) and the rest in later steps; the largest
+differences are in runs where greedy too has steps that cost 10^3-10^4. The learner trains on
+log(1 + L), which barely separates 10^4 from 4x10^4, and finds no gain on it either (objective
++0.0004 [-0.0002, +0.0010]); the rollout reference shows that a gain in mean cost exists, but neither
+PPO nor the distillation of rollout's Q-values into the candidate-aware state recovers it.
 """
 from __future__ import annotations
 
