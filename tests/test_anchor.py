@@ -228,3 +228,12 @@ def test_the_shield_masks_candidates_far_above_greedys_cost_in_training_and_acti
     assert left > 0
     with pytest.raises(ValueError, match="shield must be finite and > 0"):
         train_policy("ungm-ukf", "fast", anchor_shield=-1.0, **kw)
+
+
+def test_same_seed_same_bytes():
+    kw = dict(episodes=4, parallel=4, n_steps=6, progress=False, features="paper+time+cand", anchor="greedy")
+    a, b = (train_policy("ungm-ukf", "fast", 0.5, seed=5, **kw).to_arrays() for _ in range(2))
+    c = train_policy("ungm-ukf", "fast", 0.5, seed=6, **kw).to_arrays()
+    w = "actor/net.4.weight"
+    assert a[0][w].tobytes() == b[0][w].tobytes() and a[1] == b[1]
+    assert a[0][w].tobytes() != c[0][w].tobytes()
