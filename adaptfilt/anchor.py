@@ -179,10 +179,11 @@ def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None) -
 def anchored_policy_class():
     """The SB3 ``ActorCriticPolicy`` subclass of an anchored policy (built on first use: SB3 is optional).
 
-    Its observations are ``[scaled features (d), greedy's one-hot (G)]``; keyword arguments
-    ``strength`` (``c``) and ``kl`` (whether the entropy slot carries ``-KL(pi || pi_0)``: always, see
-    the module docstring; with ``ent_coef = 0`` the term has no weight). Only shared feature extractors
-    (SB3's default for ``MlpPolicy``) are supported.
+    Its observations are ``[scaled features (d), greedy's one-hot (G)]`` and, with ``shield=True``, the
+    shield's mask ``(G)`` after them (:class:`~adaptfilt.gym.FilterVectorEnv` with an anchor lays them
+    out so); keyword arguments ``strength`` (``c``) and ``shield``. The entropy slot always carries
+    ``-KL(pi || pi_0)`` (module docstring): the algorithm's ``ent_coef`` is the KL's weight ``beta``.
+    Only shared feature extractors (SB3's default for ``MlpPolicy``) are supported.
     """
     global _ANCHORED
     if _ANCHORED is not None:
