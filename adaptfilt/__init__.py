@@ -14,7 +14,7 @@ trained with a TD(0) actor-critic.
 """
 import importlib
 
-from adaptfilt import evaluation, experiments, linalg, mdp, metrics, models, policies, rules
+from adaptfilt import evaluation, experiments, linalg, lookahead, mdp, metrics, models, policies, rules
 from adaptfilt.exact import KalmanFilter, PointMassFilter
 from adaptfilt.gaf import CKF, SIF, UKF, FilterError, FilterRun, GaussianAssumedFilter, Prediction, Update
 from adaptfilt.models import StateSpaceModel, Trajectory
@@ -24,7 +24,7 @@ __version__ = "0.1.0"
 # Modules that pull in torch or matplotlib load on first use: `import adaptfilt`
 # stays fast for filtering alone.
 _LAZY = ("plots", "learned", "actor_critic", "toy", "course", "course_rl", "book", "reproduce", "artefacts", "cli", "style",
-         "gym", "trainers", "features", "analysis", "coursemap", "course_rl")
+         "gym", "trainers", "features", "analysis", "coursemap", "course_rl", "anchor")
 
 
 def __getattr__(name: str):
@@ -33,7 +33,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'adaptfilt' has no attribute {name!r}")
 
 __all__ = [
-    "linalg", "metrics", "models", "rules", "mdp", "policies", "experiments", "evaluation",
+    "linalg", "metrics", "models", "rules", "mdp", "policies", "lookahead", "experiments", "evaluation",
     "StateSpaceModel", "Trajectory",
     "GaussianAssumedFilter", "UKF", "SIF", "CKF", "FilterRun", "FilterError", "Prediction", "Update",
     "KalmanFilter", "PointMassFilter",

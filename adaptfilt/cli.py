@@ -6,7 +6,8 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt experiments
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
     adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
-                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] --out FILE [--resume]
+                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy
+                         [--anchor-strength C] [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
@@ -83,6 +84,14 @@ def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
         words += ["--actions", ",".join(f"{v:g}" for v in args.actions)]
     if args.cost_transform != "log1p":
         words += ["--cost-transform", args.cost_transform]
+    if args.anchor is not None:
+        words += ["--anchor", args.anchor]
+        if args.anchor_strength is not None:
+            words += ["--anchor-strength", f"{args.anchor_strength:g}"]
+        if args.anchor_kl is not None:
+            words += ["--anchor-kl", f"{args.anchor_kl:g}"]
+        if args.anchor_shield is not None:
+            words += ["--anchor-shield", f"{args.anchor_shield:g}"]
     return " ".join(words + ["--out", out])
 
 
@@ -94,11 +103,16 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
     train_policy(args.name, args.algo, args.gamma, args.episodes, seed, parallel=args.parallel,
                  features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
                  out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions,
-                 cost_transform=args.cost_transform)
+                 cost_transform=args.cost_transform, anchor=args.anchor, anchor_strength=args.anchor_strength,
+                 anchor_kl=args.anchor_kl, anchor_shield=args.anchor_shield)
     return out
 
 
 def _train(args: argparse.Namespace) -> int:
+    if args.anchor is None and any(v is not None for v in (args.anchor_strength, args.anchor_kl, args.anchor_shield)):
+        raise ValueError("--anchor-strength, --anchor-kl and --anchor-shield set the anchor: give --anchor greedy too")
+    if args.anchor is not None and args.algo not in ("fast", "a2c", "ppo"):
+        raise ValueError(f"--anchor needs an SB3 trainer (--algo fast, a2c or ppo), not {args.algo}")
     if args.seeds is None:
         try:
             train_job(args, args.seed, args.out)
@@ -229,6 +243,13 @@ def _nonnegative(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not (value >= 0 and value < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _nonnegative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
     return value
 
 
@@ -395,6 +416,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "experiment's grid holding its default; fast/a2c/ppo only)")
     p.add_argument("--cost-transform", choices=("log1p", "none"), default="log1p",
                    help="reward -log(1 + L) (default, the paper's) or -L (none: the mean cost itself)")
+    from adaptfilt.anchor import ANCHORS, DEFAULT_KL, DEFAULT_STRENGTH
+
+    p.add_argument("--anchor", choices=ANCHORS, default=None,
+                   help="a residual policy over greedy's choice that acts as greedy before training "
+                        "(adaptfilt.anchor; fast/a2c/ppo only)")
+    p.add_argument("--anchor-strength", type=_positive, default=None,
+                   help=f"logit added to greedy's choice (default {DEFAULT_STRENGTH:g}; needs --anchor)")
+    p.add_argument("--anchor-kl", type=_nonnegative, default=None,
+                   help=f"weight of KL(pi || greedy's prior) in the loss (default {DEFAULT_KL:g}; needs --anchor)")
+    p.add_argument("--anchor-shield", type=_nonnegative, default=None,
+                   help="never choose a value whose one-step log(1 + L) exceeds greedy's by more than this "
+                        "(default 1; 0: no shield; needs --anchor)")
     p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,

@@ -268,13 +268,14 @@ class GaussianAssumedFilter:
     # ------------------------------------------------------------- run-last core
     def predict_rl(
         self, m: np.ndarray, P: np.ndarray, t: int, rng: np.random.Generator | None = None, param=None,
-        info: dict | None = None,
+        info: dict | None = None, tile: int = 1,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Predict from step ``t`` to ``t + 1``; ``m (nx, M)``, ``P (nx, nx, M)``;
         ``param`` (default: the filter's) scalar or ``(M,)``.
 
         ``info``, if given, receives ``"n_iter"`` (the iterations a stochastic
-        rule spent per run, or None).
+        rule spent per run, or None). ``tile``: as in :meth:`update_rl` (the
+        ``M`` runs are ``tile`` copies of ``M / tile`` runs that see the same draws).
         """
         model = self.model
         n_iter = None
@@ -285,7 +286,8 @@ class GaussianAssumedFilter:
         else:
             L, P = self._chol(sym(P), "P_filt", t)
             mo = self.predict_rule.moments(self._wrap(model.f, t + 1), m, P, self.param if param is None else param,
-                                           rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False)
+                                           rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False,
+                                           tile=tile)
             m_pred, P_pred, n_iter = mo.mean, _plus_error(mo.cov + self._Q, mo), mo.n_iter
         if info is not None:
             info["n_iter"] = n_iter
@@ -297,13 +299,17 @@ class GaussianAssumedFilter:
         self,
         m: np.ndarray,
         P: np.ndarray,
-        z: np.ndarray,
+        z: np.ndarray | Callable[[np.ndarray, np.ndarray], np.ndarray],
         t: int,
         param=None,
         rng: np.random.Generator | None = None,
         tile: int = 1,
     ) -> _UpdateRL:
         """Update at step ``t`` with ``z (nz, M)``; ``param`` scalar or ``(M,)``.
+
+        ``z`` may also be a function ``(z_pred, L_zz) -> z (nz, M)`` of the predicted
+        measurement and the Cholesky factor of ``Pzz``: a measurement drawn from
+        the filter's own predictive (what a look-ahead samples, :mod:`adaptfilt.lookahead`).
 
         ``tile = G``: the ``M`` runs are ``G`` copies of ``M / G`` runs laid out
         as ``np.concatenate([a] * G, axis=-1)`` (e.g. the MDP evaluating every
@@ -341,10 +347,11 @@ class GaussianAssumedFilter:
         self,
         m: np.ndarray,
         P: np.ndarray,
-        z: np.ndarray,
+        z: np.ndarray | Callable[[np.ndarray, np.ndarray], np.ndarray],
         t: int,
         grid,
         rng: np.random.Generator | None = None,
+        tile: int = 1,
     ) -> _UpdateRL:
         """The update of every run under every parameter of ``grid``, ``G * M`` runs, tile-major.
 
@@ -366,6 +373,13 @@ class GaussianAssumedFilter:
         (and counted) once per run here, where the tiled call counts it once
         per copy; callers that repair ``P`` first (the MDP) see no difference.
 
+        ``tile = K``: the ``M`` runs are themselves ``K`` copies of ``M / K`` runs
+        (as in :meth:`update_rl`) that see the same draws, so that run ``j`` gets
+        the draws of run ``j mod M / K`` under every parameter (a look-ahead
+        comparing its branches with common random numbers). ``z`` may be a
+        function, as in :meth:`update_rl`; it receives the moments of all
+        ``G * M`` runs and returns their ``(nz, G * M)`` measurements.
+
         Example
         -------
         >>> import numpy as np, adaptfilt as af
@@ -381,17 +395,19 @@ class GaussianAssumedFilter:
         if grid.ndim != 1 or grid.size == 0:
             raise ValueError(f"grid must be a non-empty 1-D sequence of parameters, got shape {grid.shape}")
         G, M = grid.size, m.shape[1]
-        tile = lambda a: np.concatenate([a] * G, axis=-1)  # noqa: E731
+        copies = lambda a: np.concatenate([a] * G, axis=-1)  # noqa: E731
         model, rule = self.model, self.rule
+        zt = z if callable(z) else copies(z)
         if model.H is not None or not (self.candidate_prefixes and rule.supports_prefixes):
-            return self.update_rl(tile(m), tile(P), tile(z), t, np.repeat(grid, M), rng=rng, tile=G)
+            return self.update_rl(copies(m), copies(P), zt, t, np.repeat(grid, M), rng=rng, tile=G * tile)
         L, P = self._chol(sym(P), "P_pred", t)
         if rng is None:
             rng = self.rng(_UPDATE, t)
-        mos = rule.moments_prefixes(self._wrap(model.h, t + 1), m, P, grid, residual=self._residual_rl(), rng=rng, L=L)
+        mos = rule.moments_prefixes(self._wrap(model.h, t + 1), m, P, grid, residual=self._residual_rl(), rng=rng, L=L,
+                                    tile=tile)
         cat = lambda arrays: np.concatenate(arrays, axis=-1)  # noqa: E731
         return self._finish_update(
-            tile(m), tile(P), tile(z), t, cat([mo.mean for mo in mos]), cat([_plus_error(mo.cov, mo) for mo in mos]),
+            copies(m), copies(P), zt, t, cat([mo.mean for mo in mos]), cat([_plus_error(mo.cov, mo) for mo in mos]),
             cat([mo.cross for mo in mos]), cat([mo.n_iter for mo in mos]),
         )
 
@@ -400,6 +416,8 @@ class GaussianAssumedFilter:
         model = self.model
         Pzz = sym(S + self._R)
         Lz, Pzz = self._chol(Pzz, "Pzz", t)
+        if callable(z):
+            z = z(z_pred, Lz)
         innov = z - z_pred if model.residual is None else self._residual_rl()(z, z_pred)
         K = solve_spd(Lz, Pxz.swapaxes(0, 1)).swapaxes(0, 1)  # (nx, nz, M)
         y = solve_spd(Lz, innov[:, None, :])[:, 0, :]

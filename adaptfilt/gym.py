@@ -55,6 +55,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
+from adaptfilt.anchor import ANCHORS, Anchor, allowed_mask, greedy_onehot
 from adaptfilt.features import OBS_LIMIT, FeatureScaler, FeatureSet, fit_scaler, observe
 
 __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vector_env", "make_env",
@@ -84,19 +85,35 @@ def rewards(cost: np.ndarray, cost_transform: str = "log1p") -> np.ndarray:
 
 
 class _Observer:
-    """Information state -> network input: feature set, scaler, float32, bounded."""
+    """Information state -> network input: feature set, scaler, float32, bounded; with an anchor
+    (:mod:`adaptfilt.anchor`), greedy's one-hot appended (the anchored policy drops it before its networks)."""
 
-    def __init__(self, env, features, scaler: FeatureScaler | None, scaler_seed: int):
+    def __init__(self, env, features, scaler: FeatureScaler | None, scaler_seed: int, anchor=None):
+        if isinstance(anchor, str):
+            if anchor not in ANCHORS:
+                raise ValueError(f"unknown anchor {anchor!r}; choose one of {', '.join(ANCHORS)} (or None)")
+            anchor = Anchor(anchor)
+        if anchor is not None and not isinstance(anchor, Anchor):
+            raise ValueError(f"anchor must be None, a name or an adaptfilt.anchor.Anchor, got {anchor!r}")
+        self.anchor = None if anchor is None else anchor.policy
+        self.shield = None if anchor is None else anchor.shield
         self.features = FeatureSet.parse(features)
         self.scaler = scaler if scaler is not None else fit_scaler(env, self.features, seed=scaler_seed)
-        names = self.features.names(env.model, env.grid) if hasattr(env, "model") else list(self.scaler.names)
+        model = getattr(env, "model", None)  # the toy MDPs have none: their names are the scaler's
+        names = self.features.names(model, env.grid) if model is not None else list(self.scaler.names)
         if self.scaler.names and list(self.scaler.names) != list(names):
             raise ValueError(f"the scaler was fitted on features {list(self.scaler.names)}, "
                              f"the environment's feature set {self.features.name!r} has {names}")
-        self.dim = int(self.scaler.center.shape[0])
+        G = int(np.asarray(env.grid).size)
+        self.n_anchor = 0 if anchor is None else G * (2 if self.shield is not None else 1)
+        self.dim = int(self.scaler.center.shape[0]) + self.n_anchor
 
     def __call__(self, decision) -> np.ndarray:
-        return self.scaler.network_input(observe(decision, self.features))
+        s = self.scaler.network_input(observe(decision, self.features))
+        if self.anchor is None:
+            return s
+        extra = [greedy_onehot(decision)] + ([] if self.shield is None else [allowed_mask(decision, self.shield)])
+        return np.concatenate([s] + extra, axis=1)
 
     def space(self) -> spaces.Box:
         return spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.dim,), dtype=np.float32)
@@ -126,6 +143,10 @@ class FilterVectorEnv(VectorEnv):
         trajectories come from ``reset(seed=...)``.
     n_steps : int, optional
         Horizon (default: the model's).
+    anchor : "greedy", an Anchor or None
+        Append greedy's choice as a one-hot ``(G,)`` to each observation, for an anchored policy
+        (:mod:`adaptfilt.anchor`; default None: the scaled features only), and with the anchor's
+        shield its mask ``(G,)`` (:func:`~adaptfilt.anchor.allowed_mask`).
 
     Example
     -------
@@ -140,7 +161,7 @@ class FilterVectorEnv(VectorEnv):
 
     def __init__(self, env_or_experiment="ungm-ukf", num_envs: int = 64, features="paper",
                  scaler: FeatureScaler | None = None, cost_transform: str = "log1p", seed: int = 0,
-                 n_steps: int | None = None, repair_penalty: float = 0.0):
+                 n_steps: int | None = None, repair_penalty: float = 0.0, anchor=None):
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.env, self.experiment = _filter_env(env_or_experiment, seed, n_steps)
@@ -151,7 +172,7 @@ class FilterVectorEnv(VectorEnv):
         if not (np.isfinite(repair_penalty) and repair_penalty >= 0):
             raise ValueError(f"repair_penalty must be finite and >= 0, got {repair_penalty}")
         self.repair_penalty = float(repair_penalty)
-        self.observer = _Observer(self.env, features, scaler, seed)
+        self.observer = _Observer(self.env, features, scaler, seed, anchor)
         self.num_envs = int(num_envs)
         self.grid = np.asarray(self.env.grid, dtype=float)
         self.single_observation_space = self.observer.space()
@@ -411,6 +432,15 @@ def to_learned_policy(model, venv=None, gamma: float | None = None, name: str | 
     gamma = float(model.gamma if gamma is None else gamma)
     meta = {"experiment": venv_.experiment, "feature_set": venv_.features.name,
             "cost_transform": venv_.cost_transform, "algo": type(model).__name__.lower(), **(metadata or {})}
+    anchor = getattr(venv_.observer, "anchor", None)
+    if anchor is not None:  # the policy adds c * onehot(greedy) to the actor's logits (adaptfilt.anchor)
+        from adaptfilt.anchor import Anchor
+
+        if not hasattr(pol, "n_anchor") or pol.shield != (venv_.observer.shield is not None):
+            raise ValueError("the environment appends greedy's one-hot (and the shield's mask) but the model is not "
+                             "an anchored policy with the same shield")
+        meta["anchor"] = Anchor(anchor, pol.strength, float(getattr(model, "ent_coef", 0.0)),
+                                venv_.observer.shield).to_dict()
     from adaptfilt.learned import describe_env
 
     meta = {**describe_env(venv_.env, venv_.features), **meta}

@@ -19,7 +19,8 @@ It holds the actor weights (``actor/<parameter>``), the feature scaling
 and one JSON document (``__metadata__``, UTF-8 bytes) with the experiment,
 model, rule parameter, grid, feature names, gamma, cost, seed, episodes,
 parallel, hyperparameters, package version, the training command and a
-learning-curve summary. The zip is written with a fixed date and sorted
+learning-curve summary; a policy anchored on greedy (:mod:`adaptfilt.anchor`) also records
+``anchor = {policy, strength, kl}``, which ``act`` applies. The zip is written with a fixed date and sorted
 entries and the JSON with sorted keys, so the same training gives a
 byte-identical file.
 
@@ -47,6 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from adaptfilt.anchor import Anchor, allowed_mask, anchored_logits, greedy_onehot
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 from adaptfilt.files import atomic_path
 
@@ -248,27 +250,54 @@ class LearnedPolicy:
         self.sample = bool(sample)
         self.rng = np.random.default_rng(rng)
         self.feature_set = FeatureSet.parse(self.metadata.get("feature_set"))
+        #: a policy anchored on greedy adds ``c * onehot(greedy's choice)`` to the actor's logits (:mod:`adaptfilt.anchor`)
+        self.anchor = Anchor.from_dict(self.metadata.get("anchor"))
 
     # --------------------------------------------------------- policy API
-    def logits(self, features: np.ndarray) -> np.ndarray:
-        """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``."""
+    def _logits(self, features: np.ndarray, anchor: np.ndarray | None, allowed: np.ndarray | None) -> torch.Tensor:
         s = torch.from_numpy(self.scaler.network_input(features))
         with torch.no_grad(), one_torch_thread():
-            return self.actor(s).double().numpy()
+            out = self.actor(s)
+            if self.anchor is None:
+                if anchor is not None or allowed is not None:
+                    raise ValueError(f"policy {self.name!r} is not anchored: give no anchor")
+                return out
+            shape = tuple(out.shape)
+            a = None if anchor is None else np.asarray(anchor, dtype=np.float32)
+            if a is None or a.shape != shape:
+                raise ValueError(f"policy {self.name!r} is anchored on {self.anchor.policy}: its logits need "
+                                 f"anchor=greedy_onehot(decision) of shape {shape}" + ("" if a is None else f", got {a.shape}"))
+            m = None if allowed is None else np.asarray(allowed, dtype=np.float32)
+            if (self.anchor.shield is None) != (m is None) or (m is not None and m.shape != shape):
+                raise ValueError(f"policy {self.name!r}: " + (f"its shield needs allowed=allowed_mask(decision, "
+                                 f"{self.anchor.shield:g}) of shape {shape}" if self.anchor.shield is not None
+                                 else "it has no shield: give no allowed mask"))
+            # float32 and one formula with training (adaptfilt.anchor.anchored_logits): the file acts as the model did
+            return anchored_logits(out, torch.from_numpy(a), self.anchor.strength, None if m is None else torch.from_numpy(m))
 
-    def probs(self, features: np.ndarray) -> np.ndarray:
-        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)``."""
-        s = torch.from_numpy(self.scaler.network_input(features))
-        with torch.no_grad(), one_torch_thread():
-            return torch.softmax(self.actor(s), dim=-1).double().numpy()
+    def logits(self, features: np.ndarray, anchor: np.ndarray | None = None, allowed: np.ndarray | None = None) -> np.ndarray:
+        """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``; an anchored policy
+        (:mod:`adaptfilt.anchor`) also needs greedy's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it,
+        and with a shield its mask ``allowed (M, |Theta|)`` (masked candidates get ``MASKED_LOGIT``)."""
+        return self._logits(features, anchor, allowed).double().numpy()
+
+    def probs(self, features: np.ndarray, anchor: np.ndarray | None = None, allowed: np.ndarray | None = None) -> np.ndarray:
+        """``pi(theta | s)`` as ``(M, |Theta|)`` for raw information states ``(M, d)`` (``anchor``, ``allowed``:
+        see :meth:`logits`)."""
+        return torch.softmax(self._logits(features, anchor, allowed), dim=-1).double().numpy()
 
     def act(self, decision) -> np.ndarray:
         """Grid indices ``(M,)``: ``argmax pi`` (or a draw from ``pi`` if ``sample``)."""
         to_env = grid_indices(self.grid, decision.grid, self.name)
         s = observe(decision, self.feature_set)
+        anchor = allowed = None
+        if self.anchor is not None:
+            anchor = greedy_onehot(decision, self.grid)
+            if self.anchor.shield is not None:
+                allowed = allowed_mask(decision, self.anchor.shield, self.grid)
         if not self.sample:
-            return to_env[np.argmax(self.logits(s), axis=1)]
-        p = self.probs(s)
+            return to_env[np.argmax(self.logits(s, anchor, allowed), axis=1)]
+        p = self.probs(s, anchor, allowed)
         u = self.rng.random(p.shape[0])
         return to_env[np.minimum((np.cumsum(p, axis=1) < u[:, None]).sum(axis=1), p.shape[1] - 1)]
 
@@ -414,6 +443,10 @@ def _check_policy_file(path, arrays: Mapping[str, np.ndarray], meta: Mapping) ->
             raise bad(f"{k} has shape {arrays[k].shape}, the actor expects ({in_dim},)")
     if min(hidden, default=1) < 1 or in_dim < 1 or n_actions < 1:
         raise bad(f"an empty network layer in {a}")
+    try:
+        Anchor.from_dict(meta.get("anchor"))
+    except ValueError as e:
+        raise bad(str(e)) from None
 
 
 def load_policy(path: str | os.PathLike, experiment=None, name: str | None = None) -> LearnedPolicy:

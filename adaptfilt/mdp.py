@@ -142,6 +142,17 @@ class Decision:
         return self._m.shape[1]
 
     @property
+    def env(self) -> "FilterEnv":
+        """The environment that made this decision: its filter, cost, grid and horizon, what a
+        look-ahead policy simulates with (:mod:`adaptfilt.lookahead`)."""
+        return self._env
+
+    @property
+    def stream(self) -> int | None:
+        """The episode's key of a stochastic rule's random numbers (``FilterEnv.reset(stream=...)``)."""
+        return self._stream
+
+    @property
     def x_pred(self) -> np.ndarray:
         return self._m.T
 

@@ -12,6 +12,13 @@ Baselines (Section VI-D of the paper, and ours):
   per step (Dunik, Simandl and Straka);
 * :class:`GreedyPolicy`: ``argmin_theta L(s, z, theta)``, the exact one-step
   (myopic) optimum of the cost, found by trying every grid value;
+* look-ahead references in :mod:`adaptfilt.lookahead`, not learned:
+  :class:`~adaptfilt.lookahead.RolloutPolicy` (rollout with greedy as the base
+  policy: each candidate followed by ``H`` greedy steps on ``S`` sampled
+  continuations, ``argmin`` of the discounted cost; ``H = 0`` is greedy) and
+  :class:`~adaptfilt.lookahead.TwoStepPolicy` (the exhaustive two-step
+  look-ahead, its cross-check); what they compute is charged like greedy's
+  candidates (``Decision.extra_spent``);
 * learned policies (the actor network) live in :mod:`adaptfilt.learned`.
 """
 from __future__ import annotations

@@ -831,6 +831,7 @@ class StochasticIntegrationRule(MomentRule):
         rng: np.random.Generator | None = None,
         L: np.ndarray | None = None,
         cross: bool = True,
+        tile: int = 1,
     ) -> list[Moments]:
         r"""The moments for several iteration counts from one set of draws: one :class:`Moments` per ``n_iters``.
 
@@ -853,7 +854,8 @@ class StochasticIntegrationRule(MomentRule):
         runs (the tiled call, ``moments(..., tile=G)``). ``n_iters`` is a
         sequence of positive integers (repeats allowed, any order). ValueError
         when ``tol`` is set: tolerance stopping depends on the draws, and the
-        counts are then no longer prefixes of one another.
+        counts are then no longer prefixes of one another. ``tile``: as in
+        :meth:`moments` (the ``M`` runs are ``tile`` copies that see the same draws).
 
         Example
         -------
@@ -875,7 +877,8 @@ class StochasticIntegrationRule(MomentRule):
         counts = self.check_param(counts, n).astype(int)
         if rng is None:
             raise ValueError("the stochastic integration rule needs a numpy Generator (rng)")
-        return self._run(g, m, P, np.array(float(counts.max())), residual, rng, L, cross, 1, at=tuple(counts.tolist()))
+        return self._run(g, m, P, np.array(float(counts.max())), residual, rng, L, cross, _check_tile(tile, M),
+                         at=tuple(counts.tolist()))
 
     def _run(self, g, m, P, n_iter, residual, rng, L, cross, tile, at=None) -> Moments | list[Moments]:
         """The passes of :meth:`moments`; with ``at`` (see :meth:`_recursion`), one Moments per count in ``at``."""

@@ -26,7 +26,7 @@ Both are batched over ``n_runs`` like the filter environment:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,10 +39,28 @@ class ToyDecision:
     features: np.ndarray
     grid: np.ndarray
     default_index: int = 0
+    _env: "_ToyEnv | None" = field(default=None, repr=False)
+    #: what a look-ahead policy computed to decide (the toys charge nothing: :mod:`adaptfilt.lookahead`)
+    extra_spent: float = 0.0
 
     @property
     def n_runs(self) -> int:
         return self.features.shape[0]
+
+    def candidates(self) -> dict:
+        """One-step cost of every action, ``{"cost": (G, M)}`` (TrapEnv only): what greedy and a
+        policy anchored on greedy (:mod:`adaptfilt.anchor`) read."""
+        make = getattr(self._env, "_candidate_costs", None)
+        if make is None:
+            raise TypeError(f"{type(self._env).__name__} has no candidate costs")
+        return {"cost": make(self)}
+
+    def lookahead_model(self):
+        """What :mod:`adaptfilt.lookahead` simulates from this decision (TrapEnv only)."""
+        make = getattr(self._env, "_lookahead_model", None)
+        if make is None:
+            raise TypeError(f"{type(self._env).__name__} has no look-ahead model")
+        return make(self)
 
 
 @dataclass(frozen=True)
@@ -64,7 +82,7 @@ class _ToyEnv:
         self._rng = None
 
     def _decision(self) -> ToyDecision:
-        return ToyDecision(self._t, self._features(), self.grid, self.default_index)
+        return ToyDecision(self._t, self._features(), self.grid, self.default_index, self)
 
     def reset(self, n_runs=None, rng=None, traj=None, stream=None) -> ToyDecision:
         self._rng = np.random.default_rng(rng)
@@ -129,3 +147,44 @@ class TrapEnv(_ToyEnv):
         cost = np.where(self._bad, 1.0, np.where(a == 0, 0.0, self.c1))
         self._bad = self._bad | (a == 0)
         return cost
+
+    def _candidate_costs(self, d: ToyDecision) -> np.ndarray:
+        """``(2, M)``: action 0 is free in *good* (greedy's choice), every action costs 1 in *bad*."""
+        bad = d.features[:, 0] > 0.5
+        return np.stack([np.where(bad, 1.0, 0.0), np.where(bad, 1.0, self.c1)])
+
+    def _lookahead_model(self, d: ToyDecision) -> "_TrapLookahead":
+        return _TrapLookahead(self, d)
+
+
+class _TrapLookahead:
+    """The trap's exact model for :mod:`adaptfilt.lookahead` (the methods of its ``FilterLookahead``):
+    a branch is a bool *bad* per run; nothing is random, so every sample is the same."""
+
+    def __init__(self, env: TrapEnv, d: ToyDecision):
+        self.c1, self.grid, self.n_runs = env.c1, env.grid, d.n_runs
+        self.steps_left = env.n_steps - 1 - d.t
+        self._bad = d.features[:, 0] > 0.5
+
+    def _branch(self, bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cost ``(2, B)`` of each action and the successors (``2 B``, action-major): 0 falls into *bad*."""
+        cost = np.stack([np.where(bad, 1.0, 0.0), np.where(bad, 1.0, self.c1)])
+        return cost, np.concatenate([np.ones_like(bad), bad])
+
+    def root(self):
+        return self._branch(self._bad)
+
+    def noise(self, rng, H: int, S: int) -> list[dict]:
+        return [{"v": np.zeros((0, S, self.n_runs))} for _ in range(H)]
+
+    def take(self, Y: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        return Y[idx]
+
+    def expand(self, Y: np.ndarray, h: int, noise: dict, rng, tile: int = 1):
+        S, m = noise["v"].shape[1:]
+        if h == 1:  # one copy per sample, as the filter's look-ahead lays them out
+            Y = np.broadcast_to(Y.reshape(tile, 1, m), (tile, S, m)).ravel()
+        return self._branch(Y)
+
+    def spent(self, H: int, S: int) -> float:
+        return 0.0

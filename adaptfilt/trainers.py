@@ -41,6 +41,10 @@ transitions (rounded up to whole rollouts). Why these values:
 ``a2c`` (:data:`A2C_FAST`, the first fast mode) deviates differently: 64 runs,
 5-step returns, RMSprop at 7e-4, the paper's entropy bonus 1e-3.
 
+**Anchored on greedy** (``anchor="greedy"``, ``adaptfilt train ... --anchor greedy``; SB3 trainers):
+the policy is a residual over greedy's choice that acts exactly as greedy before training, kept near
+it by ``beta KL(pi || pi_0)`` in the place of PPO's entropy term (:mod:`adaptfilt.anchor`).
+
 All trainers return a :class:`~adaptfilt.learned.LearnedPolicy` whose file is
 byte-identical for the same command (one torch thread, seeded everything) on the
 same kind of CPU; on another instruction set the floating-point kernels round
@@ -116,7 +120,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               progress: bool = True, command: str | None = None, name: str | None = None,
               max_seconds: float | None = None, repair_penalty: float = 0.0,
               actions: Sequence[float] | None = None, cost_transform: str = "log1p",
-              normalize_reward: bool = False):
+              normalize_reward: bool = False, anchor=None):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
@@ -136,6 +140,10 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     the mean cost itself, whose rare large steps the log flattens). ``normalize_reward``: the learner
     sees the reward divided by a running estimate of the return's spread (SB3's ``VecNormalize``,
     observations untouched); the learning curve keeps the transformed cost itself.
+    ``anchor``: ``None``, ``"greedy"`` or an :class:`~adaptfilt.anchor.Anchor`: the policy is a residual
+    over greedy's choice, ``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer at
+    zero (the untrained policy acts as greedy), and the loss carries ``kl * KL(pi || pi_0)`` in the
+    slot of PPO's entropy term (:mod:`adaptfilt.anchor`; ``config.kwargs`` must not set ``ent_coef`` then).
     """
     import torch
     from stable_baselines3 import A2C, PPO
@@ -151,19 +159,31 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     _check(gamma, episodes)
     target, label, recommended = _target(experiment, n_steps)
     features = features or recommended
+    anchor = _anchor(anchor)
+    if anchor is not None and config.kwargs.get("ent_coef", 0.0):
+        raise ValueError("an anchored policy's KL term takes the place of PPO's entropy term: set the "
+                         "anchor's kl instead of ent_coef")
     if actions is not None:
         target, n_steps = _restricted(target, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
-                    repair_penalty=repair_penalty, cost_transform=cost_transform)
+                    repair_penalty=repair_penalty, cost_transform=cost_transform,
+                    anchor=anchor)
     T = venv.venv.env.n_steps
     total = int(episodes) * T
     kwargs = {"policy_kwargs": {"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
               **config.kwargs}
+    policy_class = "MlpPolicy"
+    if anchor is not None:
+        from adaptfilt.anchor import anchored_policy_class
+
+        policy_class = anchored_policy_class()
+        kwargs["policy_kwargs"].update(strength=anchor.strength, shield=anchor.shield is not None)
+        kwargs["ent_coef"] = anchor.kl
     curve: list[float] = []
     with one_torch_thread(), torch.random.fork_rng(devices=[]):
         venv.seed(seed)
         env = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=float(gamma)) if normalize_reward else venv
-        model = classes[config.algo]("MlpPolicy", env, gamma=float(gamma), seed=int(seed), device="cpu",
+        model = classes[config.algo](policy_class, env, gamma=float(gamma), seed=int(seed), device="cpu",
                                      verbose=0, **kwargs)
         callbacks = [_curve_callback(curve, config.n_envs)]
         if max_seconds is not None:
@@ -184,6 +204,17 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     pol = to_learned_policy(model, venv, gamma=gamma, name=name, metadata=meta)
     pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
     return pol
+
+
+def _anchor(anchor):
+    """``None``, an anchor name or an :class:`~adaptfilt.anchor.Anchor` -> an Anchor or None (ValueError if bad)."""
+    from adaptfilt.anchor import Anchor
+
+    if anchor is None or isinstance(anchor, Anchor):
+        return anchor
+    if isinstance(anchor, str):
+        return Anchor(anchor)
+    raise ValueError(f"anchor must be None, a name such as 'greedy' or an Anchor, got {anchor!r}")
 
 
 def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None):
@@ -278,7 +309,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  progress: bool = True, command: str | None = None, out: str | Path | None = None,
                  resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
                  repair_penalty: float = 0.0, actions: Sequence[float] | None = None,
-                 cost_transform: str = "log1p"):
+                 cost_transform: str = "log1p", anchor: str | None = None, anchor_strength: float | None = None,
+                 anchor_kl: float | None = None, anchor_shield: float | None = None):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
     ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
@@ -289,6 +321,12 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     from the checkpoint next to ``out``. ``name``: the policy's name (default:
     ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0). ``cost_transform``: the learner
     minimises the mean of ``log(1 + L)`` (``"log1p"``, the paper's) or of ``L`` (``"none"``).
+    ``anchor="greedy"`` (SB3 trainers): a residual policy over greedy's choice with strength
+    ``anchor_strength`` (``c``, default :data:`adaptfilt.anchor.DEFAULT_STRENGTH`) and the penalty
+    ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as greedy
+    before training (:mod:`adaptfilt.anchor`); recorded in the file's ``anchor`` metadata.
+    ``anchor_shield``: mask out candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than it
+    (:func:`adaptfilt.anchor.allowed_mask`; default :data:`adaptfilt.anchor.DEFAULT_SHIELD`, 0: no shield).
 
     >>> import adaptfilt as af                                        # doctest: +SKIP
     >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
@@ -296,11 +334,24 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     """
     if algo not in ALGOS:
         raise ValueError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGOS)}")
+    spec = None
+    if anchor is None:
+        if anchor_strength is not None or anchor_kl is not None or anchor_shield is not None:
+            raise ValueError("anchor_strength, anchor_kl and anchor_shield set the anchor: give anchor='greedy' too")
+    else:
+        from adaptfilt.anchor import DEFAULT_KL, DEFAULT_SHIELD, DEFAULT_STRENGTH, Anchor
+
+        shield = DEFAULT_SHIELD if anchor_shield is None else anchor_shield
+        spec = Anchor(anchor, DEFAULT_STRENGTH if anchor_strength is None else anchor_strength,
+                      DEFAULT_KL if anchor_kl is None else anchor_kl,
+                      None if shield == 0 else shield)  # 0: no shield (Anchor's None)
     if algo in ("faithful", "batched"):
         from adaptfilt.actor_critic import train_experiment
 
         if actions is not None:
             raise ValueError("actions= (a restricted grid) needs an SB3 trainer (fast, a2c or ppo)")
+        if spec is not None:
+            raise ValueError("anchor= (a residual policy over greedy) needs an SB3 trainer (fast, a2c or ppo)")
 
         B = 1 if algo == "faithful" else (parallel or 50)
         if algo == "faithful" and parallel not in (None, 1):
@@ -329,7 +380,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     cfg = SB3Config(base.algo, parallel or base.n_envs, kwargs)
     pol = train_sb3(experiment, gamma, episodes, seed, cfg, features=features, n_steps=n_steps, progress=progress,
                     command=command, name=name, repair_penalty=repair_penalty, actions=actions,
-                    cost_transform=cost_transform)
+                    cost_transform=cost_transform, anchor=spec)
     if out is not None:
         pol.save(out)
     return pol

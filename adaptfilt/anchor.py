@@ -1,0 +1,417 @@
+r"""Learned policies anchored on greedy: a residual over greedy's choice, kept near it by a KL term.
+
+Issue 23, item 2: a learned policy that starts *as* greedy (the exact one-step optimum, the bar every
+learned policy is measured against) and moves away only where the learner finds that it pays.
+
+**The policy.** With ``g(s)`` greedy's choice (the argmin of the one-step cost over the grid,
+:class:`~adaptfilt.policies.GreedyPolicy`) and ``f(s)`` the actor network's logits,
+
+.. math::
+    \pi(\theta \mid s) \propto \exp\big(f(s)_\theta + c\,[\theta = g(s)]\big),
+    \qquad \pi_0(\theta \mid s) \propto \exp\big(c\,[\theta = g(s)]\big).
+
+``c`` is the anchor *strength*. The actor's output layer starts at exactly zero (weights and bias),
+so the untrained policy is ``pi_0``: its most probable action (what the policy does at evaluation,
+Algorithm 3) **is** greedy's, exactly, whatever the network's hidden layers; during training it
+samples greedy's action with probability ``e^c / (e^c + G - 1)`` (``c = 3``, ``G = 13``: 0.63) and
+explores the rest. The deterministic policy leaves greedy at a state only once the learned logits
+prefer another value by more than ``c``.
+
+This is the form of the optimum of KL-regularised RL, ``pi ∝ pi_0 exp(Q / alpha)`` (Todorov 2007;
+Rawlik, Toussaint and Vijayakumar 2012; Levine 2018, "Reinforcement learning and control as
+inference"): the network plays the role of ``Q / alpha`` relative to the prior ``pi_0``. It is also
+the discrete-action form of residual policy learning (Silver et al. 2018; Johannink et al. 2019), in
+which a learned correction is added to a fixed base controller and starts at zero.
+
+**The KL term.** The loss also carries ``beta * KL(pi(.|s) || pi_0(.|s))`` (``kl``) averaged over
+the minibatch, which pulls the policy back to greedy where the advantage does not push it away.
+PPO's entropy bonus ``- ent_coef * H(pi)`` is the special case ``pi_0`` uniform (``-H(pi) =
+KL(pi || U) - log G``), so :func:`anchored_policy_class` puts ``-KL(pi || pi_0)`` where SB3's
+``evaluate_actions`` returns the entropy and the trainer sets ``ent_coef = beta``: SB3's own PPO
+(and A2C) loss then is ``policy loss + beta KL + vf_coef * value loss`` without a subclass of the
+algorithm (SB3 logs the mean KL as ``train/entropy_loss``). No maintained library we know of has an
+anchor-KL option for PPO; this keeps SB3's algorithm untouched.
+
+**The shield** (``shield = D``, optional). The residual is trained on ``log(1 + L)``, which weighs a
+step that costs ``10^6`` like a few dozen ordinary steps; one of eight anchored UNGM policies had a
+mean cost of 331 against greedy's 0.80 on 10^4 runs, and on selection runs its steps that cost more
+than 10^3 were all steps where it chose kappa = 50 while greedy's kappa = 10^4 would have cost about
+100 *at that very step* (``benchmarks/bench_anchor.py``). A shield (Alshiekh et al. 2018, "Safe reinforcement learning
+via shielding") removes such choices before they are made: candidates whose one-step
+``log(1 + L)`` exceeds greedy's by more than ``D`` get the logit :data:`MASKED_LOGIT`, in training
+(PPO never samples them; invalid-action masking, Huang and Ontañón 2022) and in acting alike
+(:func:`allowed_mask`; greedy's own choice is always allowed, so the untrained policy is still greedy).
+With ``D = 1`` a deviation costs at most ``e (1 + L_greedy) - 1`` at the step where it is made.
+
+**Distilling rollout** (:func:`distill_rollout`): the same residual form fitted to the rollout
+reference's Q-values (:mod:`adaptfilt.lookahead`) instead of trained by PPO.
+
+**What the network sees.** The anchor is not a feature: the network sees the scaled information
+state of its feature set as every learned policy does (``paper+time+cand`` etc.), and greedy's
+choice reaches the logits only through ``c``. In training, the Gymnasium adapter appends greedy's
+one-hot to each observation (``FilterVectorEnv(anchor="greedy")``) and the policy's features
+extractor drops it before the networks (the critic never sees it); in acting,
+:class:`~adaptfilt.learned.LearnedPolicy` computes it from the decision's candidates
+(:func:`greedy_onehot`, the same ``argmin`` as greedy) and adds it in float32 as SB3 does, so a
+policy file acts exactly as the trained model. Greedy's candidates are computed every step and
+charged like greedy's (``Decision.extra_spent``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["ANCHORS", "Anchor", "DEFAULT_SHIELD", "greedy_index", "greedy_onehot", "allowed_mask", "anchored_logits", "anchored_policy_class",
+           "rollout_data", "distill_rollout", "DEFAULT_STRENGTH",
+           "DEFAULT_KL"]
+
+#: Policies a learned policy can be anchored on.
+ANCHORS = ("greedy",)
+#: Default anchor strength ``c`` (logit added to greedy's choice). Chosen on selection runs: see
+#: ``benchmarks/bench_anchor.py``.
+DEFAULT_STRENGTH = 3.0
+#: Default KL coefficient ``beta`` (in units of PPO's per-minibatch normalised advantage).
+DEFAULT_KL = 0.01
+#: Default shield of the trainers (``train_policy(..., anchor="greedy")``; 0 there: none): without it one of
+#: eight UNGM policies had rare steps that cost 10^6 (see the module docstring).
+DEFAULT_SHIELD = 1.0
+
+
+@dataclass(frozen=True)
+class Anchor:
+    """What a policy is anchored on (``policy``), with the strength ``c`` and the KL coefficient ``beta``
+    it was trained with (``kl``; recorded, not used in acting).
+
+    >>> Anchor("greedy", 3.0, 0.01).to_dict()
+    {'policy': 'greedy', 'strength': 3.0, 'kl': 0.01}
+    """
+
+    policy: str = "greedy"
+    strength: float = DEFAULT_STRENGTH
+    kl: float = DEFAULT_KL
+    #: a shield (None: none): candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than this are
+    #: masked out, in training and in acting (:func:`allowed_mask`)
+    shield: float | None = None
+
+    def __post_init__(self):
+        if self.policy not in ANCHORS:
+            raise ValueError(f"unknown anchor {self.policy!r}; choose one of {', '.join(ANCHORS)}")
+        try:
+            s, k = float(self.strength), float(self.kl)
+        except (TypeError, ValueError):
+            raise ValueError(f"anchor strength and kl must be numbers, got {self.strength!r}, {self.kl!r}") from None
+        if not (np.isfinite(s) and s > 0):
+            raise ValueError(f"anchor strength must be finite and > 0 (0 would not anchor), got {self.strength!r}")
+        if not (np.isfinite(k) and k >= 0):
+            raise ValueError(f"anchor kl must be finite and >= 0, got {self.kl!r}")
+        object.__setattr__(self, "strength", s)
+        object.__setattr__(self, "kl", k)
+        if self.shield is not None:
+            try:
+                sh = float(self.shield)
+            except (TypeError, ValueError):
+                raise ValueError(f"anchor shield must be a number or None, got {self.shield!r}") from None
+            if not (np.isfinite(sh) and sh > 0):
+                raise ValueError(f"anchor shield must be finite and > 0 (or None: no shield), got {self.shield!r}")
+            object.__setattr__(self, "shield", sh)
+
+    def to_dict(self) -> dict:
+        d = {"policy": self.policy, "strength": self.strength, "kl": self.kl}
+        if self.shield is not None:
+            d["shield"] = self.shield
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None) -> "Anchor | None":
+        """The anchor recorded in a policy file's metadata (None: not anchored); ValueError if malformed."""
+        if d is None:
+            return None
+        if not isinstance(d, Mapping) or "policy" not in d or "strength" not in d:
+            raise ValueError(f"malformed anchor metadata {d!r}: expected {{'policy', 'strength', 'kl'}}")
+        return cls(d["policy"], d["strength"], d.get("kl", 0.0), d.get("shield"))
+
+
+def greedy_index(decision, grid: Sequence[float] | None = None) -> np.ndarray:
+    """Greedy's choice ``(M,)`` as an index into ``grid`` (default: the decision's grid): the ``argmin``
+    of the candidates' one-step cost, exactly as :class:`~adaptfilt.policies.GreedyPolicy` (first index
+    on a tie). ``grid`` may be a subset of the decision's grid (a policy on a restricted action set):
+    greedy over that subset."""
+    cost = decision.candidates()["cost"]
+    if cost is None:
+        raise ValueError("an anchor on greedy needs an environment with a cost")
+    cost = np.asarray(cost)
+    if grid is not None:
+        from adaptfilt.learned import grid_indices
+
+        cost = cost[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
+    return np.argmin(cost, axis=0)
+
+
+def greedy_onehot(decision, grid: Sequence[float] | None = None) -> np.ndarray:
+    """Greedy's choice as a float32 one-hot ``(M, G)`` over ``grid`` (see :func:`greedy_index`)."""
+    idx = greedy_index(decision, grid)
+    G = decision.grid.size if grid is None else len(grid)
+    out = np.zeros((idx.size, G), dtype=np.float32)
+    out[np.arange(idx.size), idx] = 1.0
+    return out
+
+
+def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None) -> np.ndarray:
+    """The shield's float32 mask ``(M, G)`` over ``grid`` (default the decision's): 1 where a candidate's
+    one-step ``log(1 + L)`` is at most ``shield`` above greedy's (greedy's own choice always), 0 elsewhere
+    (also where the candidate's cost is not finite). ``shield = 1``: a deviation may cost at most
+    ``e (1 + L_greedy) - 1`` now."""
+    cost = np.asarray(decision.candidates()["cost"], dtype=float)
+    if grid is not None:
+        from adaptfilt.learned import grid_indices
+
+        cost = cost[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
+    g = np.argmin(cost, axis=0)
+    with np.errstate(invalid="ignore"):
+        lc = np.log1p(np.maximum(cost, 0.0))
+        ok = np.isfinite(lc) & (lc - lc[g, np.arange(g.size)] <= float(shield))
+    ok[g, np.arange(g.size)] = True
+    return ok.T.astype(np.float32)
+
+
+def anchored_policy_class():
+    """The SB3 ``ActorCriticPolicy`` subclass of an anchored policy (built on first use: SB3 is optional).
+
+    Its observations are ``[scaled features (d), greedy's one-hot (G)]`` and, with ``shield=True``, the
+    shield's mask ``(G)`` after them (:class:`~adaptfilt.gym.FilterVectorEnv` with an anchor lays them
+    out so); keyword arguments ``strength`` (``c``) and ``shield``. The entropy slot always carries
+    ``-KL(pi || pi_0)`` (module docstring): the algorithm's ``ent_coef`` is the KL's weight ``beta``.
+    Only shared feature extractors (SB3's default for ``MlpPolicy``) are supported.
+    """
+    global _ANCHORED
+    if _ANCHORED is not None:
+        return _ANCHORED
+    import torch as th
+    from gymnasium import spaces
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+    class DropAnchor(BaseFeaturesExtractor):
+        """The observation without its last ``n_anchor`` columns (greedy's one-hot): what the networks see."""
+
+        def __init__(self, observation_space: spaces.Box, n_anchor: int):
+            super().__init__(observation_space, int(observation_space.shape[0]) - int(n_anchor))
+            self.n_keep = int(observation_space.shape[0]) - int(n_anchor)
+
+        def forward(self, obs: th.Tensor) -> th.Tensor:
+            return obs[:, : self.n_keep]
+
+    class AnchoredActorCriticPolicy(ActorCriticPolicy):
+        """``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer initialised at zero."""
+
+        def __init__(self, observation_space, action_space, lr_schedule, *, strength: float = DEFAULT_STRENGTH,
+                     shield: bool = False, **kwargs):
+            if not isinstance(action_space, spaces.Discrete):
+                raise ValueError("an anchored policy needs a Discrete action space (grid indices)")
+            if kwargs.get("share_features_extractor", True) is not True:
+                raise ValueError("an anchored policy shares its features extractor (SB3's default)")
+            self.n_anchor = int(action_space.n)
+            self.strength = float(strength)
+            self.shield = bool(shield)  # the observation also carries the shield's mask (G more columns)
+            n_extra = self.n_anchor * (2 if self.shield else 1)
+            kwargs.update(features_extractor_class=DropAnchor, features_extractor_kwargs={"n_anchor": n_extra})
+            super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+            with th.no_grad():  # the untrained policy is pi_0: greedy at its argmax, exactly
+                self.action_net.weight.zero_()
+                self.action_net.bias.zero_()
+
+        def _extra(self, obs):
+            """(greedy's one-hot, the shield's mask or None) from the observation's last columns."""
+            G = self.n_anchor
+            if not self.shield:
+                return obs[:, -G:].float(), None
+            return obs[:, -2 * G:-G].float(), obs[:, -G:].float()
+
+        def _split(self, obs):
+            features = self.extract_features(obs)
+            latent_pi, latent_vf = self.mlp_extractor(features)
+            return latent_pi, latent_vf, self._extra(obs)
+
+        def _dist(self, latent_pi, extra):
+            return self.action_dist.proba_distribution(action_logits=anchored_logits(
+                self.action_net(latent_pi), extra[0], self.strength, extra[1]))
+
+        def _minus_kl(self, dist, extra) -> th.Tensor:
+            """``-KL(pi || pi_0)`` per row: what PPO's entropy slot carries (module docstring)."""
+            logp = dist.distribution.logits  # normalised log-probabilities
+            logp0 = th.log_softmax(anchored_logits(th.zeros_like(logp), extra[0], self.strength, extra[1]), dim=-1)
+            return -(logp.exp() * (logp - logp0)).sum(dim=-1)
+
+        def forward(self, obs, deterministic: bool = False):
+            latent_pi, latent_vf, extra = self._split(obs)
+            dist = self._dist(latent_pi, extra)
+            actions = dist.get_actions(deterministic=deterministic)
+            log_prob = dist.log_prob(actions)
+            return actions.reshape((-1, *self.action_space.shape)), self.value_net(latent_vf), log_prob
+
+        def evaluate_actions(self, obs, actions):
+            latent_pi, latent_vf, extra = self._split(obs)
+            dist = self._dist(latent_pi, extra)
+            return self.value_net(latent_vf), dist.log_prob(actions), self._minus_kl(dist, extra)
+
+        def get_distribution(self, obs):
+            latent_pi = self.mlp_extractor.forward_actor(self.extract_features(obs))
+            return self._dist(latent_pi, self._extra(obs))
+
+    _ANCHORED = AnchoredActorCriticPolicy
+    return _ANCHORED
+
+
+_ANCHORED = None
+
+#: the logit of a candidate the shield masks out: finite, so that softmax, log-probabilities and the KL stay finite
+MASKED_LOGIT = -1e4
+
+
+def anchored_logits(net, onehot, strength: float, allowed=None):
+    """``net + c * onehot``, and ``MASKED_LOGIT`` where the shield's mask ``allowed`` is 0 (torch tensors,
+    float32): the one formula of training (SB3 and :func:`distill_rollout`) and acting (``LearnedPolicy``)."""
+    import torch as th
+
+    out = net + strength * onehot
+    return out if allowed is None else th.where(allowed > 0, out, th.full_like(out, MASKED_LOGIT))
+
+
+# ------------------------------------------------------------------ rollout distillation
+#: keys the distillation's trajectories apart from training and evaluation runs
+_DISTILL_KEY = 0xD157
+
+
+def rollout_data(experiment, seed: int = 0, *, runs: int = 500, features: str | None = None,
+                 n_steps: int | None = None, horizon: int = 1, samples: int = 4, gamma: float = 0.5,
+                 progress: bool = False) -> dict:
+    """States and rollout Q-values along the rollout policy's own trajectories: the data of
+    :func:`distill_rollout`.
+
+    ``runs`` trajectories from ``default_rng([seed, _DISTILL_KEY])`` (stream ``seed``) of the experiment's
+    environment (filter seeded with ``seed``), driven by :class:`~adaptfilt.lookahead.RolloutPolicy`
+    (greedy base policy, ``horizon``, ``samples``, ``gamma``, its continuations keyed by ``seed``).
+    Returns ``{"features" (N, d) raw information states of the feature set, "greedy" (N,) greedy's
+    choice, "q" (N, G) the rollout estimate of every candidate's discounted cost}``, ``N = runs * T``.
+    """
+    from adaptfilt.experiments import get_experiment
+    from adaptfilt.features import observe
+    from adaptfilt.lookahead import RolloutPolicy
+
+    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
+    if hasattr(exp, "make_env"):
+        fs, env, label = features or exp.features, exp.make_env(seed=seed, n_steps=n_steps), exp.name
+    else:  # an environment of one's own (a FilterEnv, or a toy MDP with a look-ahead model): its horizon is its own
+        if n_steps is not None and n_steps != exp.n_steps:
+            raise ValueError(f"n_steps={n_steps} for an environment with horizon {exp.n_steps}")
+        fs, env, label = features or "paper", exp, getattr(exp, "experiment", None)
+    teacher = RolloutPolicy(env.grid, horizon=horizon, samples=samples, gamma=gamma, seed=seed)
+    d = env.reset(n_runs=int(runs), rng=np.random.default_rng([seed, _DISTILL_KEY]), stream=seed)
+    X, g, Q = [], [], []
+    steps = range(env.n_steps)
+    if progress:
+        from tqdm.auto import tqdm
+
+        steps = tqdm(steps, desc=f"rollout data {label} seed={seed}", leave=False)
+    for _ in steps:
+        X.append(observe(d, fs))
+        g.append(greedy_index(d))
+        q = teacher.q(d)
+        Q.append(q.T)
+        d, _, _, _ = env.step(np.argmin(np.where(np.isnan(q), np.inf, q), axis=0))
+    return {"features": np.concatenate(X), "greedy": np.concatenate(g), "q": np.concatenate(Q),
+            "feature_set": fs, "env": env, "experiment": label}
+
+
+def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str | None = None,
+                    n_steps: int | None = None, horizon: int = 1, samples: int = 4, gamma: float = 0.5,
+                    strength: float = DEFAULT_STRENGTH, kl: float = 1.0, epochs: int = 20, lr: float = 1e-3,
+                    batch_size: int = 1024, clip: float = 100.0, progress: bool = False,
+                    command: str | None = None, name: str | None = None, data: dict | None = None):
+    r"""An anchored policy trained on rollout's Q-values instead of by PPO: one step of
+    KL-regularised, classification-based policy iteration with greedy as the base policy.
+
+    Rollout improves on its base policy (Bertsekas); approximate policy iteration by
+    classification (Lagoudakis and Parr 2003; Lazaric, Ghavamzadeh and Munos 2010, "DPI")
+    fits a policy to the rollout's choices so that the improvement holds without simulating at
+    run time. Here the fit is cost-sensitive and anchored: with ``A(theta) = Q(theta) - Q(greedy)``
+    the rollout estimate of what choosing ``theta`` instead of greedy's value saves (negative: a
+    saving; :func:`rollout_data`), in units of the mean saving rollout finds per step and clipped at
+    ``+-clip``, the actor minimises
+
+    .. math::
+        \mathbb E_s\Big[\sum_\theta \pi(\theta|s) A(s, \theta) + \beta\,
+        \mathrm{KL}\big(\pi(\cdot|s)\,\|\,\pi_0(\cdot|s)\big)\Big],
+
+    whose minimiser over all policies is ``pi ∝ pi_0 exp(-A / beta)``: the residual form of
+    :mod:`adaptfilt.anchor` with the network in the place of ``-A / beta``, so the policy
+    leaves greedy (at its argmax) only where the expected saving exceeds ``beta * c`` mean savings,
+    and stays at greedy where rollout finds nothing. Weighting by the saving itself (not counting
+    choices) is what the mean cost needs: rare steps with large savings are most of it.
+
+    The policy acts from its information state (``features``, default the experiment's) and greedy's
+    candidates only: no look-ahead at run time. ``epochs=0`` returns the untrained policy (greedy). Deterministic for a seed (data, network
+    initialisation and minibatches; one torch thread). Returns a
+    :class:`~adaptfilt.learned.LearnedPolicy` with ``anchor`` metadata (acts identically from its file).
+    """
+    import torch
+
+    import adaptfilt
+    from adaptfilt.features import FeatureSet, fit_scaler
+    from adaptfilt.learned import Actor, LearnedPolicy, describe_env, one_torch_thread
+
+    spec = Anchor("greedy", strength, kl)
+    for k, v, lo in (("runs", runs, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1)):
+        if not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
+    if not (np.isfinite(lr) and lr > 0) or not (np.isfinite(clip) and clip > 0):
+        raise ValueError(f"lr and clip must be finite and > 0, got {lr!r}, {clip!r}")
+    data = data or rollout_data(experiment, seed, runs=runs, features=features, n_steps=n_steps, horizon=horizon,
+                                samples=samples, gamma=gamma, progress=progress)
+    env, fs = data["env"], data["feature_set"]
+    scaler = fit_scaler(env, fs, seed=seed)  # as the Gymnasium adapter fits it for the same seed
+    q = np.where(np.isfinite(data["q"]), data["q"], np.finfo(float).max / 1e10)
+    N, G = q.shape
+    A = q - q[np.arange(N), data["greedy"]][:, None]
+    saving = np.maximum(0.0, -A.min(axis=1))
+    unit = float(saving.mean()) if saving.mean() > 0 else 1.0
+    A = np.clip(A / unit, -clip, clip)
+    onehot = np.zeros((N, G), dtype=np.float32)
+    onehot[np.arange(N), data["greedy"]] = 1.0
+    with one_torch_thread(), torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        actor = Actor(scaler.center.shape[0], G)
+        last = [m for m in actor.net if isinstance(m, torch.nn.Linear)][-1]
+        with torch.no_grad():  # the untrained policy is pi_0: greedy at its argmax
+            last.weight.zero_()
+            last.bias.zero_()
+        X = torch.from_numpy(scaler.network_input(data["features"]))
+        At, Ot = torch.from_numpy(A.astype(np.float32)), torch.from_numpy(onehot)
+        logp0 = torch.log_softmax(spec.strength * Ot, dim=-1)
+        opt = torch.optim.Adam(actor.parameters(), lr=lr)
+        gen = torch.Generator().manual_seed(seed)
+        curve = []
+        for _ in range(int(epochs)):
+            perm, tot = torch.randperm(N, generator=gen), 0.0
+            for lo in range(0, N, int(batch_size)):
+                i = perm[lo:lo + int(batch_size)]
+                logp = torch.log_softmax(actor(X[i]) + spec.strength * Ot[i], dim=-1)
+                p = logp.exp()
+                loss = (p * At[i]).sum(-1).mean() + spec.kl * (p * (logp - logp0[i])).sum(-1).mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                tot += float(loss.detach()) * i.numel()
+            curve.append(tot / N)
+    meta = {**describe_env(env, fs), "experiment": data["experiment"], "feature_set": FeatureSet.parse(fs).name,
+            "algo": "rollout-distill", "seed": int(seed), "runs": int(runs), "n_steps": int(env.n_steps),
+            "teacher": {"policy": "rollout", "horizon": int(horizon), "samples": int(samples), "gamma": float(gamma)},
+            "trainer": {"epochs": int(epochs), "lr": float(lr), "batch_size": int(batch_size), "clip": float(clip),
+                        "saving_unit": unit},
+            "anchor": spec.to_dict(), "command": command, "version": adaptfilt.__version__,
+            "torch_version": torch.__version__.split("+")[0]}
+    return LearnedPolicy(actor, scaler, env.grid, gamma=gamma, name=name, metadata=meta,
+                         curve={"train_loss": np.asarray(curve)})
+
