@@ -11,7 +11,7 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw] [--workers N] [--cluster ADDRESS] [--data DIR]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look] [--workers N] [--cluster ADDRESS] [--data DIR]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
@@ -204,9 +204,11 @@ def _values(text: str) -> tuple[float, ...]:
 
 
 def _studies(text: str) -> str:
-    bad = [s for s in text.split(",") if s not in ("cand", "sif", "ood", "raw")]
+    from adaptfilt.experiments.beyond import STUDIES
+
+    bad = [s for s in text.split(",") if s not in STUDIES]
     if bad or not text:
-        raise argparse.ArgumentTypeError(f"studies are a comma-separated subset of cand,sif,ood,raw; got {text!r}")
+        raise argparse.ArgumentTypeError(f"studies are a comma-separated subset of {','.join(STUDIES)}; got {text!r}")
     return text
 
 
@@ -459,8 +461,10 @@ def build_parser() -> argparse.ArgumentParser:
                                       "out of distribution), at the seed level, into OUT/beyond")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory (OUT/beyond)")
     p.add_argument("--quick", action="store_true", help="toy scale")
-    p.add_argument("--studies", type=_studies, default="cand,sif,ood,raw",
-                   help="which: cand,sif,ood,raw (default all)")
+    from adaptfilt.experiments.beyond import STUDIES
+
+    p.add_argument("--studies", type=_studies, default=",".join(STUDIES),
+                   help=f"which: {','.join(STUDIES)} (default all)")
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
     p.add_argument("--cluster", default=None, help="run the jobs on a Dask cluster (scheduler address or 'local')")
     p.add_argument("--data", default=None,

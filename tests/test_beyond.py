@@ -223,3 +223,34 @@ def test_quick_raw_study_pairs_the_untransformed_policies_with_the_log_ones(tmp_
         assert not np.array_equal(pol.curve["train_cost"], other.curve["train_cost"])
     md = summary_md(summary)
     assert "| ungm-ukf | adaptive-raw |" in md and "adaptive-raw - adaptive, IQM" in md
+
+
+def test_quick_anchor_and_look_studies(tmp_path):
+    """The anchored learner and the look-ahead references at toy scale: the anchored policies record their
+    recipe and are evaluated on runs of their own seed (2); the references sit beside greedy on the same
+    paired runs, and the two-step look-ahead equals rollout with H = 1 (the same computation, the same
+    samples), while looking further costs more compute."""
+    from adaptfilt.evaluation import Results
+    from adaptfilt.experiments.beyond import ANCHOR_EVAL_SEED, run, summary_md
+    from adaptfilt.learned import load_policy
+
+    summary = run(tmp_path, quick=True, workers=1, studies=("anchor", "look"), progress=False)
+    res = Results.load(tmp_path / "beyond" / "results" / "anchor-ungm-ukf")
+    assert res.config["seed"] == ANCHOR_EVAL_SEED == summary["anchor-eval-seed"] != 0
+    row = summary["anchor"]["ungm-ukf"]["adaptive-anchored"]
+    assert row["cost"]["n_seeds"] == 2 and 0 <= row["seeds_below_greedy"] <= 2
+    pol = load_policy(tmp_path / "beyond" / "policies" / "ungm-ukf-adaptive-anchored-s1.npz", experiment="ungm-ukf")
+    assert "--anchor greedy --anchor-strength 3 --anchor-kl 0.01 --anchor-shield 1" in pol.metadata["command"]
+    look = summary["look"]["ungm-ukf"]
+    refs = look["references"]
+    assert set(refs) == {"rollout-H1-S2", "rollout-H2-S2", "twostep-S2"}
+    assert refs["twostep-S2"]["cost"] == refs["rollout-H1-S2"]["cost"]
+    assert refs["rollout-H2-S2"]["spent"] > refs["rollout-H1-S2"]["spent"] > look["baselines"]["greedy"]["spent"] == 13
+    assert "adaptive-anchored" in look["learned"] and look["n_runs"] == 40
+    sif = summary["look"]["ctm-sif-stateinnov"]
+    assert sif["verdict_cost"] == "cost_charged"  # the SIF references pay for their continuations
+    r = sif["references"]["rollout-H1-S2"]
+    assert r["cost_charged"] > r["cost"]
+    md = summary_md(summary)
+    assert "How much can looking ahead buy?" in md and "adaptive-anchored" in md
+    assert (tmp_path / "beyond" / "figures" / "look-gain.png").stat().st_size > 1000

@@ -265,7 +265,7 @@ OUT = "--out"
     (["train", "ungm-ukf", "--actions", "1,inf", OUT, "{tmp}/p.npz"], "argument --actions: expected finite numbers"),
     (["train", "ungm-ukf", "--cost-transform", "sqrt", OUT, "{tmp}/p.npz"], "argument --cost-transform: invalid choice"),
     (["reproduce", OUT, "{tmp}", "--scale", "huge"], "argument --scale: invalid choice"),
-    (["beyond", OUT, "{tmp}", "--studies", "cand,tail"], "subset of cand,sif,ood,raw"),
+    (["beyond", OUT, "{tmp}", "--studies", "cand,tail"], "subset of cand,sif,ood,raw,anchor,look"),
     (["reproduce", OUT, "{tmp}/afile"], "exists and is not a folder"),
     (["book", OUT, "{tmp}/afile/book"], "{tmp}/afile is not a folder"),
 ])

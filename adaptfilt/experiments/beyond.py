@@ -63,7 +63,13 @@ SELECTION_SEED = 1
 COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 RAW_EXPERIMENTS = ("ungm-ukf", "ctm-ukf")
-STUDIES = ("cand", "sif", "ood", "raw")
+STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look")
+#: The anchored learner of the ``anchor`` study (:mod:`adaptfilt.anchor`): a residual over greedy's choice
+#: (strength, KL weight and shield: the library's defaults, recorded explicitly in each file's command).
+ANCHOR = ("greedy", 3.0, 0.01, 1.0)
+#: Evaluation seed of the ``anchor`` study: runs that no choice of its recipe saw (the recipe was tuned on
+#: selection runs, seed 1, and its shield added after a first check on the evaluation runs of seed 0).
+ANCHOR_EVAL_SEED = 2
 SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
 
@@ -83,30 +89,33 @@ QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
 
 def _train_command(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
                    features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None,
-                   cost_transform: str = "log1p") -> str:
+                   cost_transform: str = "log1p", anchor: tuple | None = None) -> str:
     """The command recorded in (and by) a training job of :func:`_train_job` (same arguments)."""
     return (f"adaptfilt train {experiment} --algo {algo} --gamma {gamma:g} --episodes {scale.episodes} --seed {seed}"
             + (f" --features {features}" if features else "") + (f" --repair-penalty {repair_penalty:g}" if repair_penalty else "")
             + (f" --horizon {scale.n_steps}" if scale.n_steps else "")
             + (" --actions " + ",".join(f"{v:g}" for v in actions) if actions else "")
-            + (f" --cost-transform {cost_transform}" if cost_transform != "log1p" else "") + f" --out {out}")
+            + (f" --cost-transform {cost_transform}" if cost_transform != "log1p" else "")
+            + (" --anchor {} --anchor-strength {:g} --anchor-kl {:g} --anchor-shield {:g}".format(*anchor) if anchor else "")
+            + f" --out {out}")
 
 
 def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, scale: BeyondScale,
                features: str | None, algo: str, repair_penalty: float, actions: tuple | None = None,
-               cost_transform: str = "log1p") -> dict:
+               cost_transform: str = "log1p", anchor: tuple | None = None) -> dict:
     from adaptfilt.trainers import train_policy
 
     t0, c0 = time.perf_counter(), time.process_time()
     cmd = _train_command(experiment, kind, gamma, seed, out, scale, features, algo, repair_penalty, actions,
-                         cost_transform)
+                         cost_transform, anchor)
+    kw = dict(zip(("anchor", "anchor_strength", "anchor_kl", "anchor_shield"), anchor)) if anchor else {}
     train_policy(experiment, algo, gamma, scale.episodes, seed, features=features, n_steps=scale.n_steps,
                  progress=False, out=out, command=cmd, repair_penalty=repair_penalty, actions=actions,
-                 cost_transform=cost_transform)
+                 cost_transform=cost_transform, **kw)
     return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0, "command": cmd}
 
 
-def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tuple[str, ...] | None):
+def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tuple[str, ...] | None, seed: int = 0):
     from adaptfilt.evaluation import evaluate, learned_name
     from adaptfilt.experiments import get_experiment
     from adaptfilt.learned import load_policy
@@ -116,7 +125,7 @@ def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: t
             (p.name.startswith("fixed-") and not p.name.startswith("fixed-both-"))]
     pols = base + [load_policy(f, experiment=exp, name=learned_name(f, experiment)) for f in files]
     target = exp if scale.n_steps is None else exp.make_env(n_steps=scale.n_steps)
-    res = evaluate(target, pols, n_runs=scale.eval_runs, seed=0, progress=False)
+    res = evaluate(target, pols, n_runs=scale.eval_runs, seed=seed, progress=False)
     res.config.update(experiment=experiment)
     return res
 
@@ -221,6 +230,13 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                 rel = f"policies/{e}-adaptive-raw-s{s}.npz"
                 jobs.append((e, "adaptive-raw", 0.5, s, str(out / rel), scale, None, "fast", 0.0, None, "none"))
                 metas.append(rel)
+    if "anchor" in studies:  # on the candidate-aware state: greedy is a function of its inputs
+        for e, feats in CAND_EXPERIMENTS.items():
+            for s in scale.seeds:
+                rel = f"policies/{e}-adaptive-anchored-s{s}.npz"
+                jobs.append((e, "adaptive-anchored", 0.5, s, str(out / rel), scale, feats, "fast", 0.0, None, "log1p",
+                             ANCHOR))
+                metas.append(rel)
     listed = _listed_policies(out)
     todo = [(j, m) for j, m in zip(jobs, metas) if not _same_training(listed.get(m), _train_command(*j), out / m)]
     keys = [(_train_command(*j), j[3]) for j, _ in todo]
@@ -258,8 +274,14 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             files += reproduction(e)
             ejobs.append((e, files, scale, ("default", "ml", "greedy")))
             names.append(("raw", e))
-    results = journal.run(_evaluate_job, ejobs, [(_job_key("evaluate", study, e, files, scale, keep), 0)
-                                                  for (study, e), (_, files, _, keep) in zip(names, ejobs)],
+    if "anchor" in studies:  # beside the candidate-aware policies, on runs no choice of the recipe saw
+        for e in CAND_EXPERIMENTS:
+            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-anchored")]
+            files += [str(p) for p in sorted((out / "policies").glob(f"{e}-adaptive-cand-s*.npz"))]
+            ejobs.append((e, files, scale, ("default", "ml", "greedy"), ANCHOR_EVAL_SEED))
+            names.append(("anchor", e))
+    results = journal.run(_evaluate_job, ejobs, [(_job_key("evaluate", study, e, files, scale, keep, *rest), 0)
+                                                  for (study, e), (_, files, _, keep, *rest) in zip(names, ejobs)],
                           save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
                           desc="beyond: evaluate")
     for (study, e), res in zip(names, results):
@@ -270,7 +292,8 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                         for f in ("results.json", "results.npz")})
         rows = {}
         groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
-                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw", "adaptive")}
+                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw",
+                   "adaptive-anchored", "adaptive")}
         metrics = ("cost", "cost_charged", "objective", "rmse", "anees")
         for g, members in groups.items():
             if not members:
@@ -281,6 +304,9 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
             rows[g].update(_divergence(res, members))
             rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
+            # each seed alone: is its own paired run-level interval of the cost difference below 0?
+            c = "cost_charged" if study == "sif" else "cost"
+            rows[g]["seeds_below_greedy"] = int(sum(res.paired_difference(n, "greedy", c)[2] < 0 for n in members))
         if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
             rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
                                                                          groups["adaptive"], m)["iqm"])
@@ -299,6 +325,39 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                              "anees": p.anees, "divergent_frac": p.divergent_frac, "policy": name, "spent": p.spent,
                              **_divergence(res, [name])}
         summary.setdefault(study, {})[e] = rows
+        if study == "anchor":
+            summary["anchor-eval-seed"] = ANCHOR_EVAL_SEED
+
+    if "look" in studies:  # after the anchored policies: they are shown beside the references
+        from adaptfilt.experiments.look import LOOK, LOOK_QUICK, look_files, look_job, look_specs, look_summary, merge_parts
+
+        plan = LOOK_QUICK if quick else LOOK
+        ljobs, lexp = [], []
+        for e, (runs, grid_hs) in plan.items():
+            files = look_files(data, out, e, scale.seeds)
+            for spec in look_specs(e, grid_hs, quick):
+                ljobs.append((e, spec, files if spec == ("base",) else [], runs, scale.n_steps))
+                lexp.append(e)
+        # the longest parts first (a rollout's time grows with H x S)
+        order = sorted(range(len(ljobs)), key=lambda i: -np.prod(ljobs[i][1][1:] or (0,)))
+        parts = journal.run(look_job, [ljobs[i] for i in order],
+                            [(_job_key("look", *ljobs[i][:2], ljobs[i][2], *ljobs[i][3:]), 0) for i in order],
+                            save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
+                            desc="beyond: look-ahead references")
+        by_exp: dict[str, list] = {}
+        for i, res in sorted(zip(order, parts)):
+            by_exp.setdefault(lexp[i], []).append(res)
+        summary["look"] = {}
+        for e, ps in by_exp.items():
+            res = merge_parts(ps)
+            d = out / "results" / f"look-{e}"
+            wall = _take_times(res)
+            res.save(d, drop=COMPACT)
+            entries.update({f"results/look-{e}/{f}": {"command": cmd, "wall_time_s": wall}
+                            for f in ("results.json", "results.npz")})
+            summary["look"][e] = look_summary(res)
+        _look_figure(summary["look"], out / "figures")
+        entries["figures/look-gain.png"] = {"command": cmd}
 
     if "ood" in studies:
         files = reproduction("ungm-ukf")
@@ -343,6 +402,17 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                                                    indent=1) + "\n")
     journal.finish()
     return summary
+
+
+def _look_figure(look: dict, fig_dir: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from adaptfilt.experiments.look import plot_look_gain
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    fig = plot_look_gain(look)
+    fig.savefig(fig_dir / "look-gain.png", dpi=100)
+    plt.close(fig)
 
 
 def _take_times(res) -> float:
@@ -420,7 +490,9 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
                       f"{1e4 * r['divergent_rate_ci'][1]:.2g}]" + (f" ({', '.join(map(str, r['divergent_runs']))})"
                                                                     if len(r["divergent_runs"]) > 1 else ""))
     for study, title in (("cand", "Candidate-aware information state"), ("sif", "SIF policies: a repair penalty, a safe action set"),
-                         ("raw", "Training on the untransformed cost (adaptive-raw) against log(1 + L) (adaptive)")):
+                         ("raw", "Training on the untransformed cost (adaptive-raw) against log(1 + L) (adaptive)"),
+                         ("anchor", "Learned policies anchored on greedy (adaptive-anchored), evaluated on runs of seed "
+                          f"{summary.get('anchor-eval-seed', ANCHOR_EVAL_SEED)}")):
         if study not in summary:
             continue
         charged = study == "sif"
@@ -445,8 +517,10 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
                 if g in refs:
                     continue
                 costs = f"{f(r['cost_charged'])} | {f(r['cost'])}" if charged else f(r["cost"])
+                alone = (f" ({r['seeds_below_greedy']} of {len(r['divergent_runs'])} seeds below alone)"
+                         if "seeds_below_greedy" in r else "")
                 lines.append(f"| {e} | {g} | {costs} | {f(r['objective'])} | {f(r['rmse'])} | {f(r['anees'])} "
-                             f"| {r['spent']:.3g} | {d(r['minus_greedy'][cost])} | {d(r['minus_default'][cost])} "
+                             f"| {r['spent']:.3g} | {d(r['minus_greedy'][cost])}{alone} | {d(r['minus_default'][cost])} "
                              f"| {d(r['minus_greedy']['rmse'])} | {rate(r)} |")
         paired = [(e, rows["adaptive-raw"]["minus_adaptive"]) for e, rows in summary[study].items()
                   if "minus_adaptive" in rows.get("adaptive-raw", {})] if study == "raw" else []
@@ -456,6 +530,10 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
             lines += [f"| {e} | | " + " | ".join(d(x[m]) for m in ("cost", "objective", "rmse", "anees")) + " |"
                       for e, x in paired]
         parts.append("\n".join(lines) + "\n")
+    if "look" in summary:
+        from adaptfilt.experiments.look import look_md
+
+        parts.append(look_md(summary["look"]))
     if "ood" in summary:
         lines = ["**Out of distribution** (UNGM-UKF; gain over the default in mean log(1+L), positive is better; "
                  "learned and retuned: IQM over seeds [CI])", "",

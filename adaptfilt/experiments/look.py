@@ -1,0 +1,210 @@
+r"""How much can looking ahead buy? The look-ahead study of ``adaptfilt beyond --studies look``.
+
+The learned policies are measured against greedy, the exact one-step optimum; when they lose, it may be
+that there is little to gain on the model, or that the learner fails to find it. This study asks the
+first question without a learner: the non-learned look-ahead references of :mod:`adaptfilt.lookahead`
+(rollout with greedy as the base policy, horizon ``H`` and ``S`` sampled continuations, and the
+exhaustive two-step look-ahead as a cross-check), evaluated beside greedy, maximum likelihood, the
+default, every update-only constant and the learned groups (the reproduction's adaptive policies, the
+candidate-aware and the greedy-anchored ones of ``beyond``) on the same paired runs.
+
+Each (experiment, policy family) is one job of the same evaluation (same seed, same runs, same
+bootstrap resamples), merged into one :class:`~adaptfilt.evaluation.Results`:
+``("base",)`` the baselines and learned files, ``("rollout", H, S)``, ``("twostep", S)``.
+
+:func:`look_summary` gives, per experiment, each reference's paired difference to greedy (run level:
+a reference is one policy) on the verdict cost (charged for what it computes where the cost charges
+compute, the SIF), RMSE and ANEES, its compute per step, and the learned groups' seed-level differences;
+:func:`plot_look_gain` draws the gain over greedy against the horizon.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "merge_parts", "look_summary", "plot_look_gain",
+           "look_md"]
+
+#: experiment -> (paired runs, ((H, S), ...)): the rollout references; UNGM also gets the two-step cross-check.
+#: Sized by ``benchmarks/bench_lookahead.py`` (rollout H = 1, S = 4 costs 36x greedy's time on UNGM, 59x on
+#: the CTM, 8x on the SIF): M = 2000 runs keep the paired intervals narrow at about 1.5 CPU-hours in all.
+LOOK = {"ungm-ukf": (2000, ((1, 4), (2, 4), (4, 4), (1, 16), (2, 16))),
+        "ctm-ukf": (2000, ((1, 4), (2, 4), (1, 16))),
+        "ctm-sif-stateinnov": (1000, ((1, 4), (2, 4)))}
+#: The same at toy scale (tests).
+LOOK_QUICK = {"ungm-ukf": (40, ((1, 2), (2, 2))), "ctm-ukf": (30, ((1, 2),)), "ctm-sif-stateinnov": (20, ((1, 2),))}
+#: Samples of the two-step cross-check (UNGM: 13 x S x 13 updates per step).
+TWOSTEP_SAMPLES = 4
+#: Discount of the references: the adaptive policies' (the paper's gamma = 0.5).
+GAMMA = 0.5
+
+
+def look_specs(experiment: str, grid_hs, quick: bool = False) -> list[tuple]:
+    """The jobs' policy families for ``experiment``: baselines, one rollout per (H, S), two-step on UNGM."""
+    specs = [("base",)] + [("rollout", int(h), int(s)) for h, s in grid_hs]
+    if experiment == "ungm-ukf":
+        specs.append(("twostep", 2 if quick else TWOSTEP_SAMPLES))
+    return specs
+
+
+def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
+    from adaptfilt.evaluation import learned_name
+    from adaptfilt.experiments import get_experiment
+    from adaptfilt.learned import load_policy
+    from adaptfilt.lookahead import RolloutPolicy, TwoStepPolicy
+
+    exp = get_experiment(experiment)
+    if spec[0] == "base":
+        base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
+        return base + [load_policy(f, experiment=exp, name=learned_name(f, experiment)) for f in files]
+    if spec[0] == "rollout":
+        return [RolloutPolicy(exp.grid, horizon=spec[1], samples=spec[2], gamma=GAMMA, seed=0)]
+    return [TwoStepPolicy(exp.grid, samples=spec[1], gamma=GAMMA, seed=0)]
+
+
+def look_job(experiment: str, spec: tuple, files: list[str], n_runs: int, n_steps: int | None):
+    """One part of an experiment's look-ahead evaluation (module docstring); every part sees the same runs."""
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.experiments import get_experiment
+
+    res = evaluate(get_experiment(experiment), _policies(experiment, spec, files), n_runs=n_runs, seed=0,
+                   progress=False, n_steps=n_steps)
+    res.config.update(experiment=experiment)
+    return res
+
+
+def merge_parts(parts: list):
+    """One Results from parts evaluated on the same runs (their configurations must agree)."""
+    first = parts[0]
+    for other in parts[1:]:
+        mine = {k: v for k, v in first.config.items() if k != "policies"}
+        theirs = {k: v for k, v in other.config.items() if k != "policies"}
+        if mine != theirs:
+            raise RuntimeError(f"parts of the {first.config.get('experiment')} look-ahead evaluation disagree")
+        first.policies.update(other.policies)
+    first.config["policies"] = list(first.policies)
+    return first
+
+
+def _verdict_cost(res) -> str:
+    from adaptfilt.experiments.claims import charges_compute
+
+    return "cost_charged" if charges_compute(res) else "cost"
+
+
+def look_summary(res) -> dict:
+    """Per policy: the metrics, compute per step, and the difference to greedy (module docstring)."""
+    from adaptfilt.experiments.seeds import aggregate, difference, seed_groups
+
+    cost = _verdict_cost(res)
+    metrics = [cost] + (["cost"] if cost != "cost" else []) + ["rmse", "anees", "objective"]
+    out = {"verdict_cost": cost, "n_runs": res.config["n_runs"], "references": {}, "learned": {}, "baselines": {}}
+    refs = [n for n in res.names if n.startswith(("rollout-", "twostep-"))]
+    for n in refs + ["greedy", "ml", "default"]:
+        if n not in res:
+            continue
+        p = res[n]
+        row = {m: getattr(p, m) for m in metrics}
+        row.update(spent=p.spent, divergent_frac=p.divergent_frac)
+        if n != "greedy":
+            row["minus_greedy"] = {m: list(res.paired_difference(n, "greedy", m)) for m in metrics}
+        (out["references"] if n in refs else out["baselines"])[n] = row
+    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    best = min(fixed, key=lambda n: getattr(res[n], cost))
+    out["baselines"]["best fixed"] = {"policy": best, **{m: getattr(res[best], m) for m in metrics},
+                                      "spent": res[best].spent,
+                                      "minus_greedy": {m: list(res.paired_difference(best, "greedy", m)) for m in metrics}}
+    for g, names in seed_groups(res.names).items():
+        out["learned"][g] = {"n_seeds": len(names), "spent": float(np.mean([res[n].spent for n in names])),
+                             **{m: aggregate(res, names, m).iqm for m in metrics},
+                             "minus_greedy": {m: list(difference(res, names, ["greedy"], m)["iqm"]) for m in metrics}}
+    # Bertsekas' cost improvement: rollout on greedy costs no more than greedy (exact expectations, full
+    # horizon); here truncated and sampled, so measured: "holds" when the paired interval is not above 0
+    for n, row in out["references"].items():
+        d = row["minus_greedy"][cost]
+        row["improves_on_greedy"] = "yes" if d[2] < 0 else ("no (worse)" if d[1] > 0 else "not separable")
+    return out
+
+
+def _parse(name: str) -> tuple[str, int, int]:
+    """``rollout-H2-S4`` -> ("rollout", 2, 4); ``twostep-S4`` -> ("twostep", 1, 4)."""
+    parts = name.split("-")
+    if parts[0] == "twostep":
+        return "twostep", 1, int(parts[1][1:])
+    return "rollout", int(parts[1][1:]), int(parts[2][1:])
+
+
+def plot_look_gain(look: dict, metric: str | None = None, axes=None):
+    """The gain over greedy (greedy minus policy, on each experiment's verdict cost: positive is better)
+    against the look-ahead horizon H, one line per S, with paired 95 % intervals; the learned groups'
+    seed-level gains as horizontal bands. Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    exps = list(look)
+    if axes is None:
+        fig, axes = plt.subplots(1, len(exps), figsize=(5.2 * len(exps), 4.2), layout="constrained", squeeze=False)
+        axes = axes[0]
+    fig = axes[0].figure
+    for ax, e in zip(axes, exps):
+        s = look[e]
+        m = metric or s["verdict_cost"]
+        by_s: dict[int, list] = {}
+        for n, row in s["references"].items():
+            kind, h, samples = _parse(n)
+            if kind == "rollout":
+                by_s.setdefault(samples, []).append((h, row["minus_greedy"][m]))
+        for samples, pts in sorted(by_s.items()):
+            pts.sort()
+            h = np.array([0] + [p[0] for p in pts])
+            g = -np.array([[0.0, 0.0, 0.0]] + [p[1] for p in pts])  # gain = greedy - policy
+            ax.errorbar(h + 0.04 * (samples - 8) / 8, g[:, 0], yerr=[g[:, 0] - g[:, 2], g[:, 1] - g[:, 0]],
+                        marker="o", capsize=3, label=f"rollout, S = {samples}")
+        for i, (gname, row) in enumerate(s["learned"].items()):
+            d = -np.array(row["minus_greedy"][m])
+            ax.axhspan(d[2], d[1], alpha=0.15, color=f"C{i + 3}")
+            ax.axhline(d[0], color=f"C{i + 3}", lw=1, ls="--", label=f"learned: {gname} (IQM of {row['n_seeds']})")
+        ax.axhline(0, color="black", lw=0.8)
+        ax.set(xlabel="look-ahead horizon H (0: greedy)", ylabel=f"gain over greedy in {m}",
+               title=f"{e} (M = {s['n_runs']})")
+        ax.legend(fontsize=7.5, loc="best")
+    return fig
+
+
+def look_md(look: dict) -> str:
+    """The study's table: per experiment, references, baselines and learned groups against greedy."""
+    f = lambda d: f"{d[0]:+.4g} [{d[1]:+.3g}, {d[2]:+.3g}]"  # noqa: E731
+    lines = ["**How much can looking ahead buy?** (paired runs; differences to greedy with 95 % intervals: run "
+             "level for a single policy, seed level (IQM over seeds, two-level bootstrap) for a learned group; "
+             "cost: the experiment's verdict cost, charged for what a policy computes where the cost charges "
+             "compute; compute per step in UKF updates or SIF iterations)", "",
+             "| experiment | policy | cost | cost - greedy | RMSE - greedy | ANEES - greedy | compute per step | "
+             "improves on greedy? |", "|---|---|---|---|---|---|---|---|"]
+    for e, s in look.items():
+        c = s["verdict_cost"]
+        g = s["baselines"]["greedy"]
+        lines.append(f"| {e} (M = {s['n_runs']}) | greedy | {g[c]:.4g} | | | | {g['spent']:.3g} | |")
+        for n, row in s["references"].items():
+            d = row["minus_greedy"]
+            lines.append(f"| {e} | {n} | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} | {f(d['anees'])} "
+                         f"| {row['spent']:.4g} | {row['improves_on_greedy']} |")
+        for n in ("ml", "default", "best fixed"):
+            if n in s["baselines"]:
+                row = s["baselines"][n]
+                label = n if n != "best fixed" else f"best fixed ({row['policy']})"
+                d = row["minus_greedy"]
+                lines.append(f"| {e} | {label} | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} | {f(d['anees'])} "
+                             f"| {row['spent']:.3g} | |")
+        for n, row in s["learned"].items():
+            d = row["minus_greedy"]
+            lines.append(f"| {e} | {n} ({row['n_seeds']} seeds) | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} "
+                         f"| {f(d['anees'])} | {row['spent']:.3g} | |")
+    return "\n".join(lines) + "\n"
+
+
+def look_files(data: Path, out: Path, experiment: str, seeds) -> list[str]:
+    """The learned policies shown beside the references: the reproduction's adaptive ones, and the
+    candidate-aware and anchored ones of ``beyond`` where they exist."""
+    paths = [data / f"policies/{experiment}-adaptive-s{s}.npz" for s in seeds]
+    paths += [out / f"policies/{experiment}-{k}-s{s}.npz" for k in ("adaptive-cand", "adaptive-anchored") for s in seeds]
+    return [str(p) for p in paths if p.exists()]
