@@ -14,17 +14,18 @@ trained with a TD(0) actor-critic.
 """
 import importlib
 
-from adaptfilt import evaluation, experiments, linalg, lookahead, mdp, metrics, models, policies, rules
+from adaptfilt import (evaluation, experiment_registry, linalg, lookahead, mdp, metrics, models, policies, rules,
+                       seed_stats)
+from adaptfilt._version import __version__
 from adaptfilt.exact import KalmanFilter, PointMassFilter
 from adaptfilt.gaf import CKF, SIF, UKF, FilterError, FilterRun, GaussianAssumedFilter, Prediction, Update
 from adaptfilt.models import StateSpaceModel, Trajectory
 
-__version__ = "0.1.0"
 
 # Modules that pull in torch or matplotlib load on first use: `import adaptfilt`
 # stays fast for filtering alone.
-_LAZY = ("plots", "learned", "actor_critic", "toy", "course", "course_rl", "book", "reproduce", "artefacts", "cli", "style",
-         "gym", "trainers", "features", "analysis", "coursemap", "course_rl", "anchor")
+# The course (adaptfilt.course) and the pipeline (adaptfilt.experiments) are imported by their own names.
+_LAZY = ("plots", "learned", "actor_critic", "toy", "style", "gym", "trainers", "features", "anchor", "distill", "files")
 
 
 def __getattr__(name: str):
@@ -33,7 +34,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'adaptfilt' has no attribute {name!r}")
 
 __all__ = [
-    "linalg", "metrics", "models", "rules", "mdp", "policies", "lookahead", "experiments", "evaluation",
+    "linalg", "metrics", "models", "rules", "mdp", "policies", "lookahead", "experiment_registry", "seed_stats", "evaluation",
     "StateSpaceModel", "Trajectory",
     "GaussianAssumedFilter", "UKF", "SIF", "CKF", "FilterRun", "FilterError", "Prediction", "Update",
     "KalmanFilter", "PointMassFilter",

@@ -101,7 +101,7 @@ from typing import Any
 import numpy as np
 import torch
 
-import adaptfilt
+from adaptfilt._version import __version__
 from adaptfilt.learned import (Actor, Critic, LearnedPolicy, arrays_to_state, describe_env, read_npz,
                                state_to_arrays, write_npz)
 from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
@@ -165,7 +165,7 @@ def checkpoint_path(out: str | Path) -> Path:
 def _resolve(env_or_experiment, seed: int, n_steps: int | None):
     """(env, experiment name or None, the experiment's recommended feature set or None)."""
     if isinstance(env_or_experiment, str):
-        from adaptfilt.experiments import get_experiment
+        from adaptfilt.experiment_registry import get_experiment
 
         env_or_experiment = get_experiment(env_or_experiment)
     if hasattr(env_or_experiment, "make_env"):
@@ -221,7 +221,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
     Parameters
     ----------
     env_or_experiment
-        An experiment name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`,
+        An experiment name (``"ungm-ukf"``), an :class:`~adaptfilt.experiment_registry.Experiment`,
         a :class:`~adaptfilt.mdp.FilterEnv` or any env with the same interface (``adaptfilt.toy``).
     gamma : discount in [0, 1) (0 = myopic); anything else is a ValueError.
     episodes : N_MC, the total number of simulated episodes.
@@ -402,7 +402,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
         "episodes_done": int(episode), "n_steps": int(env.n_steps),
         "hyper": _hyper_record(H), "default_index": int(getattr(env, "default_index", 0)),
         "updates": int(-(-episode // parallel) * env.n_steps),
-        "version": adaptfilt.__version__, "command": command, "torch_version": torch.__version__.split("+")[0],
+        "version": __version__, "command": command, "torch_version": torch.__version__.split("+")[0],
         "curve_summary": _summary(curve_arr, grid),
     }
     policy = LearnedPolicy(actor, scaler, grid, gamma=gamma, name=name, metadata=metadata, curve=curve_arr)

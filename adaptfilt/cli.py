@@ -46,14 +46,14 @@ from typing import NoReturn
 
 
 def _experiments(args: argparse.Namespace) -> int:
-    from adaptfilt.experiments import describe_experiments
+    from adaptfilt.experiment_registry import describe_experiments
 
     print(describe_experiments())
     return 0
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from adaptfilt.evaluation import evaluate_experiment
+    from adaptfilt.experiments.evaluate import evaluate_experiment
 
     evaluate_experiment(
         args.name,
@@ -170,7 +170,7 @@ def _resumable(journal: Path):
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from adaptfilt.reproduce import JOURNAL, reproduce
+    from adaptfilt.experiments.reproduce import JOURNAL, reproduce
 
     if args.quick and args.scale not in (None, "quick"):
         raise ValueError(f"--quick and --scale {args.scale}: give one of them")
@@ -213,7 +213,7 @@ def _studies(text: str) -> str:
 
 
 def _book(args: argparse.Namespace) -> int:
-    from adaptfilt.book import build_book
+    from adaptfilt.course.book import build_book
 
     index = build_book(out_dir=Path(args.out))
     print(f"book built: open {index}")
@@ -297,7 +297,7 @@ def _features(text: str) -> str:
 
 
 def _experiment(text: str) -> str:
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     try:
         get_experiment(text)
@@ -488,7 +488,7 @@ USER_ERRORS = (ValueError, KeyError, OSError, ImportError)
 def _is_user_error(e: BaseException) -> bool:
     from concurrent.futures.process import BrokenProcessPool
 
-    from adaptfilt.book import BookBuildError
+    from adaptfilt.course.book import BookBuildError
     from adaptfilt.experiments.sweep import JobFailed
 
     if isinstance(e, JobFailed):  # in a worker: judged by what the job raised

@@ -51,10 +51,8 @@ Memory: a policy's full filtering covariances are reduced to per-run,
 per-step squared errors and NEES right after its rollout and dropped; only
 ``(T,)``, ``(M,)`` and bootstrap ``(n_boot,)`` summaries are kept.
 
-:func:`evaluate_experiment` is what ``adaptfilt evaluate`` runs: every
-baseline of a named experiment (plus learned policy files) -> ``results.json``
-+ ``results.npz`` (:meth:`Results.save`), ``summary.json``, ``summary.md`` and
-the figures of :mod:`adaptfilt.plots`.
+What ``adaptfilt evaluate`` runs (files, tables, figures) is
+:func:`adaptfilt.experiments.evaluate.evaluate_experiment`, in the pipeline.
 """
 from __future__ import annotations
 
@@ -73,7 +71,7 @@ from adaptfilt.files import atomic_path, atomic_write
 from adaptfilt.mdp import FilterEnv, rollout
 from adaptfilt.models import Trajectory
 
-__all__ = ["PolicyResult", "Results", "evaluate", "evaluate_experiment", "learned_name", "learned_names",
+__all__ = ["PolicyResult", "Results", "evaluate", "learned_name", "learned_names",
            "RESULTS_FORMAT", "TRAJ_SEED_KEY"]
 
 RESULTS_FORMAT = "adaptfilt-results/1"
@@ -373,7 +371,7 @@ def _check_policy(policy, grid: np.ndarray) -> None:
         raise TypeError(f"a policy needs .name and .act(decision); got {type(policy).__name__}")
     g = getattr(policy, "grid", None)
     if g is not None and getattr(policy, "acts_on_subset", False):
-        from adaptfilt.learned import grid_indices
+        from adaptfilt.policies import grid_indices
 
         grid_indices(np.asarray(g, dtype=float), grid, policy.name)  # ValueError unless g is a subset of grid
     elif g is not None and (np.shape(g) != grid.shape or not np.allclose(g, grid)):
@@ -501,8 +499,8 @@ def _cost_blind(pol) -> bool:
 
 def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None):
     """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation."""
-    from adaptfilt import __version__
-    from adaptfilt.experiments import Experiment, get_experiment
+    from adaptfilt._version import __version__
+    from adaptfilt.experiment_registry import Experiment, get_experiment
 
     exp = get_experiment(experiment_or_env) if isinstance(experiment_or_env, str) else experiment_or_env
     if isinstance(exp, Experiment):
@@ -626,71 +624,3 @@ def learned_names(paths: Iterable[str | Path], experiment: str) -> list[str]:
         for i in group:
             names[i] = cand[i]
     return names
-
-
-def evaluate_experiment(
-    name: str,
-    n_runs: int = 10_000,
-    seed: int = 0,
-    out_dir: str | Path = "results",
-    policy_files: Iterable[str | Path] = (),
-    progress: bool = True,
-    *,
-    floor: float | None = None,
-    figures: bool = True,
-    quiet: bool = False,
-    n_steps: int | None = None,
-) -> Results:
-    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]`` runs.
-
-    Policy files named ``<kind>-s<seed>.npz`` are one policy trained on several
-    seeds: the table then adds the seed-level aggregate (IQM over seeds with a
-    two-level bootstrap interval, :mod:`adaptfilt.experiments.seeds`).
-
-    Evaluates every baseline of experiment ``name`` (default, each fixed grid
-    value, ML where it applies, greedy) and the learned policies in
-    ``policy_files`` (each named after its file by :func:`learned_names`; a
-    name that a baseline uses is a ``ValueError``), then writes into
-    ``out_dir``: ``results.json`` + ``results.npz``, ``summary.json``,
-    ``summary.md`` and PNG figures; prints the table (unless ``quiet``). ``floor`` draws a reference RMSE (e.g. the
-    point-mass Bayes floor on UNGM) in the RMSE figures.
-    """
-    from adaptfilt.experiments import get_experiment
-
-    exp = get_experiment(name)
-    policies = exp.baselines()
-    policy_files = [Path(p) for p in policy_files]
-    if policy_files:
-        from adaptfilt.learned import load_policy  # torch is imported only when needed
-
-        baseline_names = {p.name for p in policies}
-        names = learned_names(policy_files, exp.name)
-        for p, n in zip(policy_files, names):
-            if n in baseline_names or n.startswith("fixed-"):
-                raise ValueError(f"policy file {p} would be named {n!r}, which is reserved for a baseline "
-                                 f"({', '.join(sorted(baseline_names))}); rename the file")
-        policies += [load_policy(p, experiment=exp, name=n) for p, n in zip(policy_files, names)]
-    out = Path(out_dir)
-    command = (f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed}"
-               + ("" if n_steps is None else f" --horizon {n_steps}") + f" --out {out}"
-               + "".join(f" --policy {p}" for p in policy_files))
-    target = exp if n_steps is None else exp.make_env(seed=seed, n_steps=n_steps)
-    res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
-    res.config.update(experiment=exp.name, description=exp.description)
-    res.save(out)
-    atomic_write(out / "summary.json", json.dumps(res.summary(), indent=1) + "\n")
-    table = res.table()
-    from adaptfilt.experiments.seeds import seed_groups
-
-    if seed_groups(res.names):
-        from adaptfilt.experiments.report import summary_md
-
-        table += "\n**Seed level**: " + summary_md(res)
-    atomic_write(out / "summary.md", table)
-    if figures:
-        from adaptfilt.plots import save_figures
-
-        save_figures(res, out, floor=floor)
-    if not quiet:
-        print(table)
-    return res

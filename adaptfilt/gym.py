@@ -65,7 +65,7 @@ __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vec
 
 def _filter_env(env_or_experiment, seed: int, n_steps: int | None):
     """A FilterEnv and its experiment name from a name, an Experiment or a FilterEnv."""
-    from adaptfilt.experiments import Experiment, get_experiment
+    from adaptfilt.experiment_registry import Experiment, get_experiment
 
     if isinstance(env_or_experiment, str):
         env_or_experiment = get_experiment(env_or_experiment)
@@ -449,7 +449,7 @@ def to_learned_policy(model, venv=None, gamma: float | None = None, name: str | 
 
 # ------------------------------------------------------------------ registry
 def _register() -> None:
-    from adaptfilt.experiments import EXPERIMENTS
+    from adaptfilt.experiment_registry import EXPERIMENTS
 
     for name in EXPERIMENTS:
         env_id = f"adaptfilt/{name}-v0"

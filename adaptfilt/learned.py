@@ -51,6 +51,7 @@ from torch import nn
 from adaptfilt.anchor import Anchor, allowed_mask, anchored_logits, greedy_onehot
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 from adaptfilt.files import atomic_path
+from adaptfilt.policies import _matches, grid_indices
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
            "POLICY_FORMAT", "check_compatible", "grid_indices"]
@@ -346,7 +347,7 @@ def _describe_target(experiment, features=None) -> dict:
     if isinstance(experiment, Mapping):
         return dict(experiment)
     if isinstance(experiment, str):
-        from adaptfilt.experiments import get_experiment
+        from adaptfilt.experiment_registry import get_experiment
 
         experiment = get_experiment(experiment)
     if hasattr(experiment, "make_env"):  # an Experiment
@@ -375,25 +376,6 @@ def describe_env(env, features=None) -> dict:
         "feature_names": list(names) if names is not None else None,
         "cost": getattr(cost, "name", None),
     }
-
-
-def grid_indices(own: np.ndarray, env_grid, name: str = "policy") -> np.ndarray:
-    """Where each of a policy's grid values sits in the environment's grid. A policy trained on a
-    subset of the grid (``train_policy(..., actions=...)``: e.g. only SIF iteration counts that do not
-    diverge) acts in the full environment; any other grid is a ValueError naming both."""
-    env_grid = np.asarray(env_grid, dtype=float)
-    if own.shape == env_grid.shape and np.allclose(own, env_grid):
-        return np.arange(own.size)
-    hit = _matches(own, env_grid)
-    if not hit.any(axis=1).all():
-        raise ValueError(f"policy {name!r} was trained on the grid {own.tolist()}, which is not a subset of the "
-                         f"environment's grid {env_grid.tolist()}")
-    return hit.argmax(axis=1)
-
-
-def _matches(own, env_grid) -> np.ndarray:
-    """``(len(own), len(env_grid))``: which environment value each of a policy's grid values is."""
-    return np.isclose(np.asarray(own, dtype=float)[:, None], np.asarray(env_grid, dtype=float)[None, :])
 
 
 def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> None:
@@ -452,7 +434,7 @@ def _check_policy_file(path, arrays: Mapping[str, np.ndarray], meta: Mapping) ->
 def load_policy(path: str | os.PathLike, experiment=None, name: str | None = None) -> LearnedPolicy:
     """Read a policy file written by :meth:`LearnedPolicy.save` (no pickles).
 
-    ``experiment`` (a name, an :class:`~adaptfilt.experiments.Experiment`, a
+    ``experiment`` (a name, an :class:`~adaptfilt.experiment_registry.Experiment`, a
     :class:`~adaptfilt.mdp.FilterEnv` or a dict of expected fields), if given,
     is checked against the file: a different experiment, model, filter (e.g. another SIF form), rule
     parameter, grid, feature layout or cost is a ``ValueError`` naming it.

@@ -27,7 +27,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Policy", "FixedPolicy", "default_policy", "MaxLikelihoodPolicy", "GreedyPolicy", "RandomPolicy"]
+__all__ = ["Policy", "FixedPolicy", "default_policy", "MaxLikelihoodPolicy", "GreedyPolicy", "RandomPolicy",
+           "grid_indices"]
 
 
 @runtime_checkable
@@ -116,3 +117,22 @@ class RandomPolicy:
 
     def act(self, decision) -> np.ndarray:
         return self.rng.integers(0, decision.grid.size, size=decision.n_runs)
+
+
+def grid_indices(own: np.ndarray, env_grid, name: str = "policy") -> np.ndarray:
+    """Where each of a policy's grid values sits in the environment's grid. A policy trained on a
+    subset of the grid (``train_policy(..., actions=...)``: e.g. only SIF iteration counts that do not
+    diverge) acts in the full environment; any other grid is a ValueError naming both."""
+    env_grid = np.asarray(env_grid, dtype=float)
+    if own.shape == env_grid.shape and np.allclose(own, env_grid):
+        return np.arange(own.size)
+    hit = _matches(own, env_grid)
+    if not hit.any(axis=1).all():
+        raise ValueError(f"policy {name!r} was trained on the grid {own.tolist()}, which is not a subset of the "
+                         f"environment's grid {env_grid.tolist()}")
+    return hit.argmax(axis=1)
+
+
+def _matches(own, env_grid) -> np.ndarray:
+    """``(len(own), len(env_grid))``: which environment value each of a policy's grid values is."""
+    return np.isclose(np.asarray(own, dtype=float)[:, None], np.asarray(env_grid, dtype=float)[None, :])

@@ -123,7 +123,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               normalize_reward: bool = False, anchor=None):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
-    ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiments.Experiment`
+    ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiment_registry.Experiment`
     or a :class:`~adaptfilt.mdp.FilterEnv` of your own (features default to the
     experiment's recommended set, ``"paper"`` for an environment; ``n_steps`` is
     the environment's own horizon and cannot be changed here).
@@ -149,7 +149,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     from stable_baselines3 import A2C, PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    import adaptfilt
+    from adaptfilt._version import __version__
     from adaptfilt.gym import make_vec, to_learned_policy
     from adaptfilt.learned import one_torch_thread
 
@@ -194,7 +194,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         model.learn(total_timesteps=total, callback=callbacks)
     c = np.asarray(curve, dtype=float)
     meta = {"seed": int(seed), "episodes": int(episodes), "n_steps": int(T), "parallel": int(config.n_envs),
-            "trainer": config.to_dict(), "transitions": int(model.num_timesteps), "version": adaptfilt.__version__,
+            "trainer": config.to_dict(), "transitions": int(model.num_timesteps), "version": __version__,
             "command": command, "torch_version": torch.__version__.split("+")[0],
             "curve_summary": {"episodes": int(episodes), "train_cost_first10pct": _frac(c, 0), "train_cost_last10pct": _frac(c, 1)}}
     if repair_penalty:  # recorded only when set: files made before the option existed stay reproducible
@@ -219,7 +219,7 @@ def _anchor(anchor):
 
 def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None):
     """The experiment's environment with its grid cut to ``actions`` (ValueError naming what is wrong)."""
-    from adaptfilt.experiments import Experiment
+    from adaptfilt.experiment_registry import Experiment
     from adaptfilt.mdp import FilterEnv
 
     if not isinstance(target, Experiment):
@@ -238,7 +238,7 @@ def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None
 def _target(experiment, n_steps: int | None):
     """(what the MDP is built from, a label, the recommended feature set) for a name, an
     Experiment or an environment of one's own (whose horizon is its own)."""
-    from adaptfilt.experiments import Experiment, get_experiment
+    from adaptfilt.experiment_registry import Experiment, get_experiment
 
     if isinstance(experiment, str):
         experiment = get_experiment(experiment)
@@ -313,7 +313,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  anchor_kl: float | None = None, anchor_shield: float | None = None):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
-    ``experiment``: a name, an :class:`~adaptfilt.experiments.Experiment` or an
+    ``experiment``: a name, an :class:`~adaptfilt.experiment_registry.Experiment` or an
     environment of your own (a :class:`~adaptfilt.mdp.FilterEnv`).
     ``parallel``: episodes per update of the ``batched`` mode (default 50) or runs per
     batch of an SB3 algorithm (default: its config's). ``sb3``: extra keyword

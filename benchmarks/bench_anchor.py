@@ -17,7 +17,7 @@ prints, per experiment:
   divergent runs, the share of steps on which the policy chose as greedy (on the first 200 runs),
   the training wall and CPU time;
 * over seeds: IQM of the differences to greedy with the two-level bootstrap interval
-  (:mod:`adaptfilt.experiments.seeds`; greedy is one policy, so only the anchored seeds are resampled),
+  (:mod:`adaptfilt.seed_stats`; greedy is one policy, so only the anchored seeds are resampled),
   and the verdicts of the goal: cost lower than greedy on every seed (each seed's own interval below 0),
   RMSE and ANEES not worse (seed level, the margins of ``seeds.MARGINS``), no divergent run;
 * with ``--compare TAG=DIR``, another group of policies of the same seeds on the same runs, against
@@ -94,7 +94,7 @@ CAND = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 
 def train_one(experiment: str, seed: int, out: str, kw: dict, command: str, method: str = "ppo") -> dict:
     """One anchored policy (module level: runs in a worker); reused when ``out`` holds this command."""
-    from adaptfilt.anchor import distill_rollout
+    from adaptfilt.distill import distill_rollout
     from adaptfilt.learned import read_npz
     from adaptfilt.trainers import train_policy
 
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--agree-runs", type=int, default=200)
     ap.add_argument("--tag", default="anchored")
     ap.add_argument("--method", choices=("ppo", "distill"), default="ppo",
-                    help="ppo: train_policy(..., anchor='greedy'); distill: adaptfilt.anchor.distill_rollout")
+                    help="ppo: train_policy(..., anchor='greedy'); distill: adaptfilt.distill.distill_rollout")
     ap.add_argument("--distill-runs", type=int, default=500)
     ap.add_argument("--teacher", default="1:4", help="distill: rollout H:S")
     ap.add_argument("--epochs", type=int, default=20)
@@ -164,8 +164,8 @@ def main(argv: list[str] | None = None) -> dict:
     import numpy as np
 
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.experiments.seeds import MARGINS, difference, margin_for, seed_verdict
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.seed_stats import MARGINS, difference, margin_for, seed_verdict
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> dict:
             f = out / "policies" / f"{e}-{args.tag}-s{s}.npz"
             if args.method == "distill":
                 call = ", ".join(f"{k}={v!r}" for k, v in kw.items())
-                jobs.append((e, s, str(f), kw, f"adaptfilt.anchor.distill_rollout({e!r}, {s}, {call}).save({str(f)!r})",
+                jobs.append((e, s, str(f), kw, f"adaptfilt.distill.distill_rollout({e!r}, {s}, {call}).save({str(f)!r})",
                              "distill"))
                 continue
             cmd = (f"adaptfilt train {e} --algo fast --gamma {args.gamma:g} --episodes {args.episodes} --seed {s} "

@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import rollout
 from adaptfilt.policies import GreedyPolicy
 

@@ -17,7 +17,7 @@ import os
 import time
 
 from adaptfilt.evaluation import evaluate
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 
 
 def bench(name: str, policies, runs: int, target: float) -> float:

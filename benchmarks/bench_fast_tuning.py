@@ -74,8 +74,8 @@ def main() -> None:
     ap.add_argument("--out", default="bench-out/fast-tuning")
     args = ap.parse_args()
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.experiments.seeds import aggregate, difference
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.seed_stats import aggregate, difference
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 

@@ -43,7 +43,7 @@ def main() -> None:
     ap.add_argument("--faithful-episodes", type=int, default=20)
     ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args()
-    from adaptfilt import artefacts
+    from adaptfilt.experiments import artefacts
     from adaptfilt.experiments.fast_vs_faithful import comparison, comparison_md
 
     results = {e: artefacts.load_results(e) for e in ("ungm-ukf", "ctm-ukf")}

@@ -49,7 +49,7 @@ import time
 
 import numpy as np
 
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.lookahead import RolloutPolicy, TwoStepPolicy
 from adaptfilt.policies import GreedyPolicy
 

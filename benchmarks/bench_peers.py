@@ -59,10 +59,10 @@ def main() -> None:
     ap.add_argument("--out", default="bench-out/peers")
     ap.add_argument("--train-only", action="store_true")
     args = ap.parse_args()
-    from adaptfilt import artefacts
+    from adaptfilt.experiments import artefacts
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.experiments.seeds import aggregate, difference
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.seed_stats import aggregate, difference
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 

@@ -30,7 +30,7 @@ def train_variant(variant: str, seed: int, out: str) -> str:
     import torch
 
     import adaptfilt.gym as afg
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.features import fit_scaler
     from adaptfilt.trainers import FAST, train_sb3
 
@@ -84,8 +84,8 @@ def main() -> None:
     ap.add_argument("--out", default="bench-out/recipe")
     args = ap.parse_args()
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.experiments.seeds import aggregate, difference
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.seed_stats import aggregate, difference
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 

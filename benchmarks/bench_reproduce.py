@@ -36,7 +36,7 @@ def _untimed(o):
 
 def differing(a: Path, b: Path) -> list[str]:
     """Policy and result files of ``b`` that are not byte-identical to ``a``'s (timed JSONs without their times)."""
-    from adaptfilt.reproduce import sha256
+    from adaptfilt.experiments.reproduce import sha256
 
     out = []
     for p in sorted(b.rglob("*")):
@@ -62,7 +62,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None)
     args = ap.parse_args()
     from adaptfilt.experiments.report import timings_md
-    from adaptfilt.reproduce import reproduce
+    from adaptfilt.experiments.reproduce import reproduce
 
     out = args.out or Path(tempfile.mkdtemp(prefix=f"reproduce-{args.scale}-"))
     load = os.getloadavg()[0]

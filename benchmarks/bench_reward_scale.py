@@ -34,11 +34,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--runs", type=int, default=2000)
     args = ap.parse_args()
-    from adaptfilt import artefacts
-    from adaptfilt import course_rl as crl
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.course import learning as crl
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
-    from adaptfilt.experiments.seeds import difference
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.seed_stats import difference
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 

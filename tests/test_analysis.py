@@ -1,4 +1,4 @@
-"""The analyses behind chapters 6-8 (adaptfilt.analysis), the claim and Table I renderers of
+"""The analyses behind chapters 6-8 (adaptfilt.course.paper_results), the claim and Table I renderers of
 adaptfilt.experiments.report, and the bootstrap particle filter, against independent references."""
 from __future__ import annotations
 
@@ -13,14 +13,16 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
-from adaptfilt import analysis, artefacts  # noqa: E402
-from adaptfilt.experiments import claims, get_experiment, report  # noqa: E402
+from adaptfilt.course import paper_results as analysis  # noqa: E402
+from adaptfilt.experiments import artefacts
+from adaptfilt.experiments import claims, report  # noqa: E402
+from adaptfilt.experiment_registry import get_experiment
 from types import SimpleNamespace  # noqa: E402
 
 from scipy import stats  # noqa: E402
 
-from adaptfilt.experiments.history import CTM_UKF_BEFORE, SIF_FIXED_BEFORE, TABLE1_BEFORE  # noqa: E402
-from adaptfilt.experiments.seeds import aggregate  # noqa: E402
+from adaptfilt.course.earlier_numbers import CTM_UKF_BEFORE, SIF_FIXED_BEFORE, TABLE1_BEFORE  # noqa: E402
+from adaptfilt.seed_stats import aggregate  # noqa: E402
 from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
 from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
 from adaptfilt.policies import FixedPolicy, GreedyPolicy  # noqa: E402

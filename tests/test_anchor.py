@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from adaptfilt.anchor import Anchor, anchored_policy_class, greedy_index, greedy_onehot
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.learned import load_policy
 from adaptfilt.mdp import rollout
 from adaptfilt.policies import GreedyPolicy
@@ -165,7 +165,7 @@ def test_the_command_line_records_the_anchor(tmp_path, capsys):
 
 
 def test_distilled_before_training_is_greedy_and_its_file_acts_identically(tmp_path):
-    from adaptfilt.anchor import distill_rollout, rollout_data
+    from adaptfilt.distill import distill_rollout, rollout_data
 
     data = rollout_data("ctm-ukf", 1, runs=6, n_steps=6, features="paper+circ+cand")
     assert data["features"].shape[0] == data["q"].shape[0] == 36 and data["q"].shape[1] == 12
@@ -186,7 +186,7 @@ def test_distilled_before_training_is_greedy_and_its_file_acts_identically(tmp_p
 
 
 def test_on_the_trap_the_distilled_policy_takes_the_non_myopic_optimum():
-    from adaptfilt.anchor import distill_rollout
+    from adaptfilt.distill import distill_rollout
 
     env = TrapEnv(n_steps=10)
     # every good step saves the same (the mean saving): the margin beta * c must be below one mean saving

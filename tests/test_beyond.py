@@ -42,7 +42,7 @@ def test_retune_moves_the_policy_and_is_reproducible():
 
 def test_quick_candidate_study_writes_its_manifest(tmp_path):
     from adaptfilt.experiments.beyond import run, summary_md
-    from adaptfilt.reproduce import sha256
+    from adaptfilt.experiments.reproduce import sha256
 
     summary = run(tmp_path, quick=True, workers=1, studies=("cand",), progress=False)
     man = json.loads((tmp_path / "beyond" / "manifest.json").read_text())
@@ -61,7 +61,7 @@ def test_beyond_resumes_from_its_journal_to_identical_files(tmp_path, monkeypatc
     from adaptfilt.experiments.beyond import run
     from adaptfilt.experiments.journal import Journal
     from adaptfilt.experiments.sweep import Interrupted
-    from adaptfilt.reproduce import sha256
+    from adaptfilt.experiments.reproduce import sha256
 
     def digests(d):
         return {str(p.relative_to(d)): sha256(p) for p in sorted(d.rglob("*")) if p.is_file()}
@@ -101,9 +101,9 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
     selection runs, which are not the evaluation's)."""
     import shlex
 
-    from adaptfilt import artefacts
+    from adaptfilt.experiments import artefacts
     from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SELECTION_SEED, SIF_EXPERIMENTS
-    from adaptfilt.experiments.seeds import aggregate, difference, iqm, seed_groups
+    from adaptfilt.seed_stats import aggregate, difference, iqm, seed_groups
     from adaptfilt.learned import load_policy
 
     root = artefacts.data_dir() / "beyond"
@@ -167,7 +167,7 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     that set is reported with its charged cost, divergence is a rate with an interval, and a later study
     run adds to the same summary and manifest instead of replacing them."""
     from adaptfilt.experiments.beyond import SELECTION_SEED, run, select_safe_actions, summary_md
-    from adaptfilt.experiments.seeds import seed_groups
+    from adaptfilt.seed_stats import seed_groups
     from adaptfilt.evaluation import Results
 
     summary = run(tmp_path, quick=True, workers=1, studies=("sif",), progress=False)
@@ -200,7 +200,7 @@ def test_quick_raw_study_pairs_the_untransformed_policies_with_the_log_ones(tmp_
     paired and at the seed level, with the adaptive policies of the reproduction found beside them."""
     from adaptfilt.evaluation import Results
     from adaptfilt.experiments.beyond import QUICK, run, summary_md
-    from adaptfilt.experiments.seeds import difference
+    from adaptfilt.seed_stats import difference
     from adaptfilt.learned import load_policy
     from adaptfilt.trainers import train_policy
 

@@ -26,16 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from adaptfilt.book import (
-    BookBuildError,
-    build_book,
-    escape_math,
-    notebook_chapters,
-    notebook_title,
-    notebook_to_markdown,
-    rewrite_links,
-    rewrite_math,
-)
+from adaptfilt.course.book import (BookBuildError, build_book, escape_math, notebook_chapters, notebook_title, notebook_to_markdown, rewrite_links, rewrite_math)
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
 

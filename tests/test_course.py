@@ -1,4 +1,4 @@
-"""adaptfilt.course: the helpers behind the course notebooks, against independent references."""
+"""adaptfilt.course.helpers: the helpers behind the course notebooks, against independent references."""
 from __future__ import annotations
 
 import matplotlib
@@ -11,7 +11,7 @@ import pytest  # noqa: E402
 from scipy import integrate, stats  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
-from adaptfilt import course  # noqa: E402
+from adaptfilt.course import helpers as course  # noqa: E402
 
 GRID = np.linspace(-45, 45, 901)
 DX = GRID[1] - GRID[0]
@@ -306,7 +306,7 @@ def test_deviation_costs_and_myopic_comparison(ungm_small):
 
 
 def test_innovation_spread_is_flat_on_ungm_only():
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     text = course.innovation_spread(get_experiment("ungm-ukf").make_env(), n_runs=2, steps=3)
     rows = [ln.split() for ln in text.splitlines()[1:]]
@@ -332,7 +332,7 @@ def test_kappa_sweep_is_the_fixed_update_kappa_filter():
 
 
 def test_cost_samples_and_summary():
-    from adaptfilt.experiments import UNGM_KAPPA_GRID, get_experiment
+    from adaptfilt.experiment_registry import UNGM_KAPPA_GRID, get_experiment
     from adaptfilt.mdp import rollout
     from adaptfilt.policies import GreedyPolicy, default_policy
 

@@ -1,4 +1,4 @@
-"""The helpers of the learning chapters (adaptfilt.course_rl), against direct computations."""
+"""The helpers of the learning chapters (adaptfilt.course.learning), against direct computations."""
 import matplotlib
 
 matplotlib.use("Agg")
@@ -6,9 +6,10 @@ matplotlib.use("Agg")
 import numpy as np
 import pytest
 
-from adaptfilt import course_rl as crl
+from adaptfilt.course import learning as crl
 from adaptfilt.evaluation import evaluate
-from adaptfilt.experiments import get_experiment, seeds as sd
+from adaptfilt.experiment_registry import get_experiment
+from adaptfilt import seed_stats as sd
 from adaptfilt.features import FeatureSet, fit_scaler, observe, visited_states
 from adaptfilt.policies import FixedPolicy, GreedyPolicy, default_policy
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adaptfilt.book import notebook_chapters, notebook_title
-from adaptfilt.coursemap import course_map, course_map_svg, module_order, notebook_usage, plot_course_map
+from adaptfilt.course.book import notebook_chapters, notebook_title
+from adaptfilt.course.coursemap import course_map, course_map_svg, module_order, notebook_usage, plot_course_map
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -37,23 +37,23 @@ def test_alias_and_reexports_resolve_to_the_defining_module():
 
 
 def test_from_imports_follow_package_reexports():
-    usage = notebook_usage(nb("from adaptfilt.experiments import get_experiment, UNGM_KAPPA_GRID",
+    usage = notebook_usage(nb("from adaptfilt.experiment_registry import get_experiment, UNGM_KAPPA_GRID",
                               "from adaptfilt.mdp import FilterEnv, feature_names"))
-    # experiments/__init__ re-exports the registry; mdp re-exports features' feature_names
-    assert usage == {"experiments.registry": ["get_experiment", "UNGM_KAPPA_GRID"], "mdp": ["FilterEnv"],
+    # mdp re-exports features' feature_names
+    assert usage == {"experiment_registry": ["get_experiment", "UNGM_KAPPA_GRID"], "mdp": ["FilterEnv"],
                      "features": ["feature_names"]}
 
 
 def test_module_imports_and_calls_on_them():
-    usage = notebook_usage(nb("from adaptfilt import course, style\nimport adaptfilt.plots",
-                              "course.show_source(course.score)\nadaptfilt.plots.plot_rmse_bars\nstyle._private"))
-    assert usage == {"course": ["show_source", "score"], "style": [], "plots": ["plot_rmse_bars"]}
+    usage = notebook_usage(nb("from adaptfilt.course import helpers\nfrom adaptfilt import style\nimport adaptfilt.plots",
+                              "helpers.show_source(helpers.score)\nadaptfilt.plots.plot_rmse_bars\nstyle._private"))
+    assert usage == {"course.helpers": ["show_source", "score"], "style": [], "plots": ["plot_rmse_bars"]}
 
 
 def test_submodule_of_a_subpackage_through_attributes():
-    usage = notebook_usage(nb("import adaptfilt as af\naf.experiments.seeds.iqm"))
-    assert list(usage) == ["experiments", "experiments.seeds"]
-    assert usage["experiments.seeds"] == ["iqm"]
+    usage = notebook_usage(nb("import adaptfilt as af\naf.experiments.report.fmt"))
+    assert list(usage) == ["experiments", "experiments.report"]
+    assert usage["experiments.report"] == ["fmt"]
 
 
 def test_other_packages_magics_and_unbound_names_are_ignored():

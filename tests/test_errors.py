@@ -17,7 +17,8 @@ import pytest
 import adaptfilt as af
 from adaptfilt import metrics
 from adaptfilt.cli import main
-from adaptfilt.evaluation import evaluate, evaluate_experiment, learned_name, learned_names
+from adaptfilt.evaluation import evaluate, learned_name, learned_names
+from adaptfilt.experiments.evaluate import evaluate_experiment
 from adaptfilt.learned import load_policy, read_npz, write_npz
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -176,7 +177,7 @@ def test_filters_return_positive_definite_covariances_or_name_the_step():
     """A SIF with one iteration makes some P_filt indefinite on the CTM: with on_indefinite="clip" the
     filter repairs (and counts) them before returning, so every stored covariance has a NEES; with
     "raise" it is a FilterError naming P_filt and the step. A hand-made indefinite covariance is refused."""
-    exp = af.experiments.get_experiment("ctm-sif-nis")
+    exp = af.experiment_registry.get_experiment("ctm-sif-nis")
     model = exp.make_model()
     traj = model.simulate(300, n_steps=60, rng=np.random.default_rng(0))
     run = af.SIF(model, n_iter=1, seed=0, on_indefinite="clip").run(traj.z)
@@ -355,7 +356,7 @@ def test_cli_bug_keeps_its_traceback(monkeypatch):
     def broken():
         raise ZeroDivisionError("a genuine bug")
 
-    monkeypatch.setattr(af.experiments, "describe_experiments", broken)
+    monkeypatch.setattr(af.experiment_registry, "describe_experiments", broken)
     with pytest.raises(ZeroDivisionError, match="a genuine bug"):
         main(["experiments"])
 

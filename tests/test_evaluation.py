@@ -7,8 +7,9 @@ import pytest
 import adaptfilt as af
 from adaptfilt import metrics
 from adaptfilt.cli import main
-from adaptfilt.evaluation import Results, evaluate, evaluate_experiment
-from adaptfilt.experiments import get_experiment
+from adaptfilt.evaluation import Results, evaluate
+from adaptfilt.experiments.evaluate import evaluate_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import Cost, FilterEnv
 from adaptfilt.policies import FixedPolicy, GreedyPolicy
 

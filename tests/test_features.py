@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.features import FeatureScaler, FeatureSet, feature_names, fit_scaler, visited_states
 from adaptfilt.mdp import Cost, FilterEnv
 from adaptfilt.policies import GreedyPolicy
@@ -186,7 +186,7 @@ def test_new_scaler_keeps_the_tail_that_the_old_one_clipped():
 def test_visited_states_are_what_the_scaler_is_fitted_on():
     """``visited_states`` is one seeded episode (runs x T rows); ``fit_scaler`` is a robust fit on
     its finite rows, and reproduces the scaler stored with a trained policy (same seed, same features)."""
-    from adaptfilt import artefacts
+    from adaptfilt.experiments import artefacts
 
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=30)

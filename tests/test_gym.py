@@ -8,7 +8,7 @@ sb3 = pytest.importorskip("stable_baselines3")
 import adaptfilt.gym as afg  # noqa: E402
 from adaptfilt.actor_critic import transform_cost  # noqa: E402
 from adaptfilt.evaluation import evaluate  # noqa: E402
-from adaptfilt.experiments import get_experiment  # noqa: E402
+from adaptfilt.experiment_registry import get_experiment  # noqa: E402
 
 
 def test_single_env_passes_both_checkers():

@@ -9,7 +9,7 @@ import pytest
 
 import adaptfilt as af
 from adaptfilt.evaluation import evaluate, evaluate_costs
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.lookahead import FilterLookahead, RolloutPolicy, TwoStepPolicy
 from adaptfilt.mdp import Cost, FilterEnv, rollout
 from adaptfilt.policies import GreedyPolicy

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import Cost, FilterEnv, rollout
 from adaptfilt.metrics import chi2_bounds
 from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy

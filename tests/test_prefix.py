@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import rollout
 from adaptfilt.policies import GreedyPolicy, MaxLikelihoodPolicy
 from adaptfilt.rules import StochasticIntegrationRule, UnscentedRule

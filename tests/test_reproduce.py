@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from adaptfilt import artefacts
+from adaptfilt.experiments import artefacts
 from adaptfilt.evaluation import Results
-from adaptfilt.experiments import EXPERIMENTS
-from adaptfilt.experiments.seeds import seed_groups
-from adaptfilt.reproduce import FAITHFUL, KINDS, SEEDS, reproduce, sha256
+from adaptfilt.experiment_registry import EXPERIMENTS
+from adaptfilt.seed_stats import seed_groups
+from adaptfilt.experiments.reproduce import FAITHFUL, KINDS, SEEDS, reproduce, sha256
 
 DATA = artefacts.data_dir()
 
@@ -194,7 +194,7 @@ def test_reproduce_cli_rejects_bad_engine_flags(bad, capsys):
 def test_medium_scale_halves_training_and_reuses_the_faithful_policies_of_data():
     """The medium scale trains the fast-mode policies on half the episodes, and names the paper-faithful
     ones by the full scale's command, so that the 16 stored faithful policies (hours) are reused."""
-    from adaptfilt.reproduce import FULL, MEDIUM, SCALES, policy_command
+    from adaptfilt.experiments.reproduce import FULL, MEDIUM, SCALES, policy_command
 
     assert set(SCALES) == {"quick", "medium", "full"} and MEDIUM.seeds == FULL.seeds == SEEDS
     assert MEDIUM.episodes == FULL.episodes // 2 and MEDIUM.eval_runs < FULL.eval_runs
@@ -252,7 +252,7 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
     from adaptfilt import metrics
     from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.references import ungm_floor
 
     env = get_experiment("ungm-ukf").make_env(seed=0, n_steps=8)
@@ -295,7 +295,7 @@ def test_archived_one_pass_verdicts_are_the_comparison_rows():
     """data/archive/onepass keeps the verdicts before the honest-verdicts change, checked against its
     manifest: there, learned logmaxNIS minus greedy was +0.027 on the uncharged cost of the one-pass SIF,
     and the fast mode passed "not worse" on UNGM ANEES with an interval reaching +2.9."""
-    from adaptfilt import artefacts
+    from adaptfilt.experiments import artefacts
 
     old = artefacts.load_archive("onepass", "table1")
     d = old["ctm-sif-logmaxnis"]["differences"]["adaptive-greedy"]["cost"]

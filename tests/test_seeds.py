@@ -1,11 +1,11 @@
-"""Seed-level aggregation (adaptfilt.experiments.seeds) against rliable and the run-level bootstrap."""
+"""Seed-level aggregation (adaptfilt.seed_stats) against rliable and the run-level bootstrap."""
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from adaptfilt import metrics
-from adaptfilt.experiments.seeds import aggregate, difference, iqm, margin_for, seed_groups, seed_verdict
+from adaptfilt.seed_stats import aggregate, difference, iqm, margin_for, seed_groups, seed_verdict
 
 
 def fake_results(values: dict, run_sd: float = 0.0, B: int = 1000, seed: int = 0):

@@ -253,7 +253,7 @@ def test_update_equals_stone_soup_draw_for_draw(monkeypatch, name, order, N):
 def test_the_experiments_run_the_sif_checked_here(monkeypatch, experiment):
     """The Table I experiments' filter is the form above, draw for draw Stone Soup's (its ``-onepass``
     variant, the experiments' form until 2026-11-25, is not)."""
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     N, seed = 3, 321
     x, P = POINTS["ctm"]

@@ -93,7 +93,7 @@ def test_plots_module_labels_parameters_in_greek():
     """af.plots writes the prose's Greek letters and tells 13 grid values apart."""
     from adaptfilt import plots
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import UNGM_KAPPA_GRID
+    from adaptfilt.experiment_registry import UNGM_KAPPA_GRID
     from adaptfilt.mdp import Cost, FilterEnv
     from adaptfilt.models import ungm
     from adaptfilt.gaf import UKF

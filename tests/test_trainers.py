@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
-from adaptfilt.experiments import get_experiment
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import Cost, FilterEnv
 from adaptfilt.trainers import train_policy
 

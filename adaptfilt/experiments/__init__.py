@@ -1,17 +1,22 @@
-"""The experiment pipeline, one job per module.
+"""The reproduction pipeline: it runs the paper's experiments and the studies beyond it, writes
+``data/`` and reads it back. It imports the library (``adaptfilt.*``), never the course
+(``adaptfilt.course``); nothing in the library imports it (``docs/ARCHITECTURE.md``).
 
-* :mod:`~adaptfilt.experiments.registry` -- the paper's experiments by name
-  (``adaptfilt experiments``): model, filter, grid, cost, baselines;
-* :mod:`~adaptfilt.experiments.seeds` -- results over training seeds: IQM and
-  mean with bootstrap intervals over seeds and Monte-Carlo runs;
-* :mod:`~adaptfilt.experiments.sweep` -- independent jobs (seeds x experiments
-  x gamma, evaluations) on a local process pool or a Dask cluster.
+* :mod:`~adaptfilt.experiments.sweep` -- independent jobs (seeds x experiments x gamma,
+  evaluations) on a local process pool or a Dask cluster;
+* :mod:`~adaptfilt.experiments.journal` -- one line per finished job, so that an interrupted run
+  resumes;
+* :mod:`~adaptfilt.experiments.evaluate` -- what ``adaptfilt evaluate`` runs (files, tables, figures);
+* :mod:`~adaptfilt.experiments.claims`, :mod:`~adaptfilt.experiments.references`,
+  :mod:`~adaptfilt.experiments.agreement`, :mod:`~adaptfilt.experiments.fast_vs_faithful`,
+  :mod:`~adaptfilt.experiments.report` -- the paper's claims, Table I, the Bayes floor and the
+  reconciliation, the report;
+* :mod:`~adaptfilt.experiments.reproduce` -- ``adaptfilt reproduce``: every artefact of ``data/``
+  with the one command that makes it;
+* :mod:`~adaptfilt.experiments.beyond`, :mod:`~adaptfilt.experiments.ood`,
+  :mod:`~adaptfilt.experiments.look` -- the studies beyond the paper;
+* :mod:`~adaptfilt.experiments.artefacts` -- reading ``data/`` back (for the notebooks).
 
-``from adaptfilt.experiments import get_experiment`` keeps working: the
-registry's names are re-exported here.
+The paper's experiments by name are library configuration, in :mod:`adaptfilt.experiment_registry`;
+the statistics over training seeds are in :mod:`adaptfilt.seed_stats`.
 """
-from adaptfilt.experiments.registry import (CTM_KAPPA_GRID, EXPERIMENTS, SIF_FORMS, SIF_ITER_GRID, UNGM_KAPPA_GRID,
-                                            VARIANTS, Experiment, describe_experiments, get_experiment)
-
-__all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "SIF_FORMS", "get_experiment", "describe_experiments",
-           "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID"]

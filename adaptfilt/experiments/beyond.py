@@ -31,7 +31,7 @@ Dask), recorded as it finishes in ``DIR/beyond/journal.jsonl`` (:mod:`adaptfilt.
 the same command run again after an interrupt reuses every finished job and gives the same files. A
 policy that ``DIR/beyond/manifest.json`` lists with the same training command and sha256 is reused too
 (studies run separately with ``--studies`` share the folder). The reproduction's policies are looked
-for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func:`adaptfilt.artefacts.find_data`).
+for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func:`adaptfilt.experiments.artefacts.find_data`).
 """
 from __future__ import annotations
 
@@ -117,7 +117,7 @@ def _train_job(experiment: str, kind: str, gamma: float, seed: int, out: str, sc
 
 def _evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tuple[str, ...] | None, seed: int = 0):
     from adaptfilt.evaluation import evaluate, learned_name
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.learned import load_policy
 
     exp = get_experiment(experiment)
@@ -138,7 +138,7 @@ def select_safe_actions(experiment: str, n_runs: int, n_steps: int | None = None
     ValueError when the experiment's default diverged there (a policy on a subset must hold the default).
     """
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     if seed == 0:
         raise ValueError("the selection seed must differ from the evaluation seed 0")
@@ -181,11 +181,11 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         studies: tuple[str, ...] = STUDIES, progress: bool = True, data: str | Path | None = None) -> dict:
     """Run the studies (module docstring) into ``out_dir/beyond``; returns their summaries. ``data``:
     where the reproduction's policies are (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``)."""
-    import adaptfilt
-    from adaptfilt.artefacts import find_data
+    from adaptfilt._version import __version__
+    from adaptfilt.experiments.artefacts import find_data
     from adaptfilt.experiments.ood import CONDITIONS, gain_table
-    from adaptfilt.experiments.seeds import aggregate, difference
-    from adaptfilt.reproduce import RETRAIN_COST
+    from adaptfilt.seed_stats import aggregate, difference
+    from adaptfilt.experiments.reproduce import RETRAIN_COST
 
     scale = QUICK if quick else FULL
     root = Path(out_dir).resolve()
@@ -198,7 +198,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     journal = Journal(out / JOURNAL)
     say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
     entries: dict[str, dict] = {}
-    summary: dict = {"scale": scale.name, "version": adaptfilt.__version__}
+    summary: dict = {"scale": scale.name, "version": __version__}
     cmd = (f"adaptfilt beyond --out {out_dir}" + (" --quick" if quick else "")
            + ("" if set(studies) == set(STUDIES) else f" --studies {','.join(studies)}"))
     jobs, metas = [], []
@@ -396,7 +396,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     files = {rel: f for rel, f in old_files.items() if rel not in entries and (out / rel).exists()}
     for rel, e in entries.items():
         files[rel] = {"path": rel, "sha256": sha256(out / rel), "command": e.get("command"),
-                      "seed": 0, "version": adaptfilt.__version__,
+                      "seed": 0, "version": __version__,
                       "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
     atomic_write(out / "manifest.json", json.dumps({"scale": scale.name, "files": [files[k] for k in sorted(files)]},
                                                    indent=1) + "\n")

@@ -4,7 +4,7 @@ Each claim is a list of comparisons ``a`` vs ``b`` on one metric of one
 experiment. ``a`` and ``b`` are policy names of a
 :class:`~adaptfilt.evaluation.Results` or *seed groups* (``"adaptive"`` stands
 for ``adaptive-s0 ... adaptive-s7``, see
-:func:`~adaptfilt.experiments.seeds.seed_groups`). A comparison reports
+:func:`~adaptfilt.seed_stats.seed_groups`). A comparison reports
 
 * the IQM over seeds of both sides and their difference with its two-level
   (seeds x runs) bootstrap interval, and the verdict drawn from it:
@@ -33,7 +33,7 @@ So every SIF comparison of cost is judged on ``cost_charged`` (see
 row, marked ``"role": "uncharged"`` (for comparison; it is not a verdict).
 
 **Margins.** "Not worse" and "equal" claims are judged with the margins of
-:data:`adaptfilt.experiments.seeds.MARGINS` (a fraction of ``b``'s value);
+:data:`adaptfilt.seed_stats.MARGINS` (a fraction of ``b``'s value);
 every row also records ``verdict_no_margin``, the verdict the interval alone
 gives, so that a claim that holds only without a margin can be named.
 """
@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptfilt.experiments.seeds import aggregate, difference, margin_for, seed_groups, seed_verdict
+from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_groups, seed_verdict
 
 __all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members"]
 
@@ -75,7 +75,7 @@ def compare(res, a: str, b: str, metric: str, better: str = "lower", experiment:
     """One comparison "``a`` is ``better`` than ``b``" on ``metric`` (module docstring).
 
     ``better``: ``"lower"``, ``"not worse"`` or ``"equal"`` (the last two with the margin of
-    :data:`~adaptfilt.experiments.seeds.MARGINS` around ``b``'s IQM). ``role``: ``"verdict"``,
+    :data:`~adaptfilt.seed_stats.MARGINS` around ``b``'s IQM). ``role``: ``"verdict"``,
     or ``"uncharged"`` for the uncharged-cost row that follows a charged one."""
     A, B = members(res, a), members(res, b)
     d = difference(res, A, B, metric)

@@ -6,7 +6,7 @@ one episode at a time), on the same runs: for each metric the IQM over seeds
 of each group and the difference fast minus faithful with its two-level
 (seeds x runs) bootstrap interval. The target: the fast mode is **not worse**
 on cost, RMSE and ANEES, a non-inferiority verdict: the interval lies below
-the margin of :data:`adaptfilt.experiments.seeds.MARGINS` (a fraction of the
+the margin of :data:`adaptfilt.seed_stats.MARGINS` (a fraction of the
 faithful IQM). The verdict the interval gives without a margin (it includes 0
 or lies below it) is kept beside it. The objective both optimise (mean
 ``log(1 + L)``) is reported with them.
@@ -14,7 +14,7 @@ or lies below it) is kept beside it. The objective both optimise (mean
 from __future__ import annotations
 
 from adaptfilt.experiments.claims import members
-from adaptfilt.experiments.seeds import aggregate, difference, margin_for, seed_verdict
+from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
 
 __all__ = ["comparison", "comparison_md", "METRICS"]
 

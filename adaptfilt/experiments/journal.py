@@ -59,9 +59,9 @@ class Journal:
 
     @staticmethod
     def _version() -> str:
-        import adaptfilt
+        from adaptfilt._version import __version__
 
-        return adaptfilt.__version__
+        return __version__
 
     def get(self, command: str, seed: int) -> dict | None:
         """The record of a finished job that can be reused as it is, else None."""

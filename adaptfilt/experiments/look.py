@@ -50,7 +50,7 @@ def look_specs(experiment: str, grid_hs, quick: bool = False) -> list[tuple]:
 
 def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
     from adaptfilt.evaluation import learned_name
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.learned import load_policy
     from adaptfilt.lookahead import RolloutPolicy, TwoStepPolicy
 
@@ -66,7 +66,7 @@ def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
 def look_job(experiment: str, spec: tuple, files: list[str], n_runs: int, n_steps: int | None):
     """One part of an experiment's look-ahead evaluation (module docstring); every part sees the same runs."""
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     res = evaluate(get_experiment(experiment), _policies(experiment, spec, files), n_runs=n_runs, seed=0,
                    progress=False, n_steps=n_steps)
@@ -95,7 +95,7 @@ def _verdict_cost(res) -> str:
 
 def look_summary(res) -> dict:
     """Per policy: the metrics, compute per step, and the difference to greedy (module docstring)."""
-    from adaptfilt.experiments.seeds import aggregate, difference, seed_groups
+    from adaptfilt.seed_stats import aggregate, difference, seed_groups
 
     cost = _verdict_cost(res)
     metrics = [cost] + (["cost"] if cost != "cost" else []) + ["rmse", "anees", "objective"]

@@ -50,7 +50,7 @@ CONDITIONS = tuple(Condition(q, r) for q in FACTORS for r in FACTORS)
 
 def truth_model(experiment: str, condition: Condition):
     """The experiment's model with ``Q`` and ``R`` scaled (same functions, prior, horizon)."""
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.models import StateSpaceModel
 
     m = get_experiment(experiment).make_model()
@@ -62,7 +62,7 @@ def truth_model(experiment: str, condition: Condition):
 
 def mismatched_env(experiment: str, condition: Condition, seed: int = 0, n_steps: int | None = None):
     """The nominal filter and cost, trajectories from the scaled truth."""
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     exp = get_experiment(experiment)
     env = exp.make_env(seed=seed, n_steps=n_steps)
@@ -74,7 +74,7 @@ def evaluate_condition(experiment: str, condition: Condition, policies: list, n_
                        seed: int = 0, n_steps: int | None = None):
     """Every baseline of the experiment and ``policies`` on the same runs of the mismatched truth."""
     from adaptfilt.evaluation import evaluate
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     exp = get_experiment(experiment)
     env = mismatched_env(experiment, condition, seed, n_steps)
@@ -138,7 +138,7 @@ def retune(policy, experiment: str, condition: Condition, episodes: int = 50, se
 def gain_table(results: dict, groups: dict[str, list[str]], metric: str = "cost") -> dict:
     """``{condition key: {policy or group: gain over default}}``; groups as IQM over seeds with CI,
     plus the best fixed value in hindsight and greedy."""
-    from adaptfilt.experiments.seeds import difference
+    from adaptfilt.seed_stats import difference
 
     out = {}
     for key, res in results.items():

@@ -33,7 +33,7 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
     from adaptfilt import metrics
     from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     t0, c0 = time.perf_counter(), _cpu()
     env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
@@ -47,14 +47,14 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
     counts = metrics.bootstrap_counts(n_runs, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 2]))
     boot = metrics.bootstrap_rmse(se, counts)
     lo, hi = metrics.percentile_ci(boot)
-    import adaptfilt
+    from adaptfilt._version import __version__
 
     return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "rmse_ci": [lo, hi],
             "rmse_run_median": float(np.median(np.sqrt(se.mean(axis=1)))), "n_runs": int(n_runs), "n_steps": int(T),
             "seed": int(seed), "grid": "np.linspace(-45, 45, 901)",
             "trajectories": f"first {n_runs} of the UNGM evaluation (default_rng([{TRAJ_SEED_KEY}, {seed}]), "
                             f"{'10^4' if eval_runs == 10_000 else eval_runs} runs)",
-            "version": adaptfilt.__version__,
+            "version": __version__,
             "command": "python -c \"from adaptfilt.experiments.references import ungm_floor; "
                        f"print(ungm_floor({n_runs}, {seed}{'' if eval_runs == 10_000 else f', eval_runs={eval_runs}'}))\"",
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}
@@ -112,7 +112,7 @@ def ctm_reconciliation(n_runs: int = 2000, seed: int = SEED, n_steps: int | None
     ``{"rows": [...], "paper_table1_rmse": ..., ...}``.
     """
     from adaptfilt import metrics
-    from adaptfilt.experiments.registry import SIF_FORMS
+    from adaptfilt.experiment_registry import SIF_FORMS
     from adaptfilt.gaf import SIF, UKF
 
     t0, c0 = time.perf_counter(), _cpu()
@@ -144,9 +144,9 @@ def ctm_reconciliation(n_runs: int = 2000, seed: int = SEED, n_steps: int | None
             "anees": float(nees.mean()),
             "rmse_k": {str(k): float(rmse_t[k - 1]) for k in ks},
         })
-    import adaptfilt
+    from adaptfilt._version import __version__
 
     return {"rows": rows, "paper_table1_rmse_range": [5.630, 6.866], "seed": int(seed),
-            "version": adaptfilt.__version__,
+            "version": __version__,
             "command": f"python -c \"from adaptfilt.experiments.references import ctm_reconciliation; ctm_reconciliation({n_runs}, {seed})\"",
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": _cpu() - c0}

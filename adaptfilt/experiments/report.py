@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.claims import members
-from adaptfilt.experiments.seeds import aggregate, seed_groups
+from adaptfilt.seed_stats import aggregate, seed_groups
 
 __all__ = ["summary_md", "table1_md", "table1_columns_md", "table1_compute_md", "claims_md", "claim_rows",
            "claims_subset_md", "recon_md", "timings_md", "report_tables", "figures", "figure_policies",
@@ -303,7 +303,7 @@ def figures(results: dict, floor: dict | None, fig_dir: Path) -> list[Path]:
     """Figures 1-6 (per-seed points beside the aggregates) and the choices of one seed per learned group."""
     from adaptfilt.plots import plot_anees_bars, plot_choices, plot_rmse_bars, plot_tradeoff, plt
 
-    from adaptfilt.experiments.seeds import collapse_seeds
+    from adaptfilt.seed_stats import collapse_seeds
 
     fig_dir = Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -340,7 +340,7 @@ def embed_report_tables(report_md: str | Path = "REPRODUCTION.md", tables_md: st
     """Replace the generated part of ``REPRODUCTION.md`` (between the BEGIN/END
     report-tables markers) by ``report-tables.md`` (default: ``data/report-tables.md``),
     so that the report's tables are exactly the stored numbers."""
-    from adaptfilt.artefacts import data_dir
+    from adaptfilt.experiments.artefacts import data_dir
 
     report_md = Path(report_md)
     tables = Path(tables_md) if tables_md is not None else data_dir() / "report-tables.md"

@@ -25,7 +25,7 @@ table1_before_after_md          Table I now beside an earlier release's (``exper
 ==============================  ================================================================
 
 Seed groups are policies named ``<group>-s<seed>``
-(:func:`adaptfilt.experiments.seeds.seed_groups`); where a function takes a group name, a
+(:func:`adaptfilt.seed_stats.seed_groups`); where a function takes a group name, a
 single policy name works as well (:func:`adaptfilt.experiments.claims.members`).
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ import numpy as np
 
 from adaptfilt.experiments.claims import compare, members
 from adaptfilt.experiments.report import fmt
-from adaptfilt.experiments.seeds import aggregate
+from adaptfilt.seed_stats import aggregate
 
 __all__ = ["seed_table_md", "differences_md", "usage_shares", "usage_md", "plain_log", "plot_fixed_conventions",
            "ungm_nis", "GateAnatomy", "gate_anatomy", "gate_table", "plot_gate", "plot_cost_time", "ReachAnatomy",
@@ -395,7 +395,7 @@ class LineOfSight:
 def line_of_sight(x: np.ndarray, run, pos: Sequence[int] = (0, 2)) -> LineOfSight:
     """:class:`LineOfSight` of a filter ``run`` (``mean (M, T, nx)``, ``cov (M, T, nx, nx)``) against
     the true states ``x (M, T, nx)``; ``pos`` are the indices of the two position coordinates."""
-    from adaptfilt.course import line_of_sight_errors
+    from adaptfilt.course.helpers import line_of_sight_errors
 
     pos = list(pos)
     err_r, err_c = line_of_sight_errors(x, run.mean, pos)
@@ -472,7 +472,7 @@ def sif_spread(filt_factory, n_iters: Sequence[int], traj, n_filters: int = 500,
 def table1_before_after_md(t1: dict, before: dict, metrics: Sequence[str] = ("rmse", "anees", "cost", "mean_n_iter"),
                            columns: Sequence[str] | None = None) -> str:
     """Table I now (:func:`adaptfilt.experiments.claims.table1`; seed groups: the IQM over seeds)
-    beside an earlier release's values (e.g. :data:`adaptfilt.experiments.history.TABLE1_BEFORE`, or
+    beside an earlier release's values (e.g. :data:`adaptfilt.course.earlier_numbers.TABLE1_BEFORE`, or
     ``{e: d["ours"] for e, d in artefacts.load_archive("onepass", "table1").items()}``),
     "before -> now" per metric, for the columns both have (or ``columns``)."""
     names = {"rmse": "RMSE", "anees": "ANEES", "cost": "cost", "mean_n_iter": "N_it chosen",

@@ -1,7 +1,7 @@
 r"""Reproduce the paper at the seed level: ``adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful]``.
 
 :func:`reproduce` writes into ``DIR`` exactly the layout of the committed
-``data/`` folder (which :mod:`adaptfilt.artefacts` reads for the course)::
+``data/`` folder (which :mod:`adaptfilt.experiments.artefacts` reads for the course)::
 
     DIR/manifest.json                         every file: sha256, command, seed, version, wall/CPU time
     DIR/policies/{experiment}-{kind}-s{seed}.npz
@@ -41,7 +41,7 @@ final files are byte-identical to an uninterrupted run's) and runs the rest. A c
 the journal.
 
 The stored artefacts are looked for in ``data`` (``--data DIR``), ``$ADAPTFILT_DATA``, then the
-checkout's ``data/`` (:func:`adaptfilt.artefacts.find_data`); a full-scale run without ``retrain``
+checkout's ``data/`` (:func:`adaptfilt.experiments.artefacts.find_data`); a full-scale run without ``retrain``
 needs them and says so rather than retraining everything.
 Artefacts already in ``data/`` whose sha256 matches the manifest are reused
 unless ``retrain``; the paper-faithful policies are reused even then (``faithful``
@@ -160,7 +160,7 @@ def _evaluate_job(experiments: tuple[str, ...], baselines: list[str], policy_fil
     experiment. Several experiments differ in their cost only (the SIF ones): they share the
     rollouts of their baselines (:func:`adaptfilt.evaluation.evaluate_costs`)."""
     from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.learned import load_policy
 
     t0, c0 = time.perf_counter(), _cpu()
@@ -183,7 +183,7 @@ def _evaluate_job(experiments: tuple[str, ...], baselines: list[str], policy_fil
 
 def _cheap_and_heavy(experiment: str) -> tuple[list[str], list[str]]:
     """The experiment's baselines: the cheap ones, and greedy and ML (they try every grid value)."""
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     names = [p.name for p in get_experiment(experiment).baselines()]
     heavy = [n for n in names if n in ("greedy", "ml")]
@@ -203,7 +203,7 @@ def _evaluation_jobs(experiment: str, policy_paths: list[str], scale: Scale, che
 
 def _merge(parts: list, experiment: str, command: str):
     """One Results from the parts of one evaluation, in the experiment's order of policies."""
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     first = parts[0]
     for other in parts[1:]:
@@ -247,10 +247,10 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     ``data``: the stored artefacts to reuse (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``).
     Returns ``{"timings", "table1", "claims", "figures"}``.
     """
-    import adaptfilt
-    from adaptfilt.artefacts import find_data
+    from adaptfilt._version import __version__
+    from adaptfilt.experiments.artefacts import find_data
     from adaptfilt.evaluation import Results
-    from adaptfilt.experiments import EXPERIMENTS
+    from adaptfilt.experiment_registry import EXPERIMENTS
     from adaptfilt.experiments.sweep import default_workers
     from adaptfilt.learned import read_npz
 
@@ -466,9 +466,9 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     for rel in sorted(entries):
         e = entries[rel]
         manifest_files.append({"path": rel, "sha256": sha256(out / rel), "command": e.get("command") or cmd,
-                               "seed": e.get("seed", SEED), "version": e.get("version", adaptfilt.__version__),
+                               "seed": e.get("seed", SEED), "version": e.get("version", __version__),
                                "wall_time_s": _seconds(e.get("wall_time_s")), "cpu_time_s": _seconds(e.get("cpu_time_s"))})
-    manifest = {"package_version": adaptfilt.__version__, "scale": scale.name, "seeds": list(scale.seeds),
+    manifest = {"package_version": __version__, "scale": scale.name, "seeds": list(scale.seeds),
                 "generated_by": cmd, "files": manifest_files}
     atomic_write(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
     journal.finish()
@@ -501,7 +501,7 @@ def _names(experiment: str, rels: list[str]) -> list[str]:
 
 
 def _baselines(experiment: str) -> list:
-    from adaptfilt.experiments import get_experiment
+    from adaptfilt.experiment_registry import get_experiment
 
     return get_experiment(experiment).baselines()
 

@@ -41,7 +41,7 @@ from typing import Any, Mapping, Sequence
 __all__ = ["ChapterUsage", "notebook_usage", "course_map", "plot_course_map", "course_map_svg"]
 
 PACKAGE = "adaptfilt"
-_PACKAGE_DIR = Path(__file__).resolve().parent
+_PACKAGE_DIR = Path(__file__).resolve().parents[1]  # adaptfilt/ (this module is in adaptfilt/course/)
 # IPython-only lines (magics, shell escapes, help) are not Python: blank them before parsing.
 _IPYTHON_LINE = re.compile(r"^\s*(%|!|\?)|\?\s*$")
 # Used on a cell that still does not parse: the modules named in it, without the names.

@@ -1,6 +1,6 @@
 """The committed artefacts in ``data/`` (trained policies, evaluation results), for the notebooks.
 
-``data/`` is written by ``adaptfilt reproduce --out data`` (:mod:`adaptfilt.reproduce`);
+``data/`` is written by ``adaptfilt reproduce --out data`` (:mod:`adaptfilt.experiments.reproduce`);
 every file is listed in ``data/manifest.json`` with its sha256, the one
 command that regenerates it, the seed, the package version and its wall time.
 
@@ -26,7 +26,7 @@ __all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", 
 def data_dir() -> Path:
     """``$ADAPTFILT_DATA`` if set, else the ``data/`` folder of the repository."""
     env = os.environ.get("ADAPTFILT_DATA")
-    return Path(env) if env else Path(__file__).resolve().parent.parent / "data"
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "data"
 
 
 class DataNotFound(FileNotFoundError):
@@ -46,7 +46,7 @@ def find_data(data: str | Path | None = None, required: str | None = None) -> Pa
             if not (d / "manifest.json").is_file():
                 raise DataNotFound(f"{what} {d}: no manifest.json there; give a copy of the repository's data/ folder")
             return d
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]  # adaptfilt/ (this module is adaptfilt/experiments/artefacts.py)
     checkout = package.parent
     if (checkout / "pyproject.toml").is_file() and (checkout / "data" / "manifest.json").is_file():
         return checkout / "data"
@@ -182,7 +182,7 @@ def load_archive(name: str, what: str, root: str | Path | None = None) -> dict:
 
 
 def _experiments() -> list[str]:
-    from adaptfilt.experiments import EXPERIMENTS
+    from adaptfilt.experiment_registry import EXPERIMENTS
 
     return list(EXPERIMENTS)
 

@@ -1,6 +1,6 @@
 r"""The plumbing of the course's learning chapters (5 The actor-critic, 9 Your own model, 10 RL in practice).
 
-As :mod:`adaptfilt.course` does for chapters 1-4: what a chapter computes in
+As :mod:`adaptfilt.course.helpers` does for chapters 1-4: what a chapter computes in
 passing (bookkeeping over seeds, binned policy probabilities, a timed
 training) and its figures live here, documented and tested
 (``tests/test_course_rl.py``), so that a chapter reads as prose with short
@@ -22,9 +22,9 @@ chapter                                   helpers
 ========================================  =========================================================
 
 A *seed group* is a set of policies named ``<group>-s<seed>``
-(:func:`adaptfilt.experiments.seeds.seed_groups`); its aggregate is the IQM
+(:func:`adaptfilt.seed_stats.seed_groups`); its aggregate is the IQM
 over seeds with the two-level (seeds x runs) bootstrap interval of
-:func:`adaptfilt.experiments.seeds.aggregate`.
+:func:`adaptfilt.seed_stats.aggregate`.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.experiments.seeds import aggregate, seed_groups, seed_verdict
+from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
 
 __all__ = [
     # chapter 5
@@ -361,7 +361,7 @@ def seed_verdicts(results, group: str, other: str, metric: str = "rmse", better:
 
 def claims_table(claims: Mapping, experiment: str, keys: Sequence[str] = ("C1", "C2", "C4", "C6"),
                  only_held: bool = True) -> str:
-    r"""A Markdown table of the stored claims (:func:`adaptfilt.artefacts.load_claims`) of one
+    r"""A Markdown table of the stored claims (:func:`adaptfilt.experiments.artefacts.load_claims`) of one
     experiment: the seed-level verdict beside the number of seeds that hold it *alone*
     (each seed's own paired interval; defined where ``b`` is a single policy). A verdict judged
     with a margin ("equal", "not worse") shows it, and the verdict without it where that differs
@@ -399,7 +399,7 @@ def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("c
     r"""One line per metric: ``group - other`` as IQM over seeds [two-level 95 % CI], the seed-level
     verdict, and how many seeds alone (their own paired run-level interval) find ``group`` lower,
     tied or higher."""
-    from adaptfilt.experiments.seeds import difference
+    from adaptfilt.seed_stats import difference
 
     names = seed_groups(results.names)[group]
     lines = []
