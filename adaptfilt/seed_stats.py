@@ -198,7 +198,7 @@ def collapse_seeds(results, level: float = 0.95):
     ``seed_points = {metric: per-seed values}`` for figures that show each seed beside the aggregate."""
     import copy
 
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
 
     groups = seed_groups(results.names)
     out = Results(config=dict(results.config))

@@ -26,7 +26,9 @@ from pathlib import Path
 
 import pytest
 
-from adaptfilt.course.book import (BookBuildError, build_book, escape_math, notebook_chapters, notebook_title, notebook_to_markdown, rewrite_links, rewrite_math)
+from adaptfilt.course.book import BookBuildError, build_book, notebook_chapters
+from adaptfilt.course.notebook_markdown import (escape_math, notebook_title, notebook_to_markdown, rewrite_links,
+                                                rewrite_math)
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
 
@@ -177,15 +179,18 @@ def test_fence_is_longer_than_backticks_inside():
 
 
 class _Pages(HTMLParser):
-    """Collects <img src> and <script src> of an HTML page."""
+    """Collects <img src>, <script src> and <a href> of an HTML page."""
 
     def __init__(self) -> None:
         super().__init__()
         self.images: list[str] = []
         self.scripts: list[str] = []
+        self.links: list[str] = []
 
     def handle_starttag(self, tag, attrs):
         attrs = dict(attrs)
+        if tag == "a" and attrs.get("href"):
+            self.links.append(attrs["href"])
         if tag == "img" and attrs.get("src"):
             self.images.append(attrs["src"])
         if tag == "script" and attrs.get("src"):
@@ -278,6 +283,34 @@ def test_landing_page_is_the_first_page_with_the_course_map(repo_book):
         assert "`" in row, row
     index = (out / "index.html").read_text(encoding="utf-8")
     assert "figures/course-map.svg" in index and "The course has" in index
+
+
+def test_library_reference_is_built_and_linked(repo_book):
+    """The navigation's "Library reference" page links one pdoc page per library module (none for the
+    pipeline or the course); every link of those pages that stays in the book reaches a file; the
+    pages load the book's MathJax, nothing from the network."""
+    from adaptfilt.course.reference import library_modules
+
+    out, _ = repo_book
+    summary = (out.with_name(out.name + "-src") / "SUMMARY.md").read_text(encoding="utf-8")
+    assert "- [Library reference](reference.md)" in summary.splitlines()
+    links = [h for h in _parse(out / "reference.html").links if h.startswith("reference/")]
+    modules = library_modules()
+    assert {"adaptfilt.gaf", "adaptfilt.rules", "adaptfilt.rules.stochastic", "adaptfilt.mdp"} <= set(modules)
+    assert not [m for m in modules if m.startswith(("adaptfilt.experiments", "adaptfilt.course", "adaptfilt.cli"))]
+    assert sorted(links) == sorted("reference/" + m.replace(".", "/") + ".html" for m in modules)
+    pages = sorted((out / "reference").rglob("*.html"))
+    assert not [p for p in pages if p.stem in ("experiments", "course", "cli")]
+    for page in [out / "reference.html", *pages]:
+        parsed = _parse(page)
+        for src in parsed.scripts:
+            assert not re.match(r"^(https?:)?//", src), f"{page}: loads {src} from the network"
+            assert (page.parent / src.split("?")[0]).is_file(), f"{page}: missing script {src}"
+        for href in parsed.links:
+            target = html.unescape(href).split("#")[0]
+            if not target or re.match(r"^[a-z]+:", target):
+                continue
+            assert (page.parent / target).is_file(), f"{page.relative_to(out)}: broken link {href}"
 
 
 def test_landing_page_without_notebooks(tmp_path):
@@ -615,3 +648,17 @@ def test_out_dir_that_is_not_a_book_is_refused(tmp_path):
     with pytest.raises(BookBuildError, match="contains the repository"):
         build_book(ROOT, root=ROOT, notebooks=[])
     assert (tmp_path / "precious.txt").read_text() == "keep me"
+
+
+def test_browser_reference_typesets_formulas(browser, repo_book):
+    """A page of the library reference with formulas (the moment rules): MathJax (the book's copy)
+    typesets them without an error or an undefined macro, and the page logs no console error."""
+    out, _ = repo_book
+    browser.set_viewport(*DESKTOP)
+    try:
+        visit = _visit(browser, (out / "reference" / "adaptfilt" / "rules.html").as_uri())
+    finally:
+        browser.set_viewport(*PHONE)
+    seen = visit["value"]
+    assert visit["errors"] == [] and seen["mathjax"] and seen["typeset"] == "done", (visit["errors"], seen["typeset"])
+    assert seen["rendered"] >= 3 and seen["errors"] == 0 and seen["mathErrors"] == []

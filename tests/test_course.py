@@ -1,4 +1,4 @@
-"""adaptfilt.course.helpers: the helpers behind the course notebooks, against independent references."""
+"""adaptfilt.course.{common, bayes, moments, myopia, adaptation}: the helpers behind the course notebooks, against independent references."""
 from __future__ import annotations
 
 import matplotlib
@@ -11,7 +11,7 @@ import pytest  # noqa: E402
 from scipy import integrate, stats  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
-from adaptfilt.course import helpers as course  # noqa: E402
+from adaptfilt.course import common, bayes, moments, myopia, adaptation  # noqa: E402
 
 GRID = np.linspace(-45, 45, 901)
 DX = GRID[1] - GRID[0]
@@ -40,7 +40,7 @@ def test_grid_bayes_step_is_the_kalman_step_on_a_linear_model():
     lin = af.models.linear_gaussian(F=[[0.9]], H=[[0.5]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[5.0]])
     grid = np.linspace(-40, 40, 1601)
     m, P, z = 1.0, 2.0, 0.7  # previous filtering N(m, P), measurement at step t = 1
-    step = course.grid_bayes_step(lin, grid, gauss(grid, m, P), z, t=1)
+    step = bayes.grid_bayes_step(lin, grid, gauss(grid, m, P), z, t=1)
     m_pred, P_pred = 0.9 * m, 0.81 * P + 1.0
     K = P_pred * 0.5 / (0.25 * P_pred + 0.5)
     m_post, P_post = m_pred + K * (z - 0.5 * m_pred), (1 - 0.5 * K) * P_pred
@@ -54,19 +54,19 @@ def test_grid_bayes_step_is_the_kalman_step_on_a_linear_model():
 def test_filtering_densities_match_the_point_mass_filter(ungm_small):
     model, traj = ungm_small
     pmf = af.PointMassFilter(model, grid=GRID)
-    dens = course.filtering_densities(pmf, traj.z[:, :10])
+    dens = bayes.filtering_densities(pmf, traj.z[:, :10])
     assert dens.shape == (12, 10, GRID.size)
     ref = pmf.run(traj.z[:, :10])
-    assert np.abs(course.point_estimates(GRID, dens)["mean"] - ref.mean[..., 0]).max() < 1e-12
+    assert np.abs(bayes.point_estimates(GRID, dens)["mean"] - ref.mean[..., 0]).max() < 1e-12
     # and one step by hand reproduces step t from step t - 1
-    step = course.grid_bayes_step(model, GRID, dens[4, 6], traj.z[4, 7, 0], 7)
+    step = bayes.grid_bayes_step(model, GRID, dens[4, 6], traj.z[4, 7, 0], 7)
     assert np.abs(step.posterior - dens[4, 7]).max() < 1e-12
 
 
 def test_sign_ambiguity_of_a_symmetric_mixture():
     a, v = 8.0, 1.0
     dens = 0.5 * gauss(GRID, -a, v) + 0.5 * gauss(GRID, a, v)
-    amb = course.sign_ambiguity(GRID, dens[None, None])
+    amb = bayes.sign_ambiguity(GRID, dens[None, None])
     abs_mean = integrate.quad(lambda x: abs(x) * (0.5 * gauss(x, -a, v) + 0.5 * gauss(x, a, v)), -50, 50, points=[0])[0]
     assert amb.p_neg[0, 0] == pytest.approx(0.5, abs=1e-6)
     assert amb.abs_mean[0, 0] == pytest.approx(abs_mean, rel=1e-6)
@@ -75,15 +75,15 @@ def test_sign_ambiguity_of_a_symmetric_mixture():
 def test_ambiguous_cases_skip_the_prior_step_and_sort_by_separation():
     p_neg = np.array([[0.5, 0.5, 0.1, 0.4], [0.5, 0.3, 0.5, 0.9]])
     abs_mean = np.array([[9.0, 5.0, 9.0, 7.0], [9.0, 8.0, 3.0, 9.0]])
-    amb = course.SignAmbiguity(p_neg, abs_mean)
-    assert course.ambiguous_cases(amb, n=5) == [(1, 1), (0, 3), (0, 1)]
-    assert course.ambiguous_mask(amb).sum() == 3 and not course.ambiguous_mask(amb)[:, 0].any()
+    amb = bayes.SignAmbiguity(p_neg, abs_mean)
+    assert bayes.ambiguous_cases(amb, n=5) == [(1, 1), (0, 3), (0, 1)]
+    assert bayes.ambiguous_mask(amb).sum() == 3 and not bayes.ambiguous_mask(amb)[:, 0].any()
 
 
 def test_point_estimates_against_closed_forms():
     g = stats.gamma(a=2.0, scale=3.0)  # skewed: mean 6, median 5.03, mode 3
     grid = np.linspace(0, 90, 9001)
-    est = course.point_estimates(grid, g.pdf(grid))
+    est = bayes.point_estimates(grid, g.pdf(grid))
     assert est["mean"] == pytest.approx(6.0, abs=1e-3)
     assert est["median"] == pytest.approx(g.median(), abs=0.011)
     assert est["MAP"] == pytest.approx(3.0, abs=0.011)
@@ -94,7 +94,7 @@ def test_expected_loss_is_variance_plus_squared_bias():
     mean = 0.3 * -6 + 0.7 * 7
     var = 0.3 * (2.0 + 36) + 0.7 * (1.0 + 49) - mean ** 2
     cand = np.linspace(-10, 10, 2001)
-    el = course.expected_loss(GRID, post, cand)
+    el = bayes.expected_loss(GRID, post, cand)
     assert np.allclose(el.loss, var + (cand - mean) ** 2, atol=1e-8)
     assert el.argmin == pytest.approx(mean, abs=0.01) and el.mean == pytest.approx(mean, abs=1e-9)
     assert el.map == pytest.approx(7.0, abs=0.1)
@@ -105,7 +105,7 @@ def test_score_against_the_metrics_module(ungm_small):
     model, traj = ungm_small
     run = af.UKF(model).run(traj.z)
     counts = af.metrics.bootstrap_counts(12, 300, rng=1)
-    s = course.score(traj.x, run, counts)
+    s = common.score(traj.x, run, counts)
     assert np.allclose(s.rmse_k, af.metrics.rmse(traj.x, run.mean))
     assert s.rmse == pytest.approx(af.metrics.rmse(traj.x, run.mean).mean())
     assert s.anees == pytest.approx(af.metrics.anees(traj.x, run.mean, run.cov).mean())
@@ -114,26 +114,26 @@ def test_score_against_the_metrics_module(ungm_small):
     se = ((traj.x - run.mean) ** 2).sum(-1)
     assert s.median_run_rmse == pytest.approx(np.median(np.sqrt(se.mean(1))))
     with pytest.raises(ValueError, match="counts must have shape"):
-        course.score(traj.x, run, counts[:, :5])
-    assert "κ = 2" in course.score_table({"UKF kappa=2": s})
+        common.score(traj.x, run, counts[:, :5])
+    assert "κ = 2" in common.score_table({"UKF kappa=2": s})
 
 
 def test_paired_rmse_difference(ungm_small):
     model, traj = ungm_small
     a, b = af.UKF(model, kappa=100).run(traj.z), af.UKF(model).run(traj.z)
     counts = af.metrics.bootstrap_counts(12, 500, rng=2)
-    d, lo, hi = course.paired_rmse_difference(traj.x, a, b, counts)
+    d, lo, hi = common.paired_rmse_difference(traj.x, a, b, counts)
     assert d == pytest.approx(af.metrics.rmse(traj.x, a.mean).mean() - af.metrics.rmse(traj.x, b.mean).mean())
     assert lo <= d <= hi
-    assert course.paired_rmse_difference(traj.x, a, a, counts) == (0.0, 0.0, 0.0)
+    assert common.paired_rmse_difference(traj.x, a, a, counts) == (0.0, 0.0, 0.0)
 
 
 def test_chi2_median():
-    assert course.chi2_median(1) == pytest.approx(0.4549364, abs=1e-6)
+    assert common.chi2_median(1) == pytest.approx(0.4549364, abs=1e-6)
     x = np.random.default_rng(0).standard_normal(200_000) ** 2
-    assert np.median(x) == pytest.approx(course.chi2_median(1), abs=0.01)
+    assert np.median(x) == pytest.approx(common.chi2_median(1), abs=0.01)
     with pytest.raises(ValueError):
-        course.chi2_median(0)
+        common.chi2_median(0)
 
 
 # ---------------------------------------------------------------- chapter 2
@@ -142,19 +142,19 @@ def test_chi2_median():
 @pytest.mark.parametrize("m, P", [(5.0, 4.0), (1.0, 12.0), (-3.0, 0.5)])
 def test_unscented_pzz_matches_the_closed_form(m, P):
     kappas = np.array([-0.5, 0.0, 1.0, 2.0, 7.5, 100.0])
-    assert np.allclose(course.unscented_pzz(kappas, m, P, R=0.1), (4 * m * m * P + kappas * P * P) / 400 + 0.1)
+    assert np.allclose(moments.unscented_pzz(kappas, m, P, R=0.1), (4 * m * m * P + kappas * P * P) / 400 + 0.1)
 
 
 def test_unscented_cross_covariance_of_a_cubic():
     # Cov[x, x^3/20] = (3 m^2 P + 3 P^2)/20 exactly; the UT has (1 + kappa) P^2 in place of 3 P^2.
     m, P, kappas = 2.0, 3.0, np.array([0.0, 2.0, 5.0])
-    mo = course.unscented_moments(lambda X: X ** 3 / 20, kappas, [m], [[P]])
+    mo = moments.unscented_moments(lambda X: X ** 3 / 20, kappas, [m], [[P]])
     assert np.allclose(mo.cross[0, 0], (3 * m * m * P + (1 + kappas) * P * P) / 20)
 
 
 def test_plot_unscented_draws_the_weights():
     for kappa in (-0.5, 0.0, 2.0, 10.0):
-        fig = course.plot_unscented(kappa, m=5.0, P=4.0)
+        fig = moments.plot_unscented(kappa, m=5.0, P=4.0)
         ax = fig.axes[0]
         heights = ax.lines[0].get_ydata()
         assert np.allclose(heights, [0.5 / (1 + kappa), kappa / (1 + kappa), 0.5 / (1 + kappa)])
@@ -164,16 +164,16 @@ def test_plot_unscented_draws_the_weights():
         title = ax.get_title()
         assert title.startswith(f"κ = {kappa:g}\n") and f"{pzz:.3g} (exact 1.18)" in title
     with pytest.raises(ValueError, match="1 \\+ kappa > 0"):
-        course.plot_unscented(-1.0)
+        moments.plot_unscented(-1.0)
 
 
 def test_widget_callbacks_draw_for_several_knob_values(monkeypatch):
     shown = []
     monkeypatch.setattr(plt, "show", lambda *a, **k: shown.append(plt.gcf()))
     for kappa in (-0.9, 0.0, 2.0, 20.0):
-        course.show_unscented(kappa=kappa, m=1.0, P=12.0)
+        moments.show_unscented(kappa=kappa, m=1.0, P=12.0)
     for n_iter in (1, 8, 64):
-        course.show_sif_draws(n_iter=n_iter)
+        moments.show_sif_draws(n_iter=n_iter)
     assert len(shown) == 7 and all(len(f.axes) == 1 for f in shown)
     errors = [float(f.axes[0].get_title().split()[-1]) for f in shown[4:]]
     assert errors[0] > errors[1] > errors[2]  # the spread narrows with the iterations
@@ -181,22 +181,22 @@ def test_widget_callbacks_draw_for_several_knob_values(monkeypatch):
 
 
 def test_gauss_hermite_against_closed_forms():
-    m, v = course.gauss_hermite_moments(lambda X: X[0:1] ** 2, [1.0], [[2.0]], order=10)
+    m, v = moments.gauss_hermite_moments(lambda X: X[0:1] ** 2, [1.0], [[2.0]], order=10)
     assert (m, v) == (pytest.approx(3.0), pytest.approx(4 * 1 * 2 + 2 * 4))
     a, mu, P = np.array([0.5, -2.0]), np.array([1.0, 3.0]), np.array([[2.0, 0.3], [0.3, 1.0]])
-    m, v = course.gauss_hermite_moments(lambda X: np.einsum("i,ipr->pr", a, X)[None], mu, P, order=5)
+    m, v = moments.gauss_hermite_moments(lambda X: np.einsum("i,ipr->pr", a, X)[None], mu, P, order=5)
     assert m == pytest.approx(a @ mu) and v == pytest.approx(a @ P @ a)
 
 
 def test_rule_errors_unscented_exact_for_quadratics_and_sir_slope():
     g = lambda X: X[0:1] ** 2 + X[1:2]
     m, P = np.array([1.0, 2.0]), np.array([[2.0, 0.5], [0.5, 1.0]])
-    ref = course.gauss_hermite_moments(g, m, P, order=8)
-    ut = course.rule_errors(af.rules.UnscentedRule(), g, m, P, [1.0], ref)
+    ref = moments.gauss_hermite_moments(g, m, P, order=8)
+    ut = moments.rule_errors(af.rules.UnscentedRule(), g, m, P, [1.0], ref)
     assert ut.mean[0] < 1e-12  # degree 3: exact mean
-    ref_b = course.gauss_hermite_moments(course.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)))
+    ref_b = moments.gauss_hermite_moments(moments.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)))
     n_iters = np.array([1, 4, 16, 64])
-    sir = course.rule_errors(af.rules.StochasticIntegrationRule(), course.bearing, (20.0, 5.0),
+    sir = moments.rule_errors(af.rules.StochasticIntegrationRule(), moments.bearing, (20.0, 5.0),
                              ((25.0, 5.0), (5.0, 16.0)), n_iters, ref_b, n_batch=2000, seed=1)
     slope = np.polyfit(np.log(n_iters), np.log(sir.mean), 1)[0]
     assert -0.6 < slope < -0.4
@@ -205,36 +205,36 @@ def test_rule_errors_unscented_exact_for_quadratics_and_sir_slope():
 def test_line_of_sight_errors():
     x = np.array([[[10.0, 0.0, 0.0, 0.0]]])
     mean = np.array([[[8.0, 0.0, 1.0, 0.0]]])
-    radial, cross = course.line_of_sight_errors(x, mean)
+    radial, cross = moments.line_of_sight_errors(x, mean)
     assert radial[0, 0] == pytest.approx(2.0) and cross[0, 0] == pytest.approx(-1.0)
     rng = np.random.default_rng(0)
     x, mean = rng.normal(size=(5, 7, 4)) * 50, rng.normal(size=(5, 7, 4)) * 50
-    radial, cross = course.line_of_sight_errors(x, mean)
+    radial, cross = moments.line_of_sight_errors(x, mean)
     assert np.allclose(radial ** 2 + cross ** 2, ((x - mean)[..., [0, 2]] ** 2).sum(-1))
     with pytest.raises(ValueError, match="origin"):
-        course.line_of_sight_errors(np.zeros((1, 1, 4)), mean[:1, :1])
+        moments.line_of_sight_errors(np.zeros((1, 1, 4)), mean[:1, :1])
 
 
 def test_plots_draw(ungm_small):
     model, traj = ungm_small
     counts = af.metrics.bootstrap_counts(12, 100)
-    s = {n: course.score(traj.x, af.UKF(model, kappa=k).run(traj.z), counts) for n, k in [("UKF kappa=2", 2), ("UKF kappa=100", 100)]}
-    fig = course.plot_rmse_k(s)
+    s = {n: common.score(traj.x, af.UKF(model, kappa=k).run(traj.z), counts) for n, k in [("UKF kappa=2", 2), ("UKF kappa=100", 100)]}
+    fig = common.plot_rmse_k(s)
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["UKF κ = 2", "UKF κ = 100"]
-    fig = course.plot_anees_k(s, nx=1, median_of={"UKF kappa=2": s["UKF kappa=2"]})
+    fig = moments.plot_anees_k(s, nx=1, median_of={"UKF kappa=2": s["UKF kappa=2"]})
     assert any("0.455" in t.get_text() for t in fig.axes[0].get_legend().get_texts())
-    course.plot_per_run_rmse(s)
-    course.plot_pzz_vs_kappa(np.linspace(-0.9, 5, 20), [(5.0, 4.0)])
-    ref = course.gauss_hermite_moments(course.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)))
-    e = course.rule_errors(af.rules.UnscentedRule(), course.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)), [1.0], ref)
-    course.plot_rule_errors([1, 2], course.RuleErrors(np.array([1e-2, 7e-3]), np.array([1e-3, 7e-4])), e)
-    course.plot_ungm_roots(traj, 0)
-    dens = course.filtering_densities(af.PointMassFilter(model, grid=GRID), traj.z[:2, :4])
-    course.plot_posteriors(GRID, dens, traj.x, [(0, 1), (1, 2)])
-    course.plot_bayes_step(GRID, course.grid_bayes_step(model, GRID, dens[0, 1], traj.z[0, 2, 0], 2))
-    course.plot_expected_loss(course.expected_loss(GRID, dens[0, 1], np.linspace(-5, 5, 11)))
-    r, c = course.line_of_sight_errors(np.ones((2, 3, 4)), np.zeros((2, 3, 4)))
-    fig = course.plot_line_of_sight_errors(r, c)
+    moments.plot_per_run_rmse(s)
+    moments.plot_pzz_vs_kappa(np.linspace(-0.9, 5, 20), [(5.0, 4.0)])
+    ref = moments.gauss_hermite_moments(moments.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)))
+    e = moments.rule_errors(af.rules.UnscentedRule(), moments.bearing, (20.0, 5.0), ((25.0, 5.0), (5.0, 16.0)), [1.0], ref)
+    moments.plot_rule_errors([1, 2], moments.RuleErrors(np.array([1e-2, 7e-3]), np.array([1e-3, 7e-4])), e)
+    bayes.plot_ungm_roots(traj, 0)
+    dens = bayes.filtering_densities(af.PointMassFilter(model, grid=GRID), traj.z[:2, :4])
+    bayes.plot_posteriors(GRID, dens, traj.x, [(0, 1), (1, 2)])
+    bayes.plot_bayes_step(GRID, bayes.grid_bayes_step(model, GRID, dens[0, 1], traj.z[0, 2, 0], 2))
+    bayes.plot_expected_loss(bayes.expected_loss(GRID, dens[0, 1], np.linspace(-5, 5, 11)))
+    r, c = moments.line_of_sight_errors(np.ones((2, 3, 4)), np.zeros((2, 3, 4)))
+    fig = moments.plot_line_of_sight_errors(r, c)
     assert "(m)" in fig.axes[0].get_ylabel()
 
 
@@ -244,18 +244,18 @@ def test_plots_draw(ungm_small):
 def test_decision_loop_is_the_point_mass_filter(ungm_small):
     model, traj = ungm_small
     z = traj.z[:, :12]
-    mean = course.posterior_mean(GRID)
-    base = course.decision_loop(model, GRID, mean, z)
+    mean = myopia.posterior_mean(GRID)
+    base = myopia.decision_loop(model, GRID, mean, z)
     ref = af.PointMassFilter(model, grid=GRID).run(z)
     assert np.abs(base.estimates - ref.mean[..., 0]).max() < 1e-10
     assert np.allclose(base.exp_loss, ref.cov[..., 0, 0], atol=1e-10)  # L-bar at the mean = the variance
-    shifted = course.decision_loop(model, GRID, lambda s, t: mean(s, t) + 3.0 * (t == 5), z)
+    shifted = myopia.decision_loop(model, GRID, lambda s, t: mean(s, t) + 3.0 * (t == 5), z)
     assert np.allclose(shifted.exp_loss[:, 5] - base.exp_loss[:, 5], 9.0)
     assert np.array_equal(np.delete(shifted.exp_loss, 5, axis=1), np.delete(base.exp_loss, 5, axis=1))
-    med = course.decision_loop(model, GRID, course.posterior_median(GRID), z, loss=lambda x, xh: np.abs(x - xh))
-    mean_abs = course.decision_loop(model, GRID, mean, z, loss=lambda x, xh: np.abs(x - xh))
+    med = myopia.decision_loop(model, GRID, myopia.posterior_median(GRID), z, loss=lambda x, xh: np.abs(x - xh))
+    mean_abs = myopia.decision_loop(model, GRID, mean, z, loss=lambda x, xh: np.abs(x - xh))
     assert (med.exp_loss <= mean_abs.exp_loss + 1e-9).all()  # the median minimises the absolute loss
-    mp = course.decision_loop(model, GRID, course.posterior_map(GRID), z)
+    mp = myopia.decision_loop(model, GRID, myopia.posterior_map(GRID), z)
     assert np.array_equal(mp.estimates, GRID[base.states.argmax(axis=1)].T)
 
 
@@ -263,11 +263,11 @@ def test_filter_loop_is_ukf_run_with_a_schedule(ungm_small):
     model, traj = ungm_small
     ukf = af.UKF(model)
     kappas = np.where(np.arange(30) == 7, 10.0, 2.0)
-    mean, cov = course.filter_loop(ukf, traj.z, kappas)
+    mean, cov = myopia.filter_loop(ukf, traj.z, kappas)
     ref = ukf.run(traj.z, params=np.tile(kappas, (12, 1)))
     assert np.array_equal(mean, ref.mean) and np.array_equal(cov, ref.cov)
     shift = np.where(np.arange(30) == 7, 5.0, 0.0)
-    m2, c2 = course.filter_loop(ukf, traj.z, kappas, x_shift=shift)
+    m2, c2 = myopia.filter_loop(ukf, traj.z, kappas, x_shift=shift)
     assert np.array_equal(m2[:, :7], mean[:, :7])
     assert np.allclose(m2[:, 7], mean[:, 7] + 5.0) and np.array_equal(c2[:, 7], cov[:, 7])
     assert (m2[:, 8] != mean[:, 8]).all()
@@ -278,7 +278,7 @@ def test_divergence_is_relative():
     mean_a, cov_a = mean_b.copy(), cov_b.copy()
     mean_a[0, 1, [0, 2]] = [3.0, 0.0]
     cov_a[1, 2, 0, 0] = 13.0
-    dm, dP = course.divergence(mean_a, cov_a, mean_b, cov_b, [0, 2])
+    dm, dP = myopia.divergence(mean_a, cov_a, mean_b, cov_b, [0, 2])
     assert dm[0, 1] == pytest.approx(1.0) and dm.sum() == pytest.approx(1.0)  # 3 / sqrt(4 + 5)
     assert dP[1, 2] == pytest.approx(1.0) and dP.sum() == pytest.approx(1.0)  # |18 - 9| / 9
 
@@ -286,20 +286,20 @@ def test_divergence_is_relative():
 def test_deviation_costs_and_myopic_comparison(ungm_small):
     model, traj = ungm_small
     ukf = af.UKF(model)
-    costs = course.deviation_costs(ukf, traj.z, [2.0, 50.0], t0=4)
+    costs = myopia.deviation_costs(ukf, traj.z, [2.0, 50.0], t0=4)
     assert costs.shape == (2, 12, 30)
     assert np.allclose(costs[0], (ukf.run(traj.z).nis - 1) ** 2)
     assert np.array_equal(costs[1, :, :4], costs[0, :, :4])
-    assert course.myopic_vs_discounted(costs, 4, gamma=0.0).differ == 0.0
+    assert myopia.myopic_vs_discounted(costs, 4, gamma=0.0).differ == 0.0
     # hand-made: option 0 is cheaper now, option 1 over the horizon
     c = np.zeros((2, 1, 3))
     c[0, 0] = [1.0, 4.0, 0.0]
     c[1, 0] = [2.0, 0.0, 0.0]
-    cmp = course.myopic_vs_discounted(c, 0, gamma=0.5)
+    cmp = myopia.myopic_vs_discounted(c, 0, gamma=0.5)
     assert (cmp.myopic[0], cmp.farsighted[0], cmp.differ) == (0, 1, 1.0)
     assert cmp.mean_cost("myopic") == pytest.approx(3.0) and cmp.mean_cost("farsighted") == pytest.approx(2.0)
     with pytest.raises(ValueError, match="gamma"):
-        course.myopic_vs_discounted(c, 0, gamma=1.5)
+        myopia.myopic_vs_discounted(c, 0, gamma=1.5)
 
 
 # ---------------------------------------------------------------- chapter 4
@@ -308,10 +308,10 @@ def test_deviation_costs_and_myopic_comparison(ungm_small):
 def test_innovation_spread_is_flat_on_ungm_only():
     from adaptfilt.experiment_registry import get_experiment
 
-    text = course.innovation_spread(get_experiment("ungm-ukf").make_env(), n_runs=2, steps=3)
+    text = adaptation.innovation_spread(get_experiment("ungm-ukf").make_env(), n_runs=2, steps=3)
     rows = [ln.split() for ln in text.splitlines()[1:]]
     assert all(r[3] == r[5] == r[-1] for r in rows)  # the unscented mean of x^2/20 is exact for every kappa
-    text = course.innovation_spread(get_experiment("ctm-ukf").make_env(), n_runs=2, steps=3)
+    text = adaptation.innovation_spread(get_experiment("ctm-ukf").make_env(), n_runs=2, steps=3)
     assert any(r.split()[3] != r.split()[5] for r in text.splitlines()[1:])
 
 
@@ -319,16 +319,16 @@ def test_kappa_sweep_is_the_fixed_update_kappa_filter():
     from adaptfilt.evaluation import TRAJ_SEED_KEY
 
     model = af.models.ungm(n_steps=20)
-    res = course.kappa_sweep(model, [2.0, 200.0], n_runs=15, seed=4)
+    res = adaptation.kappa_sweep(model, [2.0, 200.0], n_runs=15, seed=4)
     traj = model.simulate(15, 20, rng=np.random.default_rng([TRAJ_SEED_KEY, 4]))
     for v in (2.0, 200.0):
         run = af.UKF(model).run(traj.z, params=v)  # update kappa = v, predict at the default
         assert res[f"fixed-kappa={v:g}"].rmse == pytest.approx(af.metrics.rmse(traj.x, run.mean).mean())
-    fig = course.plot_sweep(res, [2.0, 200.0], "UNGM", nx=1)
+    fig = adaptation.plot_sweep(res, [2.0, 200.0], "UNGM", nx=1)
     assert fig.axes[0].get_xlabel() == "fixed update κ" and fig.axes[0].get_ylabel() == "time-averaged RMSE"
-    fig = course.plot_sweep(res, [2.0, 200.0], "CTM", nx=4, unit="m")
+    fig = adaptation.plot_sweep(res, [2.0, 200.0], "CTM", nx=4, unit="m")
     assert fig.axes[0].get_ylabel() == "time-averaged RMSE (m)"
-    assert "fixed-kappa=2 " in course.results_lines(res) or "fixed-kappa=2  " in course.results_lines(res)
+    assert "fixed-kappa=2 " in adaptation.results_lines(res) or "fixed-kappa=2  " in adaptation.results_lines(res)
 
 
 def test_cost_samples_and_summary():
@@ -339,9 +339,9 @@ def test_cost_samples_and_summary():
     env = get_experiment("ungm-ukf").make_env(n_steps=10)
     traj = env.model.simulate(8, 10, rng=np.random.default_rng(0))
     pols = [default_policy(2.0, grid=UNGM_KAPPA_GRID), GreedyPolicy(grid=UNGM_KAPPA_GRID)]
-    costs = course.cost_samples(env, pols, traj)
+    costs = adaptation.cost_samples(env, pols, traj)
     assert np.array_equal(costs["greedy"], rollout(env, pols[1], traj=traj)[1].ravel())
     c = np.concatenate([np.ones(198), [100.0, 100.0]])  # top 1 % = 2 steps carry 200 / 398
-    line = course.cost_summary({"x": c})
+    line = adaptation.cost_summary({"x": c})
     assert "median 1 " in line and "max 100" in line and "carry 50% " in line
-    course.plot_cost_distribution(costs)
+    adaptation.plot_cost_distribution(costs)

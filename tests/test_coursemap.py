@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adaptfilt.course.book import notebook_chapters, notebook_title
+from adaptfilt.course.book import notebook_chapters
+from adaptfilt.course.notebook_markdown import notebook_title
 from adaptfilt.course.coursemap import course_map, course_map_svg, module_order, notebook_usage, plot_course_map
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -45,9 +46,9 @@ def test_from_imports_follow_package_reexports():
 
 
 def test_module_imports_and_calls_on_them():
-    usage = notebook_usage(nb("from adaptfilt.course import helpers\nfrom adaptfilt import style\nimport adaptfilt.plots",
-                              "helpers.show_source(helpers.score)\nadaptfilt.plots.plot_rmse_bars\nstyle._private"))
-    assert usage == {"course.helpers": ["show_source", "score"], "style": [], "plots": ["plot_rmse_bars"]}
+    usage = notebook_usage(nb("from adaptfilt.course import common\nfrom adaptfilt import style\nimport adaptfilt.plots",
+                              "common.show_source(common.score)\nadaptfilt.plots.plot_rmse_bars\nstyle._private"))
+    assert usage == {"course.common": ["show_source", "score"], "style": [], "plots": ["plot_rmse_bars"]}
 
 
 def test_submodule_of_a_subpackage_through_attributes():

@@ -27,7 +27,7 @@ from stonesoup.updater.kalman import StochasticIntegrationUpdater  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
 from adaptfilt.linalg import wrap_angle  # noqa: E402
-from adaptfilt.rules import StochasticIntegrationRule, _gram_schmidt, stochastic_rule_points  # noqa: E402
+from adaptfilt.rules.stochastic import StochasticIntegrationRule, _gram_schmidt, stochastic_rule_points  # noqa: E402
 
 
 # ------------------------------------------------------------- Stone Soup models

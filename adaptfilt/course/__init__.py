@@ -2,7 +2,10 @@
 It may import the library and the pipeline (``adaptfilt.experiments``); nothing else imports it
 (``docs/ARCHITECTURE.md``).
 
-* :mod:`~adaptfilt.course.helpers` -- chapters 1-4: Bayes on a grid, moments, myopia;
+* :mod:`~adaptfilt.course.common` -- every chapter: :func:`~adaptfilt.course.common.show_source`, scores with
+  bootstrap bands;
+* :mod:`~adaptfilt.course.bayes`, :mod:`~adaptfilt.course.moments`, :mod:`~adaptfilt.course.myopia`,
+  :mod:`~adaptfilt.course.adaptation` -- chapters 1, 2, 3 and 4;
 * :mod:`~adaptfilt.course.learning` -- chapters 5 and 9-11: the actor-critic, results over seeds;
 * :mod:`~adaptfilt.course.paper_results` -- chapters 6-8: the paper's experiments from ``data/``;
 * :mod:`~adaptfilt.course.earlier_numbers` -- earlier numbers that chapters 7 and 8 compare with;

@@ -120,6 +120,9 @@ class _Package:
                 source = self._absolute(module, node)
                 for alias in node.names:
                     if (alias.asname or alias.name) == name and source.split(".")[0] == self.name:
+                        face = module != self.name and self._file(module).name == "__init__.py"
+                        if face and source.startswith(module + "."):
+                            return module, name  # a sub-package's face over its own modules (rules): the package
                         return self.resolve(source, alias.name, depth + 1)
             elif isinstance(node, ast.Import):
                 for alias in node.names:

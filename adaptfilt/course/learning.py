@@ -1,6 +1,6 @@
 r"""The plumbing of the course's learning chapters (5 The actor-critic, 9 Your own model, 10 RL in practice).
 
-As :mod:`adaptfilt.course.helpers` does for chapters 1-4: what a chapter computes in
+As :mod:`adaptfilt.course.common` and the modules of chapters 1-4 do: what a chapter computes in
 passing (bookkeeping over seeds, binned policy probabilities, a timed
 training) and its figures live here, documented and tested
 (``tests/test_course_rl.py``), so that a chapter reads as prose with short

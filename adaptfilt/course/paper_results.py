@@ -395,7 +395,7 @@ class LineOfSight:
 def line_of_sight(x: np.ndarray, run, pos: Sequence[int] = (0, 2)) -> LineOfSight:
     """:class:`LineOfSight` of a filter ``run`` (``mean (M, T, nx)``, ``cov (M, T, nx, nx)``) against
     the true states ``x (M, T, nx)``; ``pos`` are the indices of the two position coordinates."""
-    from adaptfilt.course.helpers import line_of_sight_errors
+    from adaptfilt.course.moments import line_of_sight_errors
 
     pos = list(pos)
     err_r, err_c = line_of_sight_errors(x, run.mean, pos)

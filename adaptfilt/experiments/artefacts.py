@@ -71,7 +71,7 @@ def manifest(root: str | Path | None = None) -> dict:
 
 def load_results(experiment: str, root: str | Path | None = None):
     """The M = 10^4 evaluation of ``experiment`` (every baseline + ``adaptive`` and ``myopic``)."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
 
     return Results.load(_d(root) / "results" / experiment)
 
@@ -138,7 +138,7 @@ def load_beyond(root: str | Path | None = None) -> dict:
 def load_beyond_results(name: str, root: str | Path | None = None):
     """One evaluation of the beyond studies, e.g. ``"cand-ungm-ukf"``, ``"sif-ctm-sif-nis"``,
     ``"ood-q4-r0.25"`` (the out-of-distribution ones hold summaries only: ``Results.save(arrays=False)``)."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
 
     p = _d(root) / "beyond" / "results" / name
     if not (p / "results.json").exists():
@@ -150,7 +150,7 @@ def load_beyond_results(name: str, root: str | Path | None = None):
 def verify_beyond(root: str | Path | None = None) -> list[str]:
     """Check ``beyond/manifest.json`` like :func:`verify`: every file exists, matches its sha256 and
     loads (policies against their experiment, results with ``Results.load``). Returns the checked paths."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
     from adaptfilt.learned import load_policy as _load
 
     d = _d(root) / "beyond"

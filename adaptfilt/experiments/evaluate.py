@@ -13,7 +13,8 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from adaptfilt.evaluation import Results, evaluate, learned_names
+from adaptfilt.evaluation import evaluate, learned_names
+from adaptfilt.results import Results
 from adaptfilt.files import atomic_write
 
 __all__ = ["evaluate_experiment"]

@@ -154,6 +154,6 @@ def save_results(folder: Path, results: Sequence) -> list[Path]:
 
 def load_results(folder: Path, n: int) -> list:
     """What :func:`save_results` saved, bit for bit."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
 
     return [Results.load(folder / f"part{j}") for j in range(n)]

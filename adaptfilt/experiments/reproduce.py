@@ -249,7 +249,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     """
     from adaptfilt._version import __version__
     from adaptfilt.experiments.artefacts import find_data
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
     from adaptfilt.experiment_registry import EXPERIMENTS
     from adaptfilt.experiments.sweep import default_workers
     from adaptfilt.learned import read_npz

@@ -1,0 +1,105 @@
+r"""The book's library reference: HTML pages generated with `pdoc <https://pdoc.dev>`_ from the
+docstrings of the library (``adaptfilt`` without the pipeline ``adaptfilt.experiments``, the course
+``adaptfilt.course`` and the command line), maths included.
+
+:func:`write_reference` renders the pages into the book's sources (``reference/``; mdBook copies them
+into the book as they are) and :func:`reference_chapter` is the book page that the navigation's
+"Library reference" entry opens: one link per library module. The pages typeset their formulas with
+the book's own MathJax 2.7 (no network): pdoc's ``--math`` template, which loads MathJax 3 from a
+CDN, is replaced by :data:`_MATH_TEMPLATE`; pdoc writes ``.. math::`` blocks as ``$$ ... $$`` and
+``:math:`` roles as ``\( ... \)``.
+"""
+from __future__ import annotations
+
+import ast
+import re
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+
+__all__ = ["NOT_LIBRARY", "library_modules", "write_reference", "reference_chapter", "REFERENCE_DIR"]
+
+#: The folder of the book's sources (and of the built book) that holds the pages.
+REFERENCE_DIR = "reference"
+#: What the reference leaves out: the pipeline, the course and the command line (docs/ARCHITECTURE.md).
+NOT_LIBRARY = ("adaptfilt.experiments", "adaptfilt.course", "adaptfilt.cli", "adaptfilt.__main__", "adaptfilt._version")
+
+# Loads the book's MathJax (``mathjax/`` and ``mathjax-config.js`` at the book's root) instead of a CDN;
+# ``up`` is the way from a page back to the book's root.
+_MATH_TEMPLATE = r"""{# adaptfilt: the book's local MathJax 2.7 instead of pdoc's MathJax 3 from a CDN #}
+{% set depth = (module.modulename.count(".") + 1) if module else 1 %}
+{% set up = "../" * depth %}
+<script src="{{ up }}mathjax-config.js"></script>
+<script>
+    /* pdoc writes display maths as $$ ... $$ and inline maths as \( ... \) */
+    window.MathJax.tex2jax.displayMath = [["$$", "$$"], ["\\[", "\\]"]];
+</script>
+<script src="{{ up }}mathjax/MathJax.js?config=TeX-AMS-MML_HTMLorMML-full"></script>
+<style>
+    .MathJax_Display { max-width: 100%; overflow-x: auto; overflow-y: hidden; }
+    .MJX_Assistive_MathML, .MJX_Assistive_MathML * { font-family: inherit !important; }
+</style>
+"""
+
+
+def library_modules(package_dir: Path | None = None) -> list[str]:
+    """The library's modules by dotted name, in file order: every module of ``adaptfilt`` that is
+    not in :data:`NOT_LIBRARY` (private ``_name`` modules left out)."""
+    package_dir = Path(package_dir) if package_dir is not None else Path(__file__).resolve().parents[1]
+    out = []
+    for p in sorted(package_dir.rglob("*.py")):
+        rel = p.relative_to(package_dir.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        if name.startswith(NOT_LIBRARY) or any(part.startswith("_") and part != "__init__" for part in rel.parts):
+            continue
+        out.append(name)
+    return out
+
+
+def _summary(path: Path) -> str:
+    """The first sentence of a module's docstring, for the reference page."""
+    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+    first = doc.strip().split("\n\n")[0].replace("\n", " ")
+    first = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", first)  # reST roles -> code
+    return first.split(". ")[0].rstrip(".:") + "." if first else ""
+
+
+def write_reference(dest: Path) -> list[str]:
+    """Render the pages of :func:`library_modules` into ``dest`` (``dest/adaptfilt.html``,
+    ``dest/adaptfilt/<module>.html``, ...); return the module names. Imports the library (torch
+    included), not the pipeline or the course."""
+    import pdoc
+    import pdoc.render
+
+    modules = library_modules()
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "math.html.jinja2").write_text(_MATH_TEMPLATE, encoding="utf-8")
+        pdoc.render.configure(docformat="restructuredtext", math=True, search=False, show_source=True,
+                              template_directory=Path(tmp), footer_text="adaptfilt library reference")
+        if Path(dest).exists():
+            shutil.rmtree(dest)
+        with warnings.catch_warnings():  # a package's spec adds the submodules of its __all__ again: harmless
+            warnings.filterwarnings("ignore", message="The module specification", category=UserWarning)
+            pdoc.pdoc(*modules, output_directory=Path(dest))
+    return modules
+
+
+def reference_chapter(modules: list[str], package_dir: Path | None = None) -> str:
+    """The Markdown of the book page "Library reference": what the reference covers and one link
+    per module to its pdoc page."""
+    package_dir = Path(package_dir) if package_dir is not None else Path(__file__).resolve().parents[1]
+    lines = ["# Library reference", "",
+             "Generated with [pdoc](https://pdoc.dev) from the docstrings of the library: every module of",
+             "`adaptfilt` except the reproduction pipeline (`adaptfilt.experiments`), the course",
+             "(`adaptfilt.course`) and the command line (the layers are described in *Architecture and",
+             "decisions*). Each page shows the signatures, the docstrings with their formulas, and the source.",
+             "", "| module | what it holds |", "|---|---|"]
+    for name in modules:
+        parts = name.split(".")
+        page = f"{REFERENCE_DIR}/{'/'.join(parts)}.html"
+        path = package_dir.parent.joinpath(*parts)
+        path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+        summary = _summary(path).replace("|", "\\|") if path.is_file() else ""
+        lines.append(f"| [`{name}`]({page}) | {summary} |")
+    return "\n".join(lines) + "\n"
