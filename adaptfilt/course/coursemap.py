@@ -10,11 +10,13 @@ with the names it uses from each::
     af.UKF(model)                          ->  gaf: UKF        (af re-exports it from gaf)
     af.models.ungm()                       ->  models: ungm
     from adaptfilt.mdp import FilterEnv    ->  mdp: FilterEnv
-    from adaptfilt import course           ->  course
-    from adaptfilt.experiments import get_experiment  ->  experiments.registry: get_experiment
+    from adaptfilt.course import bayes     ->  course.bayes
+    from adaptfilt.rules import UnscentedRule  ->  rules: UnscentedRule  (a sub-package's face: the package)
+    from adaptfilt.seed_stats import iqm   ->  seed_stats: iqm
 
 A name is traced to the module that *defines* it by reading the package's
-sources (``from x import y`` re-exports are followed), so ``adaptfilt`` is not
+sources (``from x import y`` re-exports are followed, except a sub-package's face over its
+own modules), so ``adaptfilt`` is not
 imported and nothing is executed. :func:`course_map` puts the chapters in
 reading order and marks, for each module, the chapter that uses it first: the
 chapter that *builds* it; later chapters *use* it again.
@@ -165,9 +167,9 @@ def notebook_usage(nb: Mapping[str, Any], package_dir: Path | None = None) -> di
     """The ``adaptfilt`` modules a notebook's code imports or calls, with the names it uses.
 
     Returns ``{module: [name, ...]}`` with modules written without the
-    ``adaptfilt.`` prefix (``"gaf"``, ``"experiments.registry"``), in order of
-    first use; a module used only as a whole (``from adaptfilt import course``)
-    maps to the names called on it (``course.score`` -> ``["score"]``), or to
+    ``adaptfilt.`` prefix (``"gaf"``, ``"course.common"``), in order of
+    first use; a module used only as a whole (``from adaptfilt.course import common``)
+    maps to the names called on it (``common.score`` -> ``["score"]``), or to
     ``[]``. The package itself is not a module of the map. ``package_dir`` is
     the ``adaptfilt`` source tree to resolve names in (default: this one).
 

@@ -21,7 +21,7 @@ line_of_sight,                  CTM: position errors and claimed standard deviat
 line_of_sight_table,            across the line of sight from the sensor (range is what a single
 plot_line_of_sight              bearing sensor cannot see), per filter
 sif_spread                      the SIF's integration noise: spread of estimates on identical data
-table1_before_after_md          Table I now beside an earlier release's (``experiments.history``)
+table1_before_after_md          Table I now beside an earlier release's (``course.earlier_numbers``)
 ==============================  ================================================================
 
 Seed groups are policies named ``<group>-s<seed>``

@@ -4,7 +4,7 @@
 every file is listed in ``data/manifest.json`` with its sha256, the one
 command that regenerates it, the seed, the package version and its wall time.
 
->>> from adaptfilt import artefacts                     # doctest: +SKIP
+>>> from adaptfilt.experiments import artefacts         # doctest: +SKIP
 >>> res = artefacts.load_results("ungm-ukf")             # doctest: +SKIP
 >>> res.paired_difference("adaptive", "greedy", "rmse")  # doctest: +SKIP
 >>> pol = artefacts.load_policy("ungm-ukf", "adaptive", seed=3)  # doctest: +SKIP
