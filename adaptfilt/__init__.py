@@ -5,6 +5,10 @@ Adaptive Parameter Policies for Nonlinear Bayesian Filtering": Gaussian-assumed
 filters (UKF, SIF) whose update parameter is chosen at every step by a policy
 trained with a TD(0) actor-critic.
 
+This face exports the library only. The reproduction pipeline (``adaptfilt.experiments``) and the
+course (``adaptfilt.course``) are imported by their own names; the layers and their rule are in
+``docs/ARCHITECTURE.md`` (checked by ``tests/test_layers.py``).
+
 >>> import numpy as np, adaptfilt as af
 >>> model = af.models.ungm()
 >>> traj = model.simulate(n_runs=100, rng=np.random.default_rng(0))
