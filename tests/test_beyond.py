@@ -102,7 +102,7 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
     import shlex
 
     from adaptfilt.experiments import artefacts
-    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SELECTION_SEED, SIF_EXPERIMENTS
+    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SELECTION_SEED, SIF_EXPERIMENTS, study_rows
     from adaptfilt.seed_stats import aggregate, difference, iqm, seed_groups
     from adaptfilt.learned import load_policy
 
@@ -128,6 +128,10 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
                 assert row["cost_charged"]["iqm"] == aggregate(res, sg[g], "cost_charged").iqm
                 assert row["minus_greedy"]["rmse"] == list(difference(res, sg[g], ["greedy"], "rmse")["iqm"])
                 assert row["divergent_frac_max"] == max(res[n].divergent_frac for n in sg[g])
+            if study == "sif":  # every row as the study computes it, from the stored evaluation
+                assert sg["adaptive"] == [f"adaptive-s{s}" for s in range(8)]
+                want = json.loads(json.dumps(study_rows("sif", res, sel)))
+                assert summary["sif"][e] == want and len(want["adaptive"]["divergent_runs"]) == 8
             for s in (0, 7):
                 for g in groups:
                     entry = next(f for f in man["files"] if f["path"] == f"policies/{e}-{g}-s{s}.npz")

@@ -437,8 +437,10 @@ def divergence_onsets(env, value: float, n_runs: int = 1000, seed: int = 0, nees
     return {"onset": onset, "repaired": repaired, "nees": N}
 
 
-def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: str | None = None):
-    r"""Every policy of a SIF evaluation as a point (mean cost, fraction of divergent runs):
+def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: str | None = None,
+                         metric: str = "cost_charged"):
+    r"""Every policy of a SIF evaluation as a point (mean cost, fraction of divergent runs), the cost
+    ``metric`` by default charged for the iterations each policy computes (greedy's candidates included):
     the fixed iteration counts (labelled with n_it), default and greedy, and each seed of
     ``groups``. The divergent fraction is drawn on a symlog axis so that 0 (never diverged)
     stays on the plot; the cheapest policy with no divergent run is what the safe policies aim at."""
@@ -446,7 +448,7 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
 
     fig, ax = _ax(ax, size=(7.5, 4.6))
     fixed = [n for n in results.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
-    x = [results[n].cost for n in fixed]
+    x = [getattr(results[n], metric) for n in fixed]
     y = [100 * results[n].divergent_frac for n in fixed]
     ax.plot(x, y, "o-", color="0.55", label="fixed n_it")
     for n, xi, yi in zip(fixed, x, y):
@@ -454,15 +456,15 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
     cols = style.colors(len(groups) + 2)
     for (n, mk), col in zip((("default", "s"), ("greedy", "D")), cols):
         if n in results:
-            ax.plot(results[n].cost, 100 * results[n].divergent_frac, mk, ms=8, mec="black", label=n, color=col)
+            ax.plot(getattr(results[n], metric), 100 * results[n].divergent_frac, mk, ms=8, mec="black", label=n, color=col)
     all_groups = seed_groups(results.names)
     for g, col in zip(groups, cols[2:]):
         names = all_groups.get(g, [])
-        ax.plot([results[n].cost for n in names], [100 * results[n].divergent_frac for n in names], "^",
+        ax.plot([getattr(results[n], metric) for n in names], [100 * results[n].divergent_frac for n in names], "^",
                 color=col, alpha=0.8, label=f"{g} ({len(names)} seeds)")
     ax.set_yscale("symlog", linthresh=0.01)
     ax.set_xscale("log")
-    ax.set_xlabel("mean cost (log scale)")
+    ax.set_xlabel(("mean cost, compute charged" if metric == "cost_charged" else f"mean {metric}") + " (log scale)")
     ax.set_ylabel("divergent runs (%)")
     if title:
         ax.set_title(title)

@@ -46,7 +46,7 @@ from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.files import atomic_write, sha256
 
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SELECTION_SEED", "select_safe_actions",
-           "STUDIES"]
+           "STUDIES", "GROUPS", "study_rows"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"
@@ -55,6 +55,9 @@ JOURNAL = "journal.jsonl"
 CAND_ALGO = "fast"
 #: Repair penalty (in units of the transformed cost) of the SIF study.
 PENALTY = 20.0
+#: The learned groups a study summarises (policy names ``<group>-s<seed>``).
+GROUPS = ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw", "adaptive-anchored",
+          "adaptive")
 #: Seed of every choice made before an evaluation (the SIF study's safe action set): its trajectories and
 #: filter draws are not those of the evaluation (seed 0), so that no set is judged on the runs it was chosen on.
 SELECTION_SEED = 1
@@ -184,7 +187,6 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     from adaptfilt._version import __version__
     from adaptfilt.experiments.artefacts import find_data
     from adaptfilt.experiments.ood import CONDITIONS, gain_table
-    from adaptfilt.seed_stats import aggregate, difference
     from adaptfilt.experiments.reproduce import RETRAIN_COST
 
     scale = QUICK if quick else FULL
@@ -290,40 +292,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         res.save(d, drop=COMPACT)
         entries.update({f"results/{study}-{e}/{f}": {"command": cmd, "wall_time_s": wall}
                         for f in ("results.json", "results.npz")})
-        rows = {}
-        groups = {g: [n for n in res.names if n.startswith(g + "-s")] for g in
-                  ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw",
-                   "adaptive-anchored", "adaptive")}
-        metrics = ("cost", "cost_charged", "objective", "rmse", "anees")
-        for g, members in groups.items():
-            if not members:
-                continue
-            rows[g] = {m: aggregate(res, members, m).to_dict() for m in metrics}
-            for ref in ("greedy", "default"):
-                rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"]) for m in metrics}
-            rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
-            rows[g].update(_divergence(res, members))
-            rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
-            # each seed alone: is its own paired run-level interval of the cost difference below 0?
-            c = "cost_charged" if study == "sif" else "cost"
-            rows[g]["seeds_below_greedy"] = int(sum(res.paired_difference(n, "greedy", c)[2] < 0 for n in members))
-        if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
-            rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
-                                                                         groups["adaptive"], m)["iqm"])
-                                                      for m in ("cost", "objective", "rmse", "anees")}
-        # what a constant can do: the cheapest fixed value, among the safe ones where the study chose a safe set
-        # (on its selection runs: a value that happened not to diverge on these runs was not chosen on them)
-        fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
-        if study == "sif":
-            fixed = [n for n in fixed if any(n == f"fixed-{res.config['param_name']}={v:g}" for v in selection["safe"])]
-        label = "best safe fixed" if study == "sif" else "best fixed"
-        best = min(fixed, key=lambda n: res[n].cost_charged) if fixed else None
-        for ref, name in (("greedy", "greedy"), ("default", "default"), ("ml", "ml"), (label, best)):
-            if name in res:
-                p = res[name]
-                rows[ref] = {"cost": p.cost, "cost_charged": p.cost_charged, "objective": p.objective, "rmse": p.rmse,
-                             "anees": p.anees, "divergent_frac": p.divergent_frac, "policy": name, "spent": p.spent,
-                             **_divergence(res, [name])}
+        rows = study_rows(study, res, selection if study == "sif" else None)
         summary.setdefault(study, {})[e] = rows
         if study == "anchor":
             summary["anchor-eval-seed"] = ANCHOR_EVAL_SEED
@@ -402,6 +371,51 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                                                    indent=1) + "\n")
     journal.finish()
     return summary
+
+
+def study_rows(study: str, res, selection: dict | None = None) -> dict:
+    """A study's summary rows for one experiment's evaluation ``res``: each learned group of
+    :data:`GROUPS` (IQM over seeds with two-level intervals, differences to greedy and the default,
+    divergence, compute, seeds below greedy alone) and the references (greedy, default, ML, the
+    cheapest constant: among the ``selection``'s safe set in the SIF study)."""
+    from adaptfilt.seed_stats import aggregate, difference, seed_groups
+
+    rows = {}
+    # exact group names: "adaptive-s3" is a seed of "adaptive", "adaptive-safe-s3" is not (a prefix test
+    # once merged the safe policies into the reproduction's "adaptive" row of the SIF study)
+    seeds = seed_groups(res.names)
+    groups = {g: seeds.get(g, []) for g in GROUPS}
+    metrics = ("cost", "cost_charged", "objective", "rmse", "anees")
+    for g, members in groups.items():
+        if not members:
+            continue
+        rows[g] = {m: aggregate(res, members, m).to_dict() for m in metrics}
+        for ref in ("greedy", "default"):
+            rows[g][f"minus_{ref}"] = {m: list(difference(res, members, [ref], m)["iqm"]) for m in metrics}
+        rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
+        rows[g].update(_divergence(res, members))
+        rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
+        # each seed alone: is its own paired run-level interval of the cost difference below 0?
+        c = "cost_charged" if study == "sif" else "cost"
+        rows[g]["seeds_below_greedy"] = int(sum(res.paired_difference(n, "greedy", c)[2] < 0 for n in members))
+    if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
+        rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
+                                                                     groups["adaptive"], m)["iqm"])
+                                                  for m in ("cost", "objective", "rmse", "anees")}
+    # what a constant can do: the cheapest fixed value, among the safe ones where the study chose a safe set
+    # (on its selection runs: a value that happened not to diverge on these runs was not chosen on them)
+    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    if study == "sif":
+        fixed = [n for n in fixed if any(n == f"fixed-{res.config['param_name']}={v:g}" for v in selection["safe"])]
+    label = "best safe fixed" if study == "sif" else "best fixed"
+    best = min(fixed, key=lambda n: res[n].cost_charged) if fixed else None
+    for ref, name in (("greedy", "greedy"), ("default", "default"), ("ml", "ml"), (label, best)):
+        if name in res:
+            p = res[name]
+            rows[ref] = {"cost": p.cost, "cost_charged": p.cost_charged, "objective": p.objective, "rmse": p.rmse,
+                         "anees": p.anees, "divergent_frac": p.divergent_frac, "policy": name, "spent": p.spent,
+                         **_divergence(res, [name])}
+    return rows
 
 
 def _look_figure(look: dict, fig_dir: Path) -> None:
