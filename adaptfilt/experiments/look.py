@@ -167,6 +167,13 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None):
             ax.axhspan(d[2], d[1], alpha=0.15, color=f"C{i + 3}")
             ax.axhline(d[0], color=f"C{i + 3}", lw=1, ls="--", label=f"learned: {gname} (IQM of {row['n_seeds']})")
         ax.axhline(0, color="black", lw=0.8)
+        # the view fits the references and the learned IQMs; a group's band may run off it (UNGM's
+        # candidate-aware seed 4 stretches its interval to about -8)
+        ys = [0.0] + [v for _, p in [(0, q) for pts in by_s.values() for q in pts] for v in -np.asarray(p[1])]
+        ys += [-row["minus_greedy"][m][0] for row in s["learned"].values()]
+        lo, hi = min(ys), max(ys)
+        pad = 0.15 * (hi - lo or 1.0)
+        ax.set_ylim(lo - pad, hi + pad)
         ax.set(xlabel="look-ahead horizon H (0: greedy)", ylabel=f"gain over greedy in {m}",
                title=f"{e} (M = {s['n_runs']})")
         ax.legend(fontsize=7.5, loc="best")
