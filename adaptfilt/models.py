@@ -220,7 +220,7 @@ def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) ->
 
     return StateSpaceModel(
         f=f, h=h, Q=[[Q]], R=[[R]], m0=[0.0], P0=[[P0]], name="ungm", n_steps=n_steps,
-        description="univariate nonstationary growth model (paper Sec. V-A)",
+        description="univariate nonstationary growth model (paper Sec. VI-A)",
         time_features=phase, time_feature_names=("cos 0.05k", "sin 0.05k"),
     )
 
@@ -267,7 +267,7 @@ def coordinated_turn(
     return StateSpaceModel(
         f=f, h=h, Q=Q, R=[[R]], m0=[80.0, 0.0, 0.0, 20.0], P0=np.diag([1e3, 1e2, 1e3, 1e2]),
         residual=residual, name="ctm", n_steps=n_steps, F=F,
-        description="coordinated turn, bearing-only (paper Sec. V-B)", circular_z=(0,),
+        description="coordinated turn, bearing-only (paper Sec. VI-B)", circular_z=(0,),
     )
 
 
