@@ -169,7 +169,7 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None):
         ax.axhline(0, color="black", lw=0.8)
         # the view fits the references and the learned IQMs; a group's band may run off it (UNGM's
         # candidate-aware seed 4 stretches its interval to about -8)
-        ys = [0.0] + [v for _, p in [(0, q) for pts in by_s.values() for q in pts] for v in -np.asarray(p[1])]
+        ys = [0.0] + [v for pts in by_s.values() for _, d in pts for v in -np.asarray(d)]
         ys += [-row["minus_greedy"][m][0] for row in s["learned"].values()]
         lo, hi = min(ys), max(ys)
         pad = 0.15 * (hi - lo or 1.0)
