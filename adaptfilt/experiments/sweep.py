@@ -239,8 +239,10 @@ def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> l
     if isinstance(cluster, Client):
         client = cluster
     elif cluster == "local":  # a throw-away cluster of local worker processes, one job each at a time
+        # CRITICAL, not ERROR: on Ctrl-C the scheduler closes first and each worker logs its failed
+        # heartbeat as an ERROR traceback; a job's own error reaches us as an exception, not a log line
         own = client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
-                              dashboard_address=None, silence_logs=logging.ERROR)
+                              dashboard_address=None, silence_logs=logging.CRITICAL)
         # its workers are this process's children: they ignore Ctrl-C and die with it, as the pool's do
         client.run(_worker_init, os.getpid())
     else:
