@@ -1,4 +1,4 @@
-r"""Our earlier numbers, for the "what changed" comparisons of the course (chapters 7 and 8).
+r"""Our earlier numbers, for the "what changed" comparisons of the course (chapters 9 and 10).
 
 Before the seed-level reproduction, ``data/`` held one training seed per learned policy,
 trained by the vectorised actor-critic (50 episodes per batched update), and the experiments

@@ -36,14 +36,14 @@ import numpy as np
 from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
 
 __all__ = [
-    # chapter 5
+    # chapter 6
     "plot_sign_demo", "plot_training", "candidate_cost_range", "scaler_saturation", "plot_share_over_time",
     "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs", "show_policy_probs",
-    # chapter 9
-    "seed_lines", "plot_differences",
-    # chapter 10
-    "plot_seed_spread", "seed_verdicts", "claims_table", "timed",
     # chapter 11
+    "seed_lines", "plot_differences",
+    # chapter 12
+    "plot_seed_spread", "seed_verdicts", "claims_table", "timed",
+    # chapter 13
     "verdict_counts", "divergence_onsets", "plot_cost_divergence", "plot_ood_gains",
 ]
 
@@ -61,7 +61,7 @@ def _smooth(y: np.ndarray, w: int) -> np.ndarray:
     return np.convolve(y, np.ones(w) / w, mode="valid")
 
 
-# ============================================================== chapter 5
+# ============================================================== chapter 6
 def plot_sign_demo(states: np.ndarray, policies: Mapping[str, object], curves: Mapping[str, Mapping],
                    window: int = 32):
     r"""The sign demonstration on a toy with a scalar state: ``pi(a | s)`` of each
@@ -255,7 +255,7 @@ def plot_policy_probs(policies: Sequence, state: np.ndarray, ax=None, title: str
 
 def show_policy_probs(policies: Sequence, P_pred: float = 1.0, innov: float = 0.0, x_pred: float = 5.0,
                       k: int = 100) -> None:
-    """The widget body of chapter 5: :func:`plot_policy_probs` at :func:`ungm_state`."""
+    """The widget body of chapter 6: :func:`plot_policy_probs` at :func:`ungm_state`."""
     import matplotlib.pyplot as plt
 
     plot_policy_probs(policies, ungm_state(P_pred, innov, x_pred, k), colorbar=True,
@@ -263,7 +263,7 @@ def show_policy_probs(policies: Sequence, P_pred: float = 1.0, innov: float = 0.
     plt.show()
 
 
-# ============================================================== chapter 9
+# ============================================================== chapter 11
 def seed_lines(results, groups: Sequence[str], baselines: Sequence[str] = (),
                metrics: Sequence[str] = ("rmse", "anees", "objective")) -> str:
     r"""Baselines one line each (value [run-level CI]), then each seed group: IQM over its
@@ -312,7 +312,7 @@ def plot_differences(diffs: Mapping[str, Mapping[str, tuple[float, float, float]
     return fig
 
 
-# ============================================================== chapter 10
+# ============================================================== chapter 12
 def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=None):
     r"""Each seed of each group with its own run-level 95 % interval (the noise of one
     evaluation), and beside them the group's IQM and mean with the two-level
@@ -394,7 +394,7 @@ def timed(fn: Callable, *args, **kwargs) -> tuple[object, float]:
     return out, time.process_time() - c0
 
 
-# ============================================================== chapter 11
+# ============================================================== chapter 13
 def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("cost", "rmse")) -> str:
     r"""One line per metric: ``group - other`` as IQM over seeds [two-level 95 % CI], the seed-level
     verdict, and how many seeds alone (their own paired run-level interval) find ``group`` lower,
