@@ -158,7 +158,9 @@ def test_ends_with_summary_exercises_references(stem):
 def test_exercises_have_folded_worked_solutions_with_code(stem):
     """Each exercise opens ``<details><summary>Solution</summary>`` in its own cell; the
     block closes (``</details>``) in a later Markdown cell, and the code cells in between
-    ran and printed or drew something."""
+    ran and printed or drew something. Jupyter does not fold cells that a ``<details>`` spans, so
+    every cell in between is collapsed by its metadata (``jupyter.source_hidden``, and
+    ``outputs_hidden`` for code): the solution shows in Jupyter only when the reader opens it."""
     cells = load(stem)["cells"]
     start = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown" and re.search(r"^## Exercises", text(c), re.M)), None)
     assert start is not None, f"{stem}: no '## Exercises' section"
@@ -178,6 +180,10 @@ def test_exercises_have_folded_worked_solutions_with_code(stem):
             code = [cells[k] for k in range(i + 1, j) if cells[k]["cell_type"] == "code"]
             assert code, f"{stem} cell {i}: the solution has no code"
             assert all(outputs_text(k).strip() or has_figure(k) for k in code), f"{stem} cell {i}: solution code shows nothing"
+            for k in range(i + 1, j):
+                hidden = cells[k].get("metadata", {}).get("jupyter", {})
+                assert hidden.get("source_hidden") and (cells[k]["cell_type"] == "markdown" or hidden.get("outputs_hidden")), \
+                    f"{stem} cell {k}: a solution cell that Jupyter shows unfolded (set metadata jupyter.source_hidden/outputs_hidden)"
             exercises.append(i)
             i = j
         else:
