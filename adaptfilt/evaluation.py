@@ -77,8 +77,8 @@ TRAJ_SEED_KEY = 0xE7A1
 #: Quantiles of the one-step cost that are reported besides its mean.
 COST_QUANTILES = (0.5, 0.99, 0.999)
 
-#: A run has diverged when its time-averaged NEES exceeds this many times nx.
-DIVERGED_NEES = 1e4
+#: A run has diverged when its time-averaged NEES exceeds this many times nx (:func:`metrics.divergent`).
+DIVERGED_NEES = metrics.DIVERGED_NEES
 
 def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
                counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
@@ -113,7 +113,7 @@ def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.
     out["rmse_run_median"] = float(np.median(out["run_rmse"]))
     out["anees_run_median"] = float(np.median(run_anees))
     nx = x.shape[-1]
-    bad = ~np.isfinite(run.mean).all(axis=(1, 2)) | ~(run_anees <= DIVERGED_NEES * nx)
+    bad = metrics.divergent(ne, nx, run.mean)
     out["divergent_frac"] = float(bad.mean())
     info = getattr(run, "info", None) or {}
     extra = np.broadcast_to(np.asarray(info.get("extra_spent", 0.0), dtype=float), (M,))

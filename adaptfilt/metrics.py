@@ -21,8 +21,14 @@ from adaptfilt.linalg import NotPositiveDefinite, chol, solve_spd
 __all__ = [
     "errors", "squared_error", "rmse", "nees", "anees", "time_average", "rmse_time_average",
     "bootstrap_counts", "bootstrap_rmse", "bootstrap_mean", "percentile_ci", "mean_ci", "chi2_bounds",
-    "rate_ci",
+    "rate_ci", "DIVERGED_NEES", "divergent", "divergence_step",
 ]
+
+#: The one definition of a diverged run used everywhere in adaptfilt (evaluation, experiments,
+#: course): its time-averaged NEES exceeds ``DIVERGED_NEES * nx`` (or its estimate is not finite).
+#: A consistent filter has a time-averaged NEES near ``nx``; 10^4 times that is an error of 100
+#: standard deviations on average, a filter that has lost the state, not a merely overconfident one.
+DIVERGED_NEES = 1e4
 
 
 def _check(x: np.ndarray, mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -168,6 +174,45 @@ def anees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
     indefinite covariance averages to NaN: average with ``np.nanmean`` yourself).
     """
     return nees(x, mean, cov, on_indefinite=on_indefinite).mean(axis=0)
+
+
+def divergent(nees_runs: np.ndarray, nx: int, mean: np.ndarray | None = None) -> np.ndarray:
+    r"""Which runs diverged: ``(M,)`` bool from the per-step NEES ``(M, T)``.
+
+    .. math:: \text{divergent}_i \iff \tfrac1T \sum_k \text{NEES}_{i,k} > 10^4 n_x
+              \ \text{(or not finite)}
+
+    ``mean`` (``(M, T, nx)``, optional) also marks runs whose estimate is not finite.
+
+    >>> divergent(np.array([[1.0, 3.0], [1.0, 3e5]]), nx=2).tolist()
+    [False, True]
+    """
+    nees_runs = np.asarray(nees_runs, dtype=float)
+    if nees_runs.ndim != 2:
+        raise ValueError(f"nees_runs must be (M, T), got shape {nees_runs.shape}")
+    bad = ~(nees_runs.mean(axis=1) <= DIVERGED_NEES * nx)  # NaN counts as diverged
+    if mean is not None:
+        bad |= ~np.isfinite(np.asarray(mean)).reshape(len(bad), -1).all(axis=1)
+    return bad
+
+
+def divergence_step(nees_runs: np.ndarray, nx: int) -> np.ndarray:
+    r"""When each run diverged: the first step ``k`` at which its running time average
+    :math:`\tfrac1{k+1}\sum_{l\le k}\text{NEES}_l` exceeds ``DIVERGED_NEES * nx``, or -1.
+
+    The same threshold as :func:`divergent`, applied to the average so far, so that a run with a
+    step is exactly a run that crossed the line once; for a run that ends divergent it is the
+    step from which the time average over the steps so far already says so.
+
+    >>> divergence_step(np.array([[1.0, 1.0, 9e4, 1.0], [1.0, 1.0, 1.0, 1.0]]), nx=2).tolist()
+    [2, -1]
+    """
+    nees_runs = np.asarray(nees_runs, dtype=float)
+    if nees_runs.ndim != 2:
+        raise ValueError(f"nees_runs must be (M, T), got shape {nees_runs.shape}")
+    running = np.cumsum(np.where(np.isfinite(nees_runs), nees_runs, np.inf), axis=1) / np.arange(1, nees_runs.shape[1] + 1)
+    bad = ~(running <= DIVERGED_NEES * nx)
+    return np.where(bad.any(axis=1), bad.argmax(axis=1), -1)
 
 
 def time_average(series: np.ndarray, start: int = 0) -> float:

@@ -122,3 +122,22 @@ def test_percentile_ci_matches_quantiles():
     m, lo, hi = metrics.mean_ci(np.array([1.0, 2.0, 3.0, 4.0]), level=0.95)
     se = np.std([1, 2, 3, 4], ddof=1) / 2
     assert (lo, hi) == pytest.approx((2.5 - stats.norm.ppf(0.975) * se, 2.5 + stats.norm.ppf(0.975) * se))
+
+
+def test_divergent_and_its_step_are_one_definition():
+    """A run ends divergent exactly when its running NEES average is above the line at the last step;
+    its divergence step is the first step where that average crossed it."""
+    from adaptfilt.metrics import DIVERGED_NEES, divergence_step, divergent
+    rng = np.random.default_rng(3)
+    nees_runs = rng.chisquare(2, size=(400, 50)) * np.where(rng.random((400, 1)) < 0.1, 10 ** rng.uniform(3, 6, (400, 1)), 1)
+    nees_runs[5, 7] = np.nan  # a lost filter counts as diverged from there on
+    bad, step = divergent(nees_runs, nx=2), divergence_step(nees_runs, nx=2)
+    assert 0 < bad.sum() < 400 and bad[5]
+    running = np.cumsum(nees_runs, axis=1) / np.arange(1, 51)
+    np.testing.assert_array_equal(bad, ~(running[:, -1] <= DIVERGED_NEES * 2))
+    assert np.all(step[bad] >= 0) and step[5] == 7
+    for i in np.flatnonzero(step >= 0)[:40]:
+        k = step[i]
+        assert not (running[i, k] <= DIVERGED_NEES * 2) and np.all(running[i, :k] <= DIVERGED_NEES * 2)
+    with pytest.raises(ValueError, match="must be \\(M, T\\)"):
+        divergent(np.ones(5), nx=2)

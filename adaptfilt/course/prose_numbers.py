@@ -1,0 +1,185 @@
+r"""Keep the numbers a chapter's prose states equal to the numbers its code printed.
+
+nbval compares the outputs of a few marked cells with a fresh run; a number
+*quoted in the prose* ("adaptive minus greedy, -0.046 [-0.051, -0.040]")
+is not an output and would drift silently when a result changes. This module
+finds every decimal number in the prose of an executed notebook and looks for
+it among the numbers the notebook printed (text, tables, figure-free outputs):
+
+* a prose number written with ``d`` decimals matches a printed number with
+  ``d`` to ``d + 2`` decimals that rounds to it (a table's 0.0302 is the
+  prose's 0.030; a printed 0.123456 is no witness for a prose 0.1). Signs
+  are compared as magnitudes: the prose says "0.030 lower" as often as "-0.030";
+* ``5.6 %`` also matches a printed fraction ``0.0563`` (and ``56 %`` does not
+  enter: integers are counts, seeds, equation and chapter numbers, not results);
+* ``9.69\times10^6`` in the prose is the number 9.69e6 (printed as ``9.69e+06``
+  or ``9690000.0``);
+* a number the prose takes from another chapter is declared in the cell, where
+  a reader of the source sees it, and checked against *that* chapter's outputs:
+  ``<!-- from 08: 0.046 0.051 0.040 -->``;
+* a number from outside the course's outputs (the paper, a parameter of the
+  setup, arithmetic in the text) is declared as such:
+  ``<!-- quoted: 5.63 6.866 -->``.
+
+:func:`unmatched` returns what the prose states and the outputs do not show;
+``tests/test_prose_numbers.py`` runs it over the chapters and the README.
+
+Example
+-------
+>>> nb = {"cells": [
+...     {"cell_type": "code", "source": "", "outputs": [{"output_type": "stream", "text": "gain -0.0302\n"}]},
+...     {"cell_type": "markdown", "source": "The gain is $-0.030$, not 0.05."}]}
+>>> [(m.number, m.cell) for m in unmatched(nb)]
+[('0.05', 1)]
+"""
+from __future__ import annotations
+
+import html
+import re
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping, Sequence
+
+__all__ = ["Mismatch", "output_numbers", "prose_numbers", "matches", "unmatched", "borrowed", "cell_text"]
+
+# A decimal number: optional sign (ASCII or Unicode minus), digits, a point, digits; or scientific.
+_NUMBER = re.compile(r"(?<![\w.:/])[-−+]?(\d+\.\d+(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.]*\d)(?![A-Za-z])")
+# LaTeX's scientific notation in the prose: 9.69\times10^6, 5.516 \times 10^{11}
+_TIMES_TEN = re.compile(r"^\s*\\times\s*10\^\{?([-−]?\d+)\}?")
+_PERCENT_AFTER = re.compile(r"^\s*(\\?%|\\,\\%|\s*per\s*cent)")
+_QUOTED = re.compile(r"<!--\s*quoted:\s*([^>]*?)\s*-->")
+_FROM = re.compile(r"<!--\s*from\s+(\d\d):\s*([^>]*?)\s*-->")
+_CODE_SPAN = re.compile(r"```.*?```|`[^`\n]*`", re.S)
+_SLACK = 2  # a printed number may carry this many more decimals than the prose that rounds it
+_TAG = re.compile(r"<[^>]+>")
+_URL = re.compile(r"\]\([^)]*\)|https?://\S+")
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """A number stated in the prose of cell ``cell`` that no output of the notebook shows."""
+
+    number: str
+    cell: int
+    context: str
+
+    def __str__(self) -> str:
+        return f"cell {self.cell}: {self.number!r} in '...{self.context}...'"
+
+
+def cell_text(cell: Mapping[str, Any]) -> str:
+    src = cell.get("source", "")
+    return "".join(src) if isinstance(src, list) else src
+
+
+def _output_text(cell: Mapping[str, Any]) -> str:
+    parts = []
+    for out in cell.get("outputs", []):
+        if "text" in out:
+            parts.append(cell_text({"source": out["text"]}))
+        data = out.get("data", {})
+        for mime in ("text/plain", "text/markdown", "text/html", "text/latex"):
+            if mime in data:
+                text = cell_text({"source": data[mime]})
+                parts.append(html.unescape(_TAG.sub(" ", text)) if mime == "text/html" else text)
+    return "\n".join(parts)
+
+
+def _decimals(token: str) -> int:
+    mant = token.lower().split("e")[0]
+    exp = int(token.lower().split("e")[1]) if "e" in token.lower() else 0
+    d = len(mant.split(".")[1]) if "." in mant else 0
+    return d - exp  # negative for 9.69e6 (resolution 10^4)
+
+
+def output_numbers(cells: Iterable[Mapping[str, Any]]) -> list[tuple[float, int]]:
+    """Every decimal number printed by the code cells: (magnitude, decimals printed)."""
+    found = set()
+    for cell in cells:
+        if cell.get("cell_type") == "code":
+            for m in _NUMBER.finditer(_output_text(cell)):
+                found.add((abs(float(m.group(1))), _decimals(m.group(1))))
+    return sorted(found)
+
+
+def prose_numbers(markdown: str) -> list[tuple[str, bool, str]]:
+    """The decimal numbers a Markdown cell states: (as written, followed by a percent sign, context).
+
+    Code spans, links and the ``quoted`` declarations are left out; maths is prose here.
+    """
+    text = _FROM.sub(" ", _QUOTED.sub(" ", markdown))
+    text = _CODE_SPAN.sub(lambda m: " " * len(m.group()), text)
+    text = _URL.sub(lambda m: " " * len(m.group()), text)
+    out = []
+    for m in _NUMBER.finditer(text):
+        after = text[m.end():m.end() + 24]
+        pct = bool(_PERCENT_AFTER.match(after))
+        ctx = text[max(0, m.start() - 40):m.end() + 20].replace("\n", " ")
+        number = m.group(1)
+        power = _TIMES_TEN.match(after)
+        if power:
+            number = f"{number}e{power.group(1).replace('−', '-')}"
+        out.append((number, pct, ctx))
+    return out
+
+
+def matches(number: str, percent: bool, printed: Sequence[tuple[float, int]]) -> bool:
+    """Whether the prose ``number`` (``percent``: it is followed by %) rounds from a printed one."""
+    d = _decimals(number)
+    want = _rounded(abs(float(number)), d)
+    for value, decimals in printed:
+        if d <= decimals <= d + _SLACK and _rounded(value, d) == want:
+            return True
+        if percent and d <= decimals - 2 <= d + _SLACK and _rounded(100 * value, d) == want:
+            return True
+    return False
+
+
+def _rounded(value: float, d: int) -> str:
+    """``value`` to ``d`` decimals (``d`` < 0: to a multiple of 10^-d), as the prose would write it."""
+    return f"{value:.{d}f}" if d >= 0 else f"{round(value / 10.0 ** -d):d}"
+
+
+def _quoted(markdown: str) -> set[str]:
+    return {tok for m in _QUOTED.finditer(markdown) for tok in m.group(1).replace(",", " ").split()}
+
+
+def borrowed(markdown: str) -> dict[str, list[str]]:
+    """The ``<!-- from NN: ... -->`` declarations of a cell: chapter number -> numbers."""
+    out: dict[str, list[str]] = {}
+    for m in _FROM.finditer(markdown):
+        out.setdefault(m.group(1), []).extend(m.group(2).replace(",", " ").split())
+    return out
+
+
+def unmatched(nb: Mapping[str, Any], cells: Iterable[int] | None = None,
+              printed: Sequence[tuple[float, int]] | None = None,
+              chapters: Mapping[str, Mapping[str, Any]] | None = None) -> list[Mismatch]:
+    """The prose numbers of ``nb`` (Markdown cells ``cells``, default all) that no output shows.
+
+    ``printed`` overrides the notebook's own outputs (the README is checked against the course's);
+    ``chapters`` maps a chapter number (``"08"``) to its executed notebook, for the numbers a cell
+    declares it takes from there (a declaration naming a chapter not given is itself a mismatch).
+    """
+    all_cells = nb["cells"]
+    printed = output_numbers(all_cells) if printed is None else printed
+    wanted = range(len(all_cells)) if cells is None else cells
+    bad = []
+    for i in wanted:
+        cell = all_cells[i]
+        if cell.get("cell_type") != "markdown":
+            continue
+        src = cell_text(cell)
+        allowed = _quoted(src)
+        for chapter, numbers in borrowed(src).items():
+            other = (chapters or {}).get(chapter)
+            theirs = output_numbers(other["cells"]) if other is not None else []
+            for number in numbers:
+                if other is None or not matches(number.lstrip("-−+"), False, theirs):
+                    bad.append(Mismatch(number, i, f"declared as from chapter {chapter}, not among its outputs"))
+                allowed.add(number)
+        for number, pct, ctx in prose_numbers(src):
+            if number in allowed or number.lstrip("-−+") in allowed:
+                continue
+            if not matches(number, pct, printed):
+                bad.append(Mismatch(number, i, ctx.strip()))
+    return bad
