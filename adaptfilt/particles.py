@@ -1,0 +1,202 @@
+r"""A particle filter whose particle count is a parameter, per run and per step; KLD-sampling's count.
+
+The paper names the number of particles as the first example of a filter parameter that could be
+adapted. :class:`ParticleCountFilter` makes it one, in the layout of the other filters here
+(``M`` runs batched, a parameter per run and step, a :class:`~adaptfilt.gaf.FilterRun` out):
+
+.. math::
+    \mathbf x^{(j)}_k = \mathbf f\big(\mathbf x^{(a_j)}_{k-1}, k-1\big) + \mathbf w^{(j)}_k,\qquad
+    a_j \sim \mathrm{Cat}\big(w^{(1)}_{k-1}, \dots, w^{(N_{k-1})}_{k-1}\big),\qquad
+    j = 1..N_k,
+
+    w^{(j)}_k \propto \mathcal N\big(\mathbf z_k - \mathbf h(\mathbf x^{(j)}_k); \mathbf 0, \mathbf R\big),\qquad
+    \hat p(\mathbf z_k \mid \mathbf z^{k-1}) = \frac1{N_k} \sum_j
+    \mathcal N\big(\mathbf z_k - \mathbf h(\mathbf x^{(j)}_k); \mathbf 0, \mathbf R\big):
+
+the bootstrap filter (Gordon, Salmond and Smith, 1993) that resamples at every step, as a
+particle filter whose count changes from step to step must (the ``N_k`` new particles are drawn
+from the ``N_{k-1}`` weighted old ones), with multinomial resampling.
+
+**Random numbers, by run and by particle.** The draws of run ``i`` at step ``k`` (its ancestor
+uniforms and its process noise) come from streams of their own, keyed by ``(seed, run_ids[i], k)``,
+and particle ``j`` uses the ``j``-th draw of each whatever ``N_k`` is. So a run filtered alone
+(``run_ids``) gives the same numbers as in a batch, whatever the other runs' counts, and at a step
+the first ``n`` particles drawn for a count ``n`` are the first ``n`` of any larger count: what
+KLD-sampling's sequential stopping rule (draw until the count meets the bound) needs. Multinomial,
+not systematic, resampling is the price (systematic positions ``(u + j)/N`` depend on ``N``). Two
+different counts on the same run decouple from the next resampling on (the ancestors of particle
+``j`` are drawn from different sets), so a paired comparison of counts shares the trajectories and
+measurements, not the particles.
+
+:func:`kld_bound` is Fox's (2003) sample size for ``k`` occupied bins, and :func:`kld_count` the
+KLD-sampling count of a set of drawn particles.
+
+Example
+-------
+>>> import numpy as np, adaptfilt as af
+>>> from adaptfilt.particles import ParticleCountFilter
+>>> model = af.models.ungm()
+>>> traj = model.simulate(n_runs=3, n_steps=20, rng=0)
+>>> pf = ParticleCountFilter(model, seed=0)
+>>> run = pf.run(traj.z, n_particles=[100, 500, 2000])      # one count per run (or (M, T))
+>>> run.mean.shape, run.params[:, 0].tolist()
+((3, 20, 1), [100.0, 500.0, 2000.0])
+>>> alone = pf.run(traj.z[1:2], n_particles=500, run_ids=[1])
+>>> bool(np.array_equal(alone.mean[0], run.mean[1]))
+True
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from adaptfilt.gaf import FilterRun
+from adaptfilt.models import StateSpaceModel
+
+__all__ = ["ParticleCountFilter", "kld_bound", "kld_count"]
+
+
+def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -> np.ndarray:
+    r"""Fox's (2003) KLD-sampling bound: the number of particles that keeps the Kullback-Leibler
+    divergence between the sample-based and the true (binned) posterior below ``epsilon`` with
+    probability ``1 - delta``, when the particles occupy ``k`` bins,
+
+    .. math::
+        n = \frac{k-1}{2\epsilon}\left(1 - \frac{2}{9(k-1)} + \sqrt{\frac{2}{9(k-1)}}\, z_{1-\delta}\right)^3,
+
+    the Wilson-Hilferty approximation of :math:`\chi^2_{k-1,1-\delta}/(2\epsilon)`. ``k <= 1``
+    gives 1 (one bin: any one particle describes it).
+
+    >>> round(float(kld_bound(10)), 1), round(float(stats.chi2.ppf(0.99, 9) / 0.1), 1)
+    (217.0, 216.7)
+    """
+    if epsilon <= 0 or not 0 < delta < 1:
+        raise ValueError(f"epsilon must be positive and delta in (0, 1), got {epsilon}, {delta}")
+    k = np.asarray(k, dtype=float)
+    km1 = np.maximum(k - 1.0, 1.0)
+    a = 2.0 / (9.0 * km1)
+    n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * stats.norm.ppf(1.0 - delta)) ** 3
+    return np.where(k > 1, n, 1.0)
+
+
+def kld_count(x: np.ndarray, bin_size: float | np.ndarray, epsilon: float = 0.05, delta: float = 0.01,
+              n_min: int = 1, n_max: int | None = None) -> int:
+    """KLD-sampling's stopping rule on particles ``x (n, nx)`` in the order they were drawn: the
+    smallest ``n >= n_min`` with ``n >= kld_bound(k(n))``, ``k(n)`` the bins of width ``bin_size``
+    (per dimension) that the first ``n`` occupy; ``n_max`` (default ``len(x)``) if never met."""
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    if x.ndim != 2:
+        raise ValueError(f"x must be (n, nx), got shape {x.shape}")
+    n_max = len(x) if n_max is None else min(int(n_max), len(x))
+    cells = np.floor(x[:n_max] / np.asarray(bin_size, dtype=float)).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    new = np.zeros(n_max, dtype=int)
+    new[first] = 1
+    k = np.cumsum(new)  # bins occupied by the first n particles, n = 1..n_max
+    n = np.arange(1, n_max + 1)
+    ok = (n >= n_min) & (n >= kld_bound(k, epsilon, delta))
+    return int(n[ok.argmax()]) if ok.any() else n_max
+
+
+def _sum(a: np.ndarray) -> np.ndarray:
+    """Sum over particles (axis 1) in order: unlike numpy's pairwise ``sum``, the result does not
+    depend on how many zero-weight padding particles follow, so a run gives the same bits in a
+    batch (padded to the batch's largest count) as alone."""
+    return np.cumsum(a, axis=1)[:, -1]
+
+
+class ParticleCountFilter:
+    r"""Bootstrap particle filter with a particle count per run and step (see the module docstring).
+
+    ``run(z, n_particles)`` filters ``z (M, T, nz)`` with ``n_particles`` a scalar, ``(M,)`` or
+    ``(M, T)`` integers >= 1; ``params`` of the result holds the counts used, ``info["ess"]`` the
+    effective sample size :math:`1/\sum_j (w^{(j)})^2` after each update, ``loglik`` the log of
+    :math:`\hat p(\mathbf z_k \mid \mathbf z^{k-1})`. ``nis`` is NaN (not defined for a particle cloud).
+
+    For models with additive Gaussian noise. ``seed``: an int; the same seed and ``run_ids``, the
+    same numbers. Compute grows with the total number of particles, ``params.sum()``.
+    """
+
+    def __init__(self, model: StateSpaceModel, seed: int = 0):
+        self.model, self.seed = model, int(seed)
+        self._Lq, self._L0 = np.linalg.cholesky(model.Q), np.linalg.cholesky(model.P0)
+        self._Rinv = np.linalg.inv(model.R)
+        self._logdetR = float(np.linalg.slogdet(model.R)[1])
+
+    def _rngs(self, run_id: int, t: int) -> tuple[np.random.Generator, np.random.Generator]:
+        # two streams, so that particle j's ancestor uniform and its noise are the j-th draws of
+        # their own stream whatever the count (one stream would shift the noise by N uniforms)
+        return (np.random.default_rng([self.seed, int(run_id), t, 0]),
+                np.random.default_rng([self.seed, int(run_id), t, 1]))
+
+    def _counts(self, n_particles, M: int, T: int) -> np.ndarray:
+        n = np.asarray(n_particles)
+        if n.ndim == 0:
+            n = np.full((M, T), n)
+        elif n.shape == (M,):
+            n = np.repeat(n[:, None], T, axis=1)
+        elif n.shape != (M, T):
+            raise ValueError(f"n_particles must be a scalar, (M,) = ({M},) or (M, T) = ({M}, {T}), got shape {n.shape}")
+        if not np.all(np.isfinite(n)) or np.any(n < 1) or np.any(n != np.round(n)):
+            raise ValueError(f"n_particles must be integers >= 1, got values in [{n.min()}, {n.max()}]")
+        return n.astype(np.int64)
+
+    def run(self, z, n_particles, run_ids: Sequence[int] | None = None) -> FilterRun:
+        model = self.model
+        z = np.asarray(z, dtype=float)
+        if z.ndim == 2 and model.nz == 1:
+            z = z[..., None]
+        if z.ndim != 3 or z.shape[2] != model.nz:
+            raise ValueError(f"z must have shape (M, T, {model.nz}), got {z.shape}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("z holds non-finite values")
+        M, T, _ = z.shape
+        counts = self._counts(n_particles, M, T)
+        ids = np.arange(M) if run_ids is None else np.asarray(run_ids, dtype=int)
+        if ids.shape != (M,):
+            raise ValueError(f"run_ids must name one id per run ({M}), got shape {ids.shape}")
+        nx = model.nx
+        mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
+        ll, ess = np.empty((M, T)), np.empty((M, T))
+        x_old = w_old = None
+        for t in range(T):
+            Nt = counts[:, t]
+            cap = int(Nt.max())
+            valid = np.arange(cap)[None, :] < Nt[:, None]  # (M, cap)
+            noise = np.zeros((M, cap, nx))
+            u = np.zeros((M, cap))
+            for i in range(M):  # each run's own stream: its draws do not depend on the other runs' counts
+                gu, gw = self._rngs(ids[i], t)
+                u[i, :Nt[i]] = gu.random(Nt[i])
+                noise[i, :Nt[i]] = gw.standard_normal((Nt[i], nx))
+            if t == 0:
+                x = model.m0 + noise @ self._L0.T
+            else:
+                cdf = np.cumsum(w_old, axis=1)
+                cdf /= cdf[:, -1:]
+                n_old = cdf.shape[1]
+                off = 2.0 * np.arange(M)[:, None]  # one sorted search for all runs: run i in [2i, 2i + 1]
+                anc = np.searchsorted((cdf + off).ravel(), (u + off).ravel(), side="right").reshape(M, cap)
+                anc = np.minimum(anc - n_old * np.arange(M)[:, None], n_old - 1)
+                x = model.f(np.take_along_axis(x_old, anc[..., None], axis=1), t) + noise @ self._Lq.T
+            r = model.diff_z(z[:, t, None, :], model.h(x, t + 1))
+            logl = -0.5 * (np.einsum("mni,ij,mnj->mn", r, self._Rinv, r) + self._logdetR + model.nz * np.log(2 * np.pi))
+            logl = np.where(valid, logl, -np.inf)
+            amax = logl.max(axis=1, keepdims=True)
+            if not np.isfinite(amax).all():
+                bad = np.flatnonzero(~np.isfinite(amax[:, 0]))
+                raise FloatingPointError(f"particle filter: no particle explains the measurement at step t={t} in runs "
+                                         f"{ids[bad[:10]].tolist()}: use more particles")
+            e = np.exp(logl - amax)
+            s = _sum(e)
+            ll[:, t] = np.log(s) + amax[:, 0] - np.log(Nt)
+            w = e / s[:, None]
+            mean[:, t] = _sum(w[..., None] * x)
+            d = x - mean[:, t, None, :]
+            cov[:, t] = _sum(w[..., None, None] * d[..., :, None] * d[..., None, :])
+            ess[:, t] = 1.0 / _sum(w * w)
+            x_old, w_old = x, w
+        return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
+                         params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum())})

@@ -1,0 +1,99 @@
+"""The particle filter with a particle count per run and step, and KLD-sampling's count (adaptfilt.particles).
+
+References: the point-mass filter (the exact posterior of UNGM up to its grid), the same filter run
+alone (common random numbers), the chi-square quantile and Fox's formula written out."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import adaptfilt as af
+from adaptfilt.particles import ParticleCountFilter, kld_bound, kld_count
+
+
+@pytest.fixture(scope="module")
+def ungm_runs():
+    model = af.models.ungm()
+    return model, model.simulate(n_runs=30, n_steps=40, rng=4)
+
+
+def test_many_particles_reach_the_point_mass_posterior_on_ungm(ungm_runs):
+    model, traj = ungm_runs
+    pmf = af.PointMassFilter(model, grid=np.linspace(-45, 45, 1801)).run(traj.z)
+    pf = ParticleCountFilter(model, seed=1).run(traj.z, n_particles=4000)
+    m, v = pmf.mean[..., 0], pmf.cov[..., 0, 0]
+    # the particle mean's Monte-Carlo error is about sqrt(var / ESS): its squared size relative to the
+    # posterior variance is ~1/ESS (ESS ~ 10^3 here); a wrong filter (or a biased one) is at ~1
+    ratio = np.mean((pf.mean[..., 0] - m) ** 2 / v)
+    assert ratio < 0.02, ratio
+    np.testing.assert_allclose(pf.cov[..., 0, 0].mean(), v.mean(), rtol=0.05)
+    rmse = lambda run: np.sqrt(((run.mean[..., 0] - traj.x[..., 0]) ** 2).mean())  # noqa: E731
+    assert abs(rmse(pf) / rmse(pmf) - 1) < 0.03
+    # the likelihood estimate is unbiased but heavy-tailed in the log (a step where few particles sit
+    # in the right mode): its typical error is small, its worst one not
+    assert np.median(np.abs(pf.loglik.sum(axis=1) - pmf.loglik.sum(axis=1))) < 0.5
+    few = ParticleCountFilter(model, seed=1).run(traj.z, n_particles=20)
+    assert np.mean((few.mean[..., 0] - m) ** 2 / v) > 5 * ratio  # the check can tell 20 particles from 4000
+
+
+def test_a_run_in_a_batch_is_the_same_run_filtered_alone(ungm_runs):
+    model, traj = ungm_runs
+    z = traj.z[:4, :15]
+    counts = np.random.default_rng(0).integers(5, 400, size=(4, 15))
+    counts[2] = 1000  # one run far above the others: the rest are padded
+    pf = ParticleCountFilter(model, seed=7)
+    batch = pf.run(z, counts)
+    np.testing.assert_array_equal(batch.params, counts)
+    for i in range(4):
+        alone = pf.run(z[i:i + 1], counts[i:i + 1], run_ids=[i])
+        np.testing.assert_array_equal(alone.mean[0], batch.mean[i])
+        np.testing.assert_array_equal(alone.cov[0], batch.cov[i])
+        np.testing.assert_array_equal(alone.loglik[0], batch.loglik[i])
+    other = ParticleCountFilter(model, seed=8).run(z, counts)
+    assert not np.array_equal(other.mean, batch.mean)
+
+
+def test_kld_bound_is_the_chi_square_quantile_of_fox_2003():
+    k = np.arange(2, 2000)
+    eps, delta = 0.05, 0.01
+    z = stats.norm.ppf(1 - delta)
+    fox = (k - 1) / (2 * eps) * (1 - 2 / (9 * (k - 1)) + np.sqrt(2 / (9 * (k - 1))) * z) ** 3
+    np.testing.assert_allclose(kld_bound(k, eps, delta), fox, rtol=1e-12)
+    exact = stats.chi2.ppf(1 - delta, k - 1) / (2 * eps)  # what Wilson-Hilferty approximates
+    big = k >= 10
+    assert np.max(np.abs(kld_bound(k[big], eps, delta) / exact[big] - 1)) < 0.01
+    assert float(kld_bound(1)) == 1.0 and np.all(np.diff(kld_bound(k)) > 0)
+    with pytest.raises(ValueError, match="epsilon"):
+        kld_bound(5, epsilon=0.0)
+
+
+def test_kld_count_stops_where_the_bound_is_met():
+    one_bin = np.zeros((500, 1))
+    assert kld_count(one_bin, bin_size=1.0, n_min=10) == 10
+    two_bins = (np.arange(500) % 2).reshape(-1, 1).astype(float)  # k = 2 from the second particle on
+    assert kld_count(two_bins, bin_size=1.0) == 1  # Fox's loop stops at once while one bin is occupied
+    assert kld_count(two_bins, bin_size=1.0, n_min=2) == int(np.ceil(kld_bound(2)))
+    spread = np.arange(300, dtype=float).reshape(-1, 1)  # every particle a new bin: the bound runs away
+    assert kld_count(spread, bin_size=1.0, n_min=2) == 300
+    grid2d = np.random.default_rng(0).normal(size=(20000, 2))
+    n = kld_count(grid2d, bin_size=[0.5, 0.5], n_min=2)
+    k = len(np.unique(np.floor(grid2d[:n] / 0.5), axis=0))
+    assert 2 < n < 20000 and n >= kld_bound(k) and n - 1 < kld_bound(len(np.unique(np.floor(grid2d[:n - 1] / 0.5), axis=0)))
+
+
+def test_bad_input_is_named(ungm_runs):
+    model, traj = ungm_runs
+    pf = ParticleCountFilter(model)
+    with pytest.raises(ValueError, match="n_particles must be a scalar"):
+        pf.run(traj.z, np.ones((3, 3)))
+    with pytest.raises(ValueError, match="integers >= 1"):
+        pf.run(traj.z, 0)
+    with pytest.raises(ValueError, match="integers >= 1"):
+        pf.run(traj.z, 10.5)
+    z = traj.z.copy()
+    z[0, 3] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        pf.run(z, 10)
+    with pytest.raises(ValueError, match="run_ids"):
+        pf.run(traj.z, 10, run_ids=[0, 1])
