@@ -1,7 +1,6 @@
 """The writing rules of the course, checked on the committed (executed) notebooks.
 
-A chapter that meets the rules is listed in ``CHAPTERS``; extend the list as
-chapters are rewritten (06-08 are still to do). The rules (issue 13):
+Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
 
 * prose first: the code of a chapter is at most half its prose, by characters
   (``MAX_CODE_TO_PROSE``), and no code cell is longer than ``MAX_CODE_LINES``;
