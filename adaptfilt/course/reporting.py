@@ -90,7 +90,7 @@ def plot_bootstrap(per_run: np.ndarray, boot: np.ndarray, level: float = 0.95, l
     axes[0].hist(per_run, bins=80, color="0.6")
     axes[0].axvline(per_run.mean(), color="black", lw=1.2, label=f"mean {per_run.mean():.3f}")
     axes[0].set(xlabel=f"{label} of one run", ylabel="runs", title=f"{per_run.size} runs")
-    axes[0].legend(loc="upper left", frameon=False)
+    axes[0].legend(loc="upper right", frameon=False)
     axes[1].hist(boot, bins=40, color=style.OKABE_ITO[0], alpha=0.7)
     lo, hi = metrics.percentile_ci(boot, level)
     _, nlo, nhi = metrics.mean_ci(per_run, level)
