@@ -30,6 +30,7 @@ CHAPTERS = [
     "02-gaussian-assumed-filters",
     "03-estimation-is-myopic",
     "04-parameter-adaptation-mdp",
+    "05-how-results-are-reported",
     "06-actor-critic",
     "08-ukf-ungm",
     "09-ukf-ctm",
