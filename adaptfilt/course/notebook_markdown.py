@@ -294,7 +294,7 @@ def _render_data(data: Mapping[str, Any], stem: str, files: dict[str, bytes], al
         files[name] = raw.encode() if mime == "image/svg+xml" else base64.b64decode(raw)
         text = " ".join(_text(data.get("text/plain", "")).split())
         # matplotlib's text/plain is its repr, "<Figure size 700x360 with 1 Axes>": no description
-        alt = alt or ("" if _REPR.match(text) else plain_text(text)) or "figure"
+        alt = alt or ("" if _REPR.match(text) else plain_text(text, markdown=False)) or "figure"
         return f"![{escape_math(alt)}]({name})\n"
     if mime == "text/html":
         return _html_block(_text(data[mime]))
@@ -399,14 +399,17 @@ _SYMBOLS = {"times": "\u00d7", "cdot": "\u00b7", "le": "\u2264", "leq": "\u2264"
 _TITLE_CALLS = frozenset({"set_title", "suptitle", "title"})
 
 
-def plain_text(text: str) -> str:
-    r"""Markdown or a matplotlib title with ``$..$`` maths as plain text for an alt attribute.
+def plain_text(text: str, markdown: bool = True) -> str:
+    r"""Markdown (or, with ``markdown=False``, a matplotlib title) with ``$..$`` maths as plain text for
+    an alt attribute: maths loses its markup, Greek letters become Unicode; Markdown also loses its
+    links, HTML tags, emphasis and code marks (in a title they are literal text).
 
     >>> plain_text(r"RMSE$_k$ for $\kappa = 2$ and $\bar L_\mathrm{NIS}$, `code` and **bold**")
     'RMSE_k for κ = 2 and L_NIS, code and bold'
     """
-    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", text)  # a link: its text
-    text = re.sub(r"<[^>]+>", "", text)  # HTML tags
+    if markdown:
+        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", text)  # a link: its text
+        text = re.sub(r"<[^>]+>", "", text)  # HTML tags
 
     def maths(m: re.Match[str]) -> str:
         tex = m.group(1) or m.group(2) or ""
@@ -418,7 +421,8 @@ def plain_text(text: str) -> str:
         return tex.replace("{", "").replace("}", "")
 
     text = re.sub(r"\$\$(.+?)\$\$|\$([^$]+)\$", maths, text, flags=re.S)
-    text = re.sub(r"(\*\*|__|\*|`)", "", text)  # emphasis and code spans: their text
+    if markdown:
+        text = re.sub(r"(\*\*|__|\*|`)", "", text)  # emphasis and code spans: their text
     return " ".join(text.split())
 
 
@@ -455,7 +459,7 @@ def figure_titles(source: str) -> list[str]:
         for value in values:
             text = _string_value(value)
             if text and text.strip():
-                found.append((value.lineno, value.col_offset, plain_text(text)))
+                found.append((value.lineno, value.col_offset, plain_text(text, markdown=False)))
     return [t for _, _, t in sorted(found)]
 
 
