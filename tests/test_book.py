@@ -26,9 +26,10 @@ from pathlib import Path
 
 import pytest
 
-from adaptfilt.course.book import BookBuildError, build_book, notebook_chapters
-from adaptfilt.course.notebook_markdown import (escape_math, notebook_title, notebook_to_markdown, rewrite_links,
-                                                rewrite_math)
+from adaptfilt.course.book import FRONT_PAGES, BookBuildError, build_book, collect_chapters, notebook_chapters
+from adaptfilt.course.notebook_markdown import (bibliography_markdown, escape_math, figure_titles,
+                                                notebook_references, notebook_title, notebook_to_markdown,
+                                                plain_text, rewrite_links, rewrite_math, split_reference)
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
 
@@ -175,6 +176,160 @@ def test_fence_is_longer_than_backticks_inside():
     assert md.startswith("````python\n")
 
 
+# ---------------------------------------------------------------- figure alt text
+
+_PNG = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNkYPhfDwAChwGA60e6kgAAAABJRU5ErkJggg=="
+
+
+def _figure_nb(source: str, before: str = "Some text.", n_figures: int = 1, plain: str = "<Figure size 700x360 with 1 Axes>") -> dict:
+    out = {"output_type": "display_data", "metadata": {}, "data": {"image/png": _PNG, "text/plain": plain}}
+    return {"cells": [{"cell_type": "markdown", "metadata": {}, "source": before},
+                      {"cell_type": "code", "metadata": {}, "source": source, "outputs": [out] * n_figures}]}
+
+
+def _alts(md: str) -> list[str]:
+    # the alt text as CommonMark renders it: every backslash escape undone
+    return [re.sub(r"\\(.)", r"\1", a) for a in re.findall(r"!\[((?:\\.|[^\]\\])*)\]\(", md)]
+
+
+def test_figure_alt_text_is_the_figures_titles_not_matplotlibs_repr():
+    source = ("%matplotlib inline\nfig, axes = style.figure(1, 2, title=\"UNGM, M = 1000\")\n"
+              "axes[0].set_title(r\"RMSE$_k$ for $\\kappa = 2$\")\naxes[1].set(xlabel=\"k\", title=f\"{n} runs [x]\")\n"
+              "fig.suptitle('Fig. 1: *time* <averaged>')")
+    md, _ = notebook_to_markdown(_figure_nb(source), "f")
+    assert "Figure size" not in md
+    assert _alts(md) == ["Figure: UNGM, M = 1000; RMSE_k for \u03ba = 2; \u2026 runs [x]; Fig. 1: *time* <averaged>"]
+
+
+def test_figure_titles_are_read_from_the_code_in_source_order():
+    src = "plt.title('a')\nax.set(title='b', ylabel='y')\nhelper(x, title=r'$\\gamma$ c')\nfig.suptitle(label)\nbroken("
+    assert figure_titles(src) == []  # does not parse: no titles
+    assert figure_titles(src[: src.rindex("\n")]) == ["a", "b", "\u03b3 c"]  # a variable's value is not known
+    assert plain_text(r"$\bar L_\mathrm{NIS}$ and $x\sim\mathcal{N}(0, 1)$, `code`") == "L_NIS and x~N(0, 1), code"
+
+
+def test_figure_without_a_title_is_described_by_the_text_before_it():
+    before = "## A section\n\nFirst paragraph.\n\nThe sweep shows RMSE against $\\kappa$, e.g. at 2. More follows."
+    md, _ = notebook_to_markdown(_figure_nb("plot(x)", before), "f")
+    assert _alts(md) == ["Figure after the text: The sweep shows RMSE against \u03ba, e.g. at 2."]
+    md, _ = notebook_to_markdown(_figure_nb("plot(x)", "## Only a heading"), "f")
+    assert _alts(md) == ["figure"]  # nothing to describe it with, and the repr is no description
+    md, _ = notebook_to_markdown(_figure_nb("plot(x)", "## Only a heading", plain="A map of the course"), "f")
+    assert _alts(md) == ["A map of the course"]  # a real text/plain is kept
+
+
+def test_several_figures_of_one_cell_get_one_title_each():
+    md, _ = notebook_to_markdown(_figure_nb("f1.suptitle('one')\nf2.suptitle('two')", n_figures=2), "f")
+    assert _alts(md) == ["Figure: one", "Figure: two"]
+    md, _ = notebook_to_markdown(_figure_nb("f1.suptitle('only')", n_figures=2), "f")
+    assert _alts(md) == ["Figure: only", "Figure: only"]
+
+
+def test_no_figure_of_the_course_has_matplotlibs_repr_as_alt_text():
+    for path in notebook_chapters(ROOT):
+        md, files = notebook_to_markdown(json.loads(path.read_text(encoding="utf-8")), "f")
+        alts = _alts(md)
+        assert len(alts) >= len([n for n in files if n.endswith((".png", ".svg", ".jpg"))]), path.name
+        assert not [a for a in alts if "Figure size" in a or a == "figure"], (path.name, alts)
+
+
+# ---------------------------------------------------------------- bibliography
+
+
+def test_references_are_read_from_the_references_section_only():
+    nb = {"cells": [
+        {"cell_type": "markdown", "source": "# T\n\n* not a reference\n\n## References\n\n* A. Author, \"One\",\n  *J.* 1, 2001.\n"},
+        {"cell_type": "code", "source": "* code", "outputs": []},
+        {"cell_type": "markdown", "source": "- B. Writer, *Two*, 1999 (why).\n\n## Appendix\n\n* not one either"}]}
+    assert notebook_references(nb) == ['A. Author, "One", *J.* 1, 2001.', "B. Writer, *Two*, 1999 (why)."]
+    assert split_reference("B. Writer, *Two*, 1999 (why).") == ("B. Writer, *Two*, 1999", "why")
+    assert split_reference("C. D, *Three*, MIT Press, 1998 (2nd ed. 2018).") == ("C. D, *Three*, MIT Press, 1998 (2nd ed. 2018)", "")
+    assert split_reference('E. F, "Four", 2018: what for.') == ('E. F, "Four", 2018', "what for")
+
+
+def test_bibliography_merges_a_work_cited_twice_and_links_the_chapters():
+    chapters = [
+        ("01-a.md", "chapter 1", ['Z. Zed and Y. Why, "Last", *J.* 1, 2001 (the $\\kappa$ rule).', "A. Ay et al., *First*, 1990."]),
+        ("02-b.md", "chapter 2", ['Z. Zed and Y. Why, "Last", *J.* 1, 2001.', "A. Ay, B. Bee and C. Cee, *First*, 1990 (again)."]),
+        ("03-c.md", "chapter 3", []),
+    ]
+    md = bibliography_markdown(chapters)
+    items = [ln for ln in md.splitlines() if ln.startswith("* ")]
+    assert items == [
+        "* A. Ay, B. Bee and C. Cee, *First*, 1990. Cited in [chapter 1](01-a.md); [chapter 2](02-b.md) (again).",
+        '* Z. Zed and Y. Why, "Last", *J.* 1, 2001. Cited in [chapter 1](01-a.md) (the $\\kappa$ rule); [chapter 2](02-b.md).',
+    ]
+    assert md.startswith("# Bibliography") and "2 in all" in md
+
+
+def test_the_books_bibliography_holds_every_chapters_references_once():
+    chapters = collect_chapters(ROOT)
+    bib = next(c for c in chapters if c.filename == "bibliography.md")
+    items = [ln for ln in bib.markdown.splitlines() if ln.startswith("* ")]
+    cited = {p.stem: notebook_references(json.loads(p.read_text(encoding="utf-8"))) for p in notebook_chapters(ROOT)}
+    assert all(cited.values()), [s for s, r in cited.items() if not r]  # every chapter has references
+    assert 0 < len(items) < sum(len(r) for r in cited.values())  # duplicates merged
+    for stem in cited:  # every chapter is linked from the page
+        assert f"]({stem}.md)" in bib.markdown, stem
+    assert sum("Straka" in i and "Learning Adaptive Parameter Policies" in i for i in items) == 1  # the paper, once
+
+
+# ---------------------------------------------------------------- the front pages and the order
+
+
+def test_book_order_front_pages_after_the_introduction_bibliography_before_the_reference():
+    chapters = collect_chapters(ROOT, reference_modules=["adaptfilt.gaf"])
+    files = [c.filename for c in chapters]
+    notebooks = [f"{p.stem}.md" for p in notebook_chapters(ROOT)]
+    assert files == (["course-map.md", "introduction.md", "running.md", "notation.md", "deviations.md"] + notebooks
+                     + ["reproduction.md", "architecture.md", "bibliography.md", "reference.md"])
+    assert [c.numbered for c in chapters[:5]] == [False] * 5 and all(c.numbered for c in chapters[5:])
+    assert [c.title for c in chapters[2:5]] == [t for _, t, _ in FRONT_PAGES]
+    landing = chapters[0].markdown
+    assert all(f"]({f})" in landing for _, _, f in FRONT_PAGES)
+
+
+def test_front_pages_link_chapters_that_exist():
+    """The front pages link chapters by their notebooks (which work on GitHub too); every link names a
+    notebook of the repository and becomes a link to its chapter in the book."""
+    chapters = {c.filename: c for c in collect_chapters(ROOT)}
+    for source, _, filename in FRONT_PAGES:
+        text = (ROOT / source).read_text(encoding="utf-8")
+        links = re.findall(r"\]\(([^)#\s]+)", text)
+        assert links, source
+        for link in links:
+            assert (ROOT / source).parent.joinpath(link).resolve().exists(), (source, link)
+        assert ".ipynb" not in "".join(re.findall(r"\]\(([^)\s]+)", chapters[filename].markdown)), filename
+
+
+def test_deviations_page_states_what_the_code_does():
+    """The numbers of the deviations page that come from the code and the stored policies."""
+    from adaptfilt.experiment_registry import CTM_KAPPA_GRID, SIF_ITER_GRID, UNGM_KAPPA_GRID, get_experiment
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.features import FeatureSet
+    from adaptfilt.trainers import FAST
+
+    page = " ".join((ROOT / "docs" / "DEVIATIONS.md").read_text(encoding="utf-8").split())
+    sizes = {}
+    for name, features in (("ungm-ukf", "paper+time"), ("ctm-ukf", "paper+circ"), ("ctm-sif-nis", "paper+circ+innov@1")):
+        exp = get_experiment(name)
+        assert exp.features == features and f"`{features}`" in page
+        sizes[name] = (FeatureSet.parse("paper").size(exp.make_model()), FeatureSet.parse(features).size(exp.make_model()))
+    assert sizes == {"ungm-ukf": (5, 7), "ctm-ukf": (8, 9), "ctm-sif-nis": (8, 9)}
+    assert "5 numbers on UNGM" in page and "7 inputs" in page and "9 inputs instead of the paper's 8" in page
+    for grid in (UNGM_KAPPA_GRID, CTM_KAPPA_GRID, SIF_ITER_GRID):
+        assert f"({len(grid)} values)" in page
+    assert "10^4\\}" in page and "-3, -2, -1, -0.5, 0, 0.5, 1, 2, 5, 10, 20, 50\\}" in page
+    rollout = FAST.n_envs * FAST.kwargs["n_steps"]
+    assert f"{rollout} transitions" in page and rollout == 16384
+    for name, steps in (("ungm-ukf", 500), ("ctm-ukf", 150)):
+        stored = artefacts.load_policy(name, "adaptive", 0).metadata["transitions"]
+        assert stored == -(-1000 * steps // rollout) * rollout and f"{stored:,}" in page
+    faithful = sorted(p.name for p in (artefacts.data_dir() / "policies").glob("*faithful*"))
+    assert len(faithful) == 16 and not [n for n in faithful if "sif" in n]
+    assert "16 in all" in page and "There are no paper-faithful SIF policies" in page
+
+
 # ---------------------------------------------------------------- the build
 
 
@@ -210,6 +365,9 @@ def _expected_pages(out: Path, notebooks: list[Path]) -> list[Path]:
         pages.append(out / "reproduction.html")
     if (ROOT / "docs" / "ARCHITECTURE.md").is_file():
         pages.append(out / "architecture.html")
+    pages += [out / f"{Path(f).stem}.html" for src, _, f in FRONT_PAGES if (ROOT / src).is_file()]
+    if any("## References" in nb.read_text(encoding="utf-8") for nb in notebooks):
+        pages.append(out / "bibliography.html")
     return pages
 
 
@@ -272,8 +430,9 @@ def test_landing_page_is_the_first_page_with_the_course_map(repo_book):
     out, notebooks = repo_book
     src = out.with_name(out.name + "-src")
     summary = (src / "SUMMARY.md").read_text(encoding="utf-8")
-    # The landing page and the introduction come before the numbered chapters.
-    assert summary.split("\n")[2:5] == ["[Course map](course-map.md)", "[Introduction](introduction.md)", ""]
+    # The landing page, the introduction and the front pages come before the numbered chapters.
+    front = [f"[{escape_math(t)}]({f})" for _, t, f in FRONT_PAGES]
+    assert summary.split("\n")[2:8] == ["[Course map](course-map.md)", "[Introduction](introduction.md)", *front, ""]
     landing = (src / "course-map.md").read_text(encoding="utf-8")
     assert "](figures/course-map.svg)" in landing
     assert (out / "figures" / "course-map.svg").read_bytes().lstrip().startswith(b"<?xml")
