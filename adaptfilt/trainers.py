@@ -136,7 +136,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     ``actions``: the grid values the policy may choose, a subset of the experiment's
     grid holding its default (a *safe action set*: e.g. no SIF iteration count that
     can diverge); the policy still acts in the full experiment (named experiments only).
-    ``cost_transform``: the reward is ``-log(1 + L)`` (``"log1p"``, the paper's) or ``-L`` (``"none"``:
+    ``cost_transform``: the reward is ``-log(1 + L)`` (``"log1p"``, the default; the paper trains on ``L`` itself) or ``-L`` (``"none"``:
     the mean cost itself, whose rare large steps the log flattens). ``normalize_reward``: the learner
     sees the reward divided by a running estimate of the return's spread (SB3's ``VecNormalize``,
     observations untouched); the learning curve keeps the transformed cost itself.
@@ -320,7 +320,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     arguments for the SB3 algorithm. ``resume`` (faithful and batched) continues
     from the checkpoint next to ``out``. ``name``: the policy's name (default:
     ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0). ``cost_transform``: the learner
-    minimises the mean of ``log(1 + L)`` (``"log1p"``, the paper's) or of ``L`` (``"none"``).
+    minimises the mean of ``log(1 + L)`` (``"log1p"``, the default; the paper trains on ``L`` itself) or of ``L`` (``"none"``).
     ``anchor="greedy"`` (SB3 trainers): a residual policy over greedy's choice with strength
     ``anchor_strength`` (``c``, default :data:`adaptfilt.anchor.DEFAULT_STRENGTH`) and the penalty
     ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as greedy
