@@ -310,7 +310,7 @@ def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=N
         ax2.set_ylabel(overlay_label, color="0.4")
         ax2.grid(False)
         ax2.spines["right"].set_visible(True)
-    ax.legend(loc="upper right")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=len(policies))  # below the axes, off the data
     return fig
 
 
