@@ -32,6 +32,7 @@ CHAPTERS = [
     "04-parameter-adaptation-mdp",
     "05-how-results-are-reported",
     "06-actor-critic",
+    "07-reading-the-stored-policies",
     "08-ukf-ungm",
     "09-ukf-ctm",
     "10-sif-ctm",

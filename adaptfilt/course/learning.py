@@ -1,4 +1,5 @@
-r"""The plumbing of the course's learning chapters (5 The actor-critic, 9 Your own model, 10 RL in practice).
+r"""The plumbing of the course's learning chapters (6 The actor-critic, 7 Reading the stored policies,
+11 Your own model, 12 RL in practice, 13 Beyond the paper).
 
 As :mod:`adaptfilt.course.common` and the modules of chapters 1-4 do: what a chapter computes in
 passing (bookkeeping over seeds, binned policy probabilities, a timed
@@ -9,15 +10,18 @@ calls. Figures use :mod:`adaptfilt.style`.
 ========================================  =========================================================
 chapter                                   helpers
 ========================================  =========================================================
-5 The actor-critic                        :func:`plot_sign_demo`, :func:`plot_training`,
-                                          :func:`candidate_cost_range`, :func:`scaler_saturation`,
-                                          :func:`plot_share_over_time`, :func:`usage_lines`,
+6 The actor-critic                        :func:`plot_sign_demo`, :func:`plot_training` (with
+                                          :func:`kappa_bands`), :func:`candidate_cost_range`,
+                                          :func:`scaler_saturation`, :func:`actor_update_batch`,
+                                          :func:`library_actor_loss`, :func:`check_actor_update`,
+                                          :func:`plot_state_probs` (widget :func:`show_policy_probs`)
+7 Reading the stored policies             :func:`plot_share_over_time`, :func:`usage_lines`,
                                           :func:`plot_switch_off`, :func:`ungm_state`,
                                           :func:`plot_policy_probs` (widget :func:`show_policy_probs`)
-9 Your own model                          :func:`seed_lines`, :func:`plot_differences`
-10 RL in practice                         :func:`plot_seed_spread`, :func:`seed_verdicts`,
+11 Your own model                         :func:`seed_lines`, :func:`plot_differences`
+12 RL in practice                         :func:`plot_seed_spread`, :func:`seed_verdicts`,
                                           :func:`claims_table`, :func:`timed`
-11 Beyond the paper                       :func:`verdict_counts`, :func:`divergence_onsets`,
+13 Beyond the paper                       :func:`verdict_counts`, :func:`divergence_onsets`,
                                           :func:`plot_cost_divergence`, :func:`plot_ood_gains`
 ========================================  =========================================================
 
@@ -37,8 +41,10 @@ from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
 
 __all__ = [
     # chapter 6
-    "plot_sign_demo", "plot_training", "candidate_cost_range", "scaler_saturation", "plot_share_over_time",
-    "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs", "show_policy_probs",
+    "plot_sign_demo", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
+    "actor_update_batch", "library_actor_loss", "check_actor_update", "plot_state_probs",
+    # chapter 7 (and the widget of both)
+    "plot_share_over_time", "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs", "show_policy_probs",
     # chapter 11
     "seed_lines", "plot_differences",
     # chapter 12
@@ -89,10 +95,27 @@ def plot_sign_demo(states: np.ndarray, policies: Mapping[str, object], curves: M
     return fig
 
 
-def plot_training(curve: Mapping[str, np.ndarray], grid: Sequence[float], batch: int):
+def kappa_bands(grid: Sequence[float], edges: Sequence[float] = (5.0, 100.0, 1000.0)) -> dict[str, np.ndarray]:
+    r"""Group a grid into bands: ``{label: boolean mask over the grid}``, split *below* each of
+    ``edges`` (default: small 0-2, moderate 5-50, large 100-500, switched (almost) off >= 1000 on
+    the UNGM grid). Empty bands are dropped; a band is labelled by the grid values it holds."""
+    grid = np.asarray(grid, dtype=float)
+    cuts = [-np.inf, *sorted(float(e) for e in edges), np.inf]
+    out = {}
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        m = (grid >= lo) & (grid < hi)
+        if m.any():
+            v = grid[m]
+            out[f"{v[0]:g}" if v.size == 1 else f"{v[0]:g}-{v[-1]:g}"] = m
+    return out
+
+
+def plot_training(curve: Mapping[str, np.ndarray], grid: Sequence[float], batch: int,
+                  edges: Sequence[float] = (5.0, 100.0, 1000.0)):
     r"""A learning curve of :func:`adaptfilt.actor_critic.train`: the transformed cost
-    per episode, the raw cost (log scale) and the share of each grid value sampled
-    in each batch of ``batch`` episodes (a stack plot)."""
+    per episode, the raw cost (log scale) and the share of the steps in each band of
+    grid values (:func:`kappa_bands`) per batch of ``batch`` episodes (a stack plot of
+    3-4 bands, not one colour per grid value)."""
     from adaptfilt import style
 
     grid = np.asarray(grid, dtype=float)
@@ -104,11 +127,13 @@ def plot_training(curve: Mapping[str, np.ndarray], grid: Sequence[float], batch:
     axes[1].set(xlabel="episode", ylabel=r"mean $\bar L_\mathrm{NIS}$ per step", title="raw cost")
     n_b = len(ep) // batch
     frac = np.asarray(curve["action_frac"])[: n_b * batch].reshape(n_b, batch, grid.size).mean(axis=1)
+    bands = kappa_bands(grid, edges)
+    shares = np.array([frac[:, m].sum(axis=1) for m in bands.values()])
     mid = batch * (np.arange(n_b) + 0.5)
-    axes[2].stackplot(mid, frac.T, colors=style.colors(grid.size), labels=[f"{g:g}" for g in grid])
-    axes[2].set(xlabel="episode", ylabel="share of steps", title=r"$\kappa$ sampled", ylim=(0, 1),
+    axes[2].stackplot(mid, shares, colors=style.colors(len(bands)), labels=list(bands))
+    axes[2].set(xlabel="episode", ylabel="share of steps", title=r"$\kappa$ sampled, by band", ylim=(0, 1),
                 xlim=(mid[0], mid[-1]))
-    axes[2].legend(title=r"$\kappa$", loc="center left", bbox_to_anchor=(1.0, 0.5), reverse=True, fontsize=8)
+    axes[2].legend(title=r"$\kappa$", loc="center left", bbox_to_anchor=(1.0, 0.5), reverse=True)
     return fig
 
 
@@ -133,13 +158,13 @@ def candidate_cost_range(env, n_runs: int = 200, seed: int = 0) -> dict:
 
 
 def scaler_saturation(env, features: str = "paper", seed: int = 0, runs: int = 64) -> dict[str, dict[str, float]]:
-    r"""How the first policies' scaler (fitted on default-parameter states, clipped at
-    ``+-10``) and the current one (a mix of grid values, ``asinh``) treat the states
+    r"""How a scaler fitted on default-parameter states and clipped at ``+-10`` and the
+    library's (fitted on a mix of grid values, squashed with ``asinh``) treat the states
     that *other* parameter values visit (:func:`~adaptfilt.features.visited_states`
     with ``visit="mix"`` and another seed).
 
-    Returns ``{feature: {"clipped": share of states at the clip (old scaler),
-    "asinh_max": largest |scaled value| (new scaler)}}``."""
+    Returns ``{feature: {"clipped": share of states at the clip (default-fitted, clipped scaler),
+    "asinh_max": largest |scaled value| (the library's scaler)}}``."""
     from adaptfilt.features import fit_scaler, visited_states
 
     old = fit_scaler(env, features, runs=runs, seed=seed, visit="default", squash="clip")
@@ -151,6 +176,121 @@ def scaler_saturation(env, features: str = "paper", seed: int = 0, runs: int = 6
     return {n: {"clipped": float(c), "asinh_max": float(b)} for n, c, b in zip(old.names, clipped, big)}
 
 
+def actor_update_batch(seed: int = 0, batch: int = 32, n_features: int = 3, n_actions: int = 4,
+                       gamma: float = 0.5) -> dict:
+    r"""A fixed batch for the actor update of Algorithm 2, built as :func:`adaptfilt.actor_critic.train`
+    builds one: an actor and a critic with the paper's layers initialised under ``seed``, a target
+    critic (a copy), scaled states ``s`` and ``s_next``, the sampled actions, the transformed costs and
+    the TD error ``delta = c + gamma V_target(s_next) - V(s)``, still attached to the critic's graph.
+
+    Returns ``{"actor", "critic", "s", "actions", "cost", "delta", "logits"}`` (torch objects)."""
+    import copy
+
+    import torch
+
+    from adaptfilt.learned import Actor, Critic
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        actor, critic = Actor(n_features, n_actions), Critic(n_features)
+        s, s_next = torch.randn(batch, n_features), torch.randn(batch, n_features)
+        actions = torch.randint(n_actions, (batch,))
+        cost = torch.log1p(torch.rand(batch) * 10.0)
+    target = copy.deepcopy(critic).requires_grad_(False)
+    with torch.no_grad():
+        td_target = cost + gamma * target(s_next)
+    delta = td_target - critic(s)
+    return {"actor": actor, "critic": critic, "s": s, "actions": actions, "cost": cost, "delta": delta,
+            "logits": actor(s)}
+
+
+def library_actor_loss(logits, actions, delta, beta: float = 1e-3, sign: int = 1):
+    r"""The actor loss of :func:`adaptfilt.actor_critic.train`, the same statements on the same
+    tensors: ``mean(sign * delta.detach() * log pi(a | s) - beta * H(pi(. | s)))``
+    (``sign=+1`` for a cost; ``tests/test_course_rl.py`` checks that one Adam step on it
+    reproduces ``train``'s actor)."""
+    import torch
+
+    logp = torch.log_softmax(logits, dim=-1)
+    logp_a = logp[torch.arange(logits.shape[0]), actions]
+    entropy = -(logp.exp() * logp).sum(dim=-1)
+    return (sign * delta.detach() * logp_a - beta * entropy).mean()
+
+
+def check_actor_update(actor_loss: Callable, beta: float = 0.1, seed: int = 0) -> bool:
+    r"""Check a reader's actor loss ``actor_loss(logits, actions, delta, beta) -> scalar tensor``
+    against :func:`library_actor_loss` on the fixed batch of :func:`actor_update_batch`: the
+    gradient it gives the actor's weights (the update direction of Adam's input) and the gradient
+    it must *not* give the critic. The reader's actor gradient is written as
+    ``a * (TD-error term) + b * (entropy term)`` of the library's (least squares) to say what is
+    wrong: ``a = -1`` is the printed sign, ``a = batch`` a sum instead of a mean, ``b = 0`` a
+    missing entropy bonus. ``beta`` is larger than the paper's 1e-3 so that the entropy term
+    is visible in the gradient. Prints the verdict and returns whether the update is right."""
+    import torch
+
+    def grads(loss_fn, **kw):
+        b = actor_update_batch(seed=seed)
+        loss = loss_fn(b["logits"], b["actions"], b["delta"], **kw)
+        params = list(b["actor"].parameters()) + list(b["critic"].parameters())
+        g = torch.autograd.grad(loss, params, allow_unused=True)
+        n_actor = len(list(b["actor"].parameters()))
+        flat = lambda gs, ps: torch.cat([(x if x is not None else torch.zeros_like(p)).reshape(-1) for x, p in zip(gs, ps)])
+        return flat(g[:n_actor], params[:n_actor]).double(), flat(g[n_actor:], params[n_actor:]).double(), loss
+
+    try:
+        g_actor, g_critic, loss = grads(actor_loss, beta=beta)
+    except Exception as err:  # the reader's code: say what failed instead of a traceback
+        print(f"your actor_loss raised {type(err).__name__}: {err}")
+        return False
+    if not (torch.is_tensor(loss) and loss.dim() == 0):
+        print(f"your actor_loss must return a scalar tensor (one loss for the batch), got {getattr(loss, 'shape', type(loss))}")
+        return False
+    g_ref = grads(library_actor_loss, beta=beta)[0]
+    g_pg = grads(library_actor_loss, beta=0.0)[0]   # the TD-error term alone
+    g_ent = g_ref - g_pg                              # the entropy term alone
+    A = torch.stack([g_pg, g_ent], dim=1)
+    coef = torch.linalg.lstsq(A, g_actor[:, None]).solution[:, 0]
+    resid = float(torch.linalg.norm(A @ coef - g_actor) / torch.linalg.norm(g_ref))
+    err = float(torch.linalg.norm(g_actor - g_ref) / torch.linalg.norm(g_ref))
+    leaks = float(torch.linalg.norm(g_critic)) > 0.0
+    right = err < 1e-5 and not leaks
+    a, b = (float(x) for x in coef)
+    print(f"actor gradient vs the library's: relative difference {err:.2g}; "
+          f"yours = {a:.3g} x (TD-error term) + {b:.3g} x (entropy term){'' if resid < 1e-4 else ' + something else'}")
+    if abs(a + 1) < 1e-3:
+        print("  the TD-error term has the printed sign -delta log pi (a reward's): for a cost it is +delta log pi")
+    elif abs(a - len(actor_update_batch(seed=seed)["actions"])) < 1e-3 * abs(a):
+        print("  the TD-error term is summed over the batch: the library averages it (.mean())")
+    if abs(b) < 1e-3 and beta > 0:
+        print("  the entropy bonus -beta H(pi) is missing")
+    elif abs(b + 1) < 1e-3:
+        print("  the entropy term has the wrong sign: the loss subtracts beta H(pi), so that minimising it raises H")
+    if leaks:
+        print("  your loss sends a gradient into the critic: detach the TD error (delta.detach())")
+    print("right: your update is the library's" if right else "not yet right")
+    return right
+
+
+def plot_state_probs(policy, cases: Mapping[str, np.ndarray], ax=None, title: str | None = None):
+    r"""``pi(theta | s)`` of one policy at several raw information states as a heat map: one row
+    per entry of ``cases`` (label -> state ``(1, d)``), one column per grid value, the most
+    probable value of each row marked."""
+    fig, ax = _ax(ax, size=(7.0, 0.5 * len(cases) + 1.6))
+    P = np.concatenate([policy.probs(st) for st in cases.values()])
+    grid = np.asarray(policy.grid)
+    im = ax.imshow(P, vmin=0.0, vmax=1.0, cmap="Blues", aspect="auto", interpolation="nearest")
+    ax.plot(P.argmax(axis=1), np.arange(len(cases)), "o", ms=4, color="#D55E00")
+    ax.set_xticks(np.arange(grid.size), [f"{g:g}" for g in grid], rotation=90)
+    ax.set_yticks(np.arange(len(cases)), list(cases))
+    ax.set_xlabel(r"$\kappa$")
+    ax.grid(False)
+    fig.colorbar(im, ax=ax, label=r"$\pi(\kappa\,|\,s)$")
+    if title:
+        ax.set_title(title)
+    return fig
+
+
+# ============================================================== chapter 7
 def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=None,
                          overlay: Callable[[np.ndarray], np.ndarray] | None = None, overlay_label: str = ""):
     r"""Share of runs whose parameter is ``>= at_least`` at each step ``k``, per policy
@@ -170,7 +310,7 @@ def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=N
         ax2.set_ylabel(overlay_label, color="0.4")
         ax2.grid(False)
         ax2.spines["right"].set_visible(True)
-    ax.legend(loc="upper right")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=len(policies))  # below the axes, off the data
     return fig
 
 
