@@ -46,9 +46,8 @@ Choices the paper is silent about (all documented where they are made):
   process go on. With ``bootstrap_at_limit=True`` the last update's target
   is ``L' + gamma V_target(s_{T+1})`` from the next information state that
   the environment predicts past the horizon (``info["final_decision"]``).
-  The first policies treated it as terminal (target ``L'`` alone,
-  ``bootstrap_at_limit=False``), which teaches the critic that the last
-  steps are cheaper than they are. All T
+  Treating it as terminal (target ``L'`` alone, ``bootstrap_at_limit=False``)
+  teaches the critic that the last steps are cheaper than they are. All T
   updates of an episode are learned from (the paper's loop is written for
   k = 1..T-1 with predict first; we include the first update, whose
   information state is the prior).
@@ -58,9 +57,9 @@ Choices the paper is silent about (all documented where they are made):
   environment of your own; see :mod:`adaptfilt.features`)
   through a :class:`~adaptfilt.features.FeatureScaler` (median / IQR), fitted
   before training on ``scaler_runs`` runs of a seeded rollout and stored with
-  the policy. The first policies were scaled on default-policy states and
-  clipped at 10 (``scaler_visit="default"``, ``scaler_squash="clip"``), which
-  saturates on the states other parameter values visit; ``"mix"`` and
+  the policy. Scaling on default-policy states and clipping at 10
+  (``scaler_visit="default"``, ``scaler_squash="clip"``) saturates on the
+  states other parameter values visit; ``"mix"`` and
   ``"asinh"`` fix that (:func:`~adaptfilt.features.fit_scaler`).
 * **Two modes, one code path.** ``parallel=1`` is paper-faithful: one episode
   at a time, one Adam step per time step, actions sampled. ``parallel=B`` runs
@@ -343,7 +342,7 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
                     tc = tc + H.repair_penalty * info.get("repaired", 0.0)
                 c = torch.from_numpy(tc.astype(np.float32))
                 # ---- "delta_k <- L_k + gamma V_target(s_{k+1}) - V(s_k)"; at the horizon: a time limit
-                #      (bootstrap from the final state) or, as first implemented, a terminal state (no bootstrap)
+                #      (bootstrap from the final state) or, with bootstrap_at_limit=False, a terminal state
                 final = info.get("final_decision") if H.bootstrap_at_limit else None
                 if done and final is None:
                     td_target = c
