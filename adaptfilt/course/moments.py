@@ -366,18 +366,19 @@ def check_unscented(my_unscented: Callable) -> None:
 
 def _update_cases() -> list[tuple[str, object]]:
     """``(name, Update)``: updates of the library's filters (public layout, one row per case)."""
-    import adaptfilt as af
+    from adaptfilt.gaf import UKF
+    from adaptfilt.models import coordinated_turn, linear_gaussian, ungm as ungm_model
 
-    ungm = af.UKF(af.models.ungm())
+    ungm = UKF(ungm_model())
     ungm_u = ungm.update(np.array([[5.0], [-3.0], [0.5]]), np.array([[[4.0]], [[12.0]], [[1.0]]]),
                          np.array([[1.6], [0.2], [0.05]]), t=1)
-    ctm = af.models.coordinated_turn()
+    ctm = coordinated_turn()
     x_pred = np.array([[80.0, 0.0, 0.0, 20.0], [60.0, -5.0, 40.0, 15.0]])
-    ctm_u = af.UKF(ctm).update(x_pred, np.repeat(ctm.P0[None], 2, axis=0), np.array([[0.3], [0.5]]), t=0)
-    lin = af.models.linear_gaussian(F=np.eye(3), H=[[1.0, 0.0, 0.0], [0.5, 1.0, 0.2]], Q=np.eye(3),
+    ctm_u = UKF(ctm).update(x_pred, np.repeat(ctm.P0[None], 2, axis=0), np.array([[0.3], [0.5]]), t=0)
+    lin = linear_gaussian(F=np.eye(3), H=[[1.0, 0.0, 0.0], [0.5, 1.0, 0.2]], Q=np.eye(3),
                                     R=[[0.5, 0.1], [0.1, 0.3]], m0=np.zeros(3), P0=np.eye(3))
     A = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 3.0]])
-    lin_u = af.UKF(lin).update(np.array([[1.0, -2.0, 0.5]]), A[None], np.array([[1.5, -1.0]]), t=0)
+    lin_u = UKF(lin).update(np.array([[1.0, -2.0, 0.5]]), A[None], np.array([[1.5, -1.0]]), t=0)
     return [("UNGM, UKF, n_x = 1", ungm_u), ("CTM, UKF, n_x = 4, one bearing", ctm_u),
             ("linear model, n_x = 3, two measurements", lin_u)]
 
