@@ -302,6 +302,51 @@ def test_deviation_costs_and_myopic_comparison(ungm_small):
         myopia.myopic_vs_discounted(c, 0, gamma=1.5)
 
 
+def _reader_unscented(f, m, P, kappa, sqrt=np.linalg.cholesky, w0=None):
+    n = m.size
+    L = sqrt(P)
+    X = [m] + [m + s * np.sqrt(n + kappa) * L[:, j] for s in (1, -1) for j in range(n)]
+    w = np.r_[kappa / (n + kappa) if w0 is None else w0, np.full(2 * n, 0.5 / (n + kappa))]
+    Y = np.array([np.atleast_1d(f(x)) for x in X])
+    D = Y - w @ Y
+    return w @ Y, (w[:, None] * D).T @ D
+
+
+def test_check_unscented_says_correct_only_for_a_correct_transform(capsys):
+    from scipy.linalg import sqrtm
+
+    moments.check_unscented(_reader_unscented)
+    out = capsys.readouterr().out
+    assert out.startswith("correct") and "closed form" in out
+    moments.check_unscented(lambda f, m, P, k: _reader_unscented(f, m, P, k, sqrt=lambda A: np.real(sqrtm(A))))
+    out = capsys.readouterr().out  # another square root of P: right for n = 1 and a diagonal P, wrong for n = 2
+    assert out.startswith("not yet") and "n = 2" in out and "n = 1" not in out and "cholesky" in out
+    moments.check_unscented(lambda f, m, P, k: _reader_unscented(f, m, P, k, w0=0.0))  # weights that do not sum to 1
+    assert "the mean differs" in capsys.readouterr().out
+    moments.check_unscented(lambda f, m, P, k: None)
+    assert "returned None" in capsys.readouterr().out
+    moments.check_unscented(lambda f, m, P, k: 1 / 0)
+    assert "raised ZeroDivisionError" in capsys.readouterr().out
+
+
+def test_check_update_against_the_filters_update(capsys):
+    def update(x, P, z, zp, Pzz, Pxz):
+        K = Pxz @ np.linalg.inv(Pzz)
+        return x + K @ (z - zp), P - K @ Pzz @ K.T
+
+    moments.check_update(update)
+    assert capsys.readouterr().out.startswith("correct: your update agrees")
+    cases = moments._update_cases()
+    assert [u.Pzz.shape[1] for _, u in cases] == [1, 1, 2]  # a two-measurement case catches a scalar division
+    for _, u in cases:  # the innovations are not wrapped: z = z_pred + innovation is the measurement
+        assert np.abs(u.innovation).max() < 1.0
+    moments.check_update(lambda x, P, z, zp, Pzz, Pxz: (x + (Pxz[:, :1] / Pzz[0, 0]) @ (z - zp)[:1], P))
+    out = capsys.readouterr().out
+    assert out.startswith("not yet") and "P_filt differs" in out and "two measurements (case 0): x_filt differs" in out
+    moments.check_update(lambda *a: (1, 2, 3))
+    assert "not a pair" in capsys.readouterr().out
+
+
 # ---------------------------------------------------------------- chapter 4
 
 
@@ -345,3 +390,22 @@ def test_cost_samples_and_summary():
     line = adaptation.cost_summary({"x": c})
     assert "median 1 " in line and "max 100" in line and "carry 50% " in line
     adaptation.plot_cost_distribution(costs)
+
+
+def test_choice_bands_group_the_grid():
+    from types import SimpleNamespace as NS
+
+    from adaptfilt.style import param_label
+
+    choices = np.array([[0.5, 0.1, 0.1, 0.2, 0.1], [0.0, 0.0, 0.0, 0.0, 1.0]])
+    res = type("Results", (NS,), {"__getitem__": lambda self, n: NS(choices=choices)})(
+        grid=np.array([0.0, 1.0, 5.0, 100.0, 1e4]), config={"param_name": "kappa"})
+    bands = [(0, 0), (1, 5), (10, 500), (1000, 1e4)]
+    sh = adaptation.choice_bands(res, "greedy", bands)
+    assert np.allclose(sh, [[0.5, 0.2, 0.2, 0.1], [0, 0, 0, 1]])
+    with pytest.raises(ValueError, match="exactly one band"):
+        adaptation.choice_bands(res, "greedy", [(0, 0), (2, 1e4)])
+    fig = adaptation.plot_choice_bands(res, "greedy", bands)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    k = param_label("kappa")
+    assert labels == [f"{k} ≥ 1000", f"10 ≤ {k} ≤ 500", f"1 ≤ {k} ≤ 5", f"{k} = 0"]  # in stack order, top first

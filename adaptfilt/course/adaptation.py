@@ -10,7 +10,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 __all__ = ["innovation_spread", "kappa_sweep", "plot_sweep", "results_lines", "cost_samples", "cost_summary",
-           "plot_cost_distribution"]
+           "plot_cost_distribution", "choice_bands", "plot_choice_bands"]
 
 
 # ======================================================================== chapter 4
@@ -104,4 +104,47 @@ def plot_cost_distribution(costs: Mapping[str, np.ndarray], floor: float = 1e-8,
     ax.set(xlabel=rf"$\log_{{10}}\bar L_\mathrm{{NIS}}$ (one step; costs below $10^{{{np.log10(floor):.0f}}}$ drawn there)",
            ylabel="density (log scale)", title=title)
     ax.legend()
+    return fig
+
+
+def choice_bands(results, policy: str, bands: Sequence[tuple[float, float]]) -> np.ndarray:
+    """The fraction of runs whose choice lies in each band ``(lo, hi)`` (inclusive) at every step, ``(T, B)``.
+
+    Every grid value must lie in exactly one band.
+    """
+    grid = np.asarray(results.grid, dtype=float)
+    member = np.array([[lo <= g <= hi for g in grid] for lo, hi in bands])        # (B, G)
+    if not (member.sum(axis=0) == 1).all():
+        bad = grid[member.sum(axis=0) != 1]
+        raise ValueError(f"every grid value must lie in exactly one band; not so for {bad.tolist()}")
+    return results[policy].choices @ member.T.astype(float)
+
+
+def _band_label(name: str, lo: float, hi: float, top: float) -> str:
+    from adaptfilt.style import param_label
+
+    sym = param_label(name)
+    if lo == hi:
+        return f"{sym} = {lo:g}"
+    return f"{sym} ≥ {lo:g}" if hi >= top else f"{lo:g} ≤ {sym} ≤ {hi:g}"
+
+
+def plot_choice_bands(results, policy: str, bands: Sequence[tuple[float, float]], ax=None, title: str | None = None):
+    """What ``policy`` chooses over time, the grid grouped into a few ``bands`` ``(lo, hi)`` (inclusive):
+    stacked fractions of runs per band (:func:`choice_bands`), in an ordered colour scale (a stack of
+    a dozen grid values in a dozen colours cannot be read), the legend beside the axes in stack order."""
+    import matplotlib
+
+    from adaptfilt.style import figure, param_label
+
+    shares = choice_bands(results, policy, bands)
+    fig, ax = figure() if ax is None else (ax.figure, ax)
+    k = np.arange(1, shares.shape[0] + 1)
+    name = results.config.get("param_name", "kappa")
+    top = float(np.max(results.grid))
+    colors = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.95, len(bands)))
+    ax.stackplot(k, shares.T, colors=colors, labels=[_band_label(name, lo, hi, top) for lo, hi in bands], lw=0)
+    ax.set(xlim=(k[0], k[-1]), ylim=(0, 1), xlabel="time step k", ylabel="fraction of runs",
+           title=title or f"{policy}: the {param_label(name)} chosen at every step, in {len(bands)} bands")
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), reverse=True)
     return fig

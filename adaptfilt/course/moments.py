@@ -3,7 +3,8 @@ covariance against ``kappa`` (:func:`unscented_moments`, :func:`unscented_pzz`, 
 widget :func:`show_unscented`), reference moments by Gauss-Hermite quadrature
 (:func:`gauss_hermite_moments`) and the rules' errors against them (:func:`rule_errors`), the
 stochastic rule's draws (:func:`plot_sif_draws`, widget :func:`show_sif_draws`), ANEES and per-run
-RMSE figures and line-of-sight errors (:func:`line_of_sight_errors`).
+RMSE figures and line-of-sight errors (:func:`line_of_sight_errors`), and the checks of the
+chapter's implement-it-yourself exercises (:func:`check_unscented`, :func:`check_update`).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from adaptfilt.course.common import Score, _ax, _plt, chi2_median
 __all__ = ["ungm_h", "bearing", "unscented_moments", "unscented_pzz", "plot_pzz_vs_kappa", "plot_unscented",
            "show_unscented", "gauss_hermite_moments", "RuleErrors", "rule_errors", "plot_rule_errors",
            "plot_sif_draws", "show_sif_draws", "plot_anees_k", "plot_per_run_rmse",
-           "line_of_sight_errors", "plot_line_of_sight_errors"]
+           "line_of_sight_errors", "plot_line_of_sight_errors", "check_unscented", "check_update"]
 
 
 # ======================================================================== chapter 2
@@ -282,3 +283,129 @@ def plot_line_of_sight_errors(radial: np.ndarray, cross: np.ndarray, ax=None, un
            title="CTM, UKF: the error lies along the line of sight")
     ax.legend()
     return fig
+
+
+# ============================================================ implement it yourself (chapter 2)
+def _pointwise(f: Callable) -> Callable:
+    """A function of one point ``(n,) -> (nf,)`` in the rules' run-last layout ``(n, S, M) -> (nf, S, M)``."""
+    def g(X):
+        out = np.array([[np.atleast_1d(np.asarray(f(X[:, s, r]), dtype=float)) for r in range(X.shape[2])]
+                        for s in range(X.shape[1])])                                   # (S, M, nf)
+        return np.moveaxis(out, -1, 0)
+    return g
+
+
+def _unscented_cases() -> list[tuple[str, Callable, np.ndarray, np.ndarray, float]]:
+    """``(name, f, m, P, kappa)``: the settings :func:`check_unscented` tries, ``f`` a function of one point."""
+    sq = lambda x: np.array([x[0] ** 2 / 20])                                        # noqa: E731
+    bear_range = lambda x: np.array([np.arctan2(x[1], x[0]), np.hypot(x[0], x[1])])  # noqa: E731
+    ctm_bearing = lambda x: np.array([np.arctan2(x[2], x[0])])                       # noqa: E731
+    P2, P4 = np.array([[25.0, 5.0], [5.0, 16.0]]), np.diag([1000.0, 100.0, 1000.0, 100.0])
+    return [("x^2/20, n = 1, kappa = 2", sq, np.array([5.0]), np.array([[4.0]]), 2.0),
+            ("x^2/20, n = 1, kappa = 0.5", sq, np.array([1.0]), np.array([[12.0]]), 0.5),
+            ("bearing and range, n = 2, kappa = 1", bear_range, np.array([20.0, 5.0]), P2, 1.0),
+            ("bearing and range, n = 2, kappa = 10", bear_range, np.array([20.0, 5.0]), P2, 10.0),
+            ("CTM bearing, n = 4, kappa = -0.5 (negative centre weight)", ctm_bearing,
+             np.array([80.0, 0.0, 0.0, 20.0]), P4, -0.5)]
+
+
+def _differs(mine, ref, rtol: float = 1e-8) -> bool:
+    mine = np.asarray(mine, dtype=float)
+    return mine.shape != ref.shape or not np.allclose(mine, ref, rtol=rtol, atol=rtol * (1 + np.abs(ref).max()))
+
+
+def _call(fn, args) -> tuple[tuple | None, str | None]:
+    """``fn(*args)`` as a pair of arrays, or the reason it is not one."""
+    try:
+        out = fn(*args)
+    except Exception as e:  # the reader's code: say what went wrong instead of a traceback
+        return None, f"raised {type(e).__name__}: {e}"
+    if out is None:
+        return None, "returned None (fill in the function and return the two arrays)"
+    if not isinstance(out, (tuple, list)) or len(out) != 2:
+        return None, f"returned {type(out).__name__}, not a pair of arrays"
+    return out, None
+
+
+def check_unscented(my_unscented: Callable) -> None:
+    r"""Check a reader's unscented transform ``my_unscented(f, m, P, kappa) -> (mean, cov)``
+    against the library's :class:`~adaptfilt.rules.UnscentedRule` (and, for UNGM's
+    :math:`x^2/20`, against the closed form of chapter 2) on five settings, from one to four
+    dimensions, with a negative centre weight among them.
+
+    ``f`` maps one point ``(n,)`` to ``(nf,)`` values; ``mean`` is ``(nf,)`` and ``cov``
+    ``(nf, nf)``. Prints ``correct`` or, for each setting, what differs.
+    """
+    from adaptfilt.rules import UnscentedRule
+
+    problems = []
+    for name, f, m, P, kappa in _unscented_cases():
+        ref = UnscentedRule().moments(_pointwise(f), m[:, None], P[:, :, None], kappa, cross=False)
+        mean, cov = ref.mean[:, 0], ref.cov[:, :, 0]
+        out, why = _call(my_unscented, (f, m.copy(), P.copy(), kappa))
+        if why:
+            problems.append(f"{name}: your function {why}")
+            continue
+        for what, mine, lib in (("mean", np.atleast_1d(out[0]), mean), ("covariance", np.atleast_2d(out[1]), cov)):
+            if _differs(mine, lib):
+                problems.append(f"{name}: the {what} differs: yours {np.round(np.asarray(mine, dtype=float), 6).tolist()}, "
+                                f"the library's {np.round(lib, 6).tolist()}")
+    if problems:
+        print("not yet:\n  " + "\n  ".join(problems))
+        print("hints: the points are m and m +- sqrt(n + kappa) L[:, j] with L = np.linalg.cholesky(P); the centre "
+              "weighs kappa / (n + kappa), every other point 1 / (2 (n + kappa)); the covariance sums "
+              "w_i (f(X_i) - mean)(f(X_i) - mean)^T over all 2n + 1 points, the centre included")
+        return
+    m, P, kappa = 5.0, 4.0, 2.0                                    # the closed form of chapter 2, once more
+    closed = (m ** 2 + P) / 20, (4 * m ** 2 * P + kappa * P ** 2) / 400
+    mine = _call(my_unscented, (_unscented_cases()[0][1], np.array([m]), np.array([[P]]), kappa))[0]
+    ok = not _differs(np.ravel(mine[0]), np.array([closed[0]])) and not _differs(np.ravel(mine[1]), np.array([closed[1]]))
+    print(f"correct: your unscented transform agrees with adaptfilt's UnscentedRule in all {len(_unscented_cases())} "
+          f"settings" + (" and with the closed form for x^2/20" if ok else ""))
+
+
+def _update_cases() -> list[tuple[str, object]]:
+    """``(name, Update)``: updates of the library's filters (public layout, one row per case)."""
+    from adaptfilt.gaf import UKF
+    from adaptfilt.models import coordinated_turn, linear_gaussian, ungm as ungm_model
+
+    ungm = UKF(ungm_model())
+    ungm_u = ungm.update(np.array([[5.0], [-3.0], [0.5]]), np.array([[[4.0]], [[12.0]], [[1.0]]]),
+                         np.array([[1.6], [0.2], [0.05]]), t=1)
+    ctm = coordinated_turn()
+    x_pred = np.array([[80.0, 0.0, 0.0, 20.0], [60.0, -5.0, 40.0, 15.0]])
+    ctm_u = UKF(ctm).update(x_pred, np.repeat(ctm.P0[None], 2, axis=0), np.array([[0.3], [0.5]]), t=0)
+    lin = linear_gaussian(F=np.eye(3), H=[[1.0, 0.0, 0.0], [0.5, 1.0, 0.2]], Q=np.eye(3),
+                                    R=[[0.5, 0.1], [0.1, 0.3]], m0=np.zeros(3), P0=np.eye(3))
+    A = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 3.0]])
+    lin_u = UKF(lin).update(np.array([[1.0, -2.0, 0.5]]), A[None], np.array([[1.5, -1.0]]), t=0)
+    return [("UNGM, UKF, n_x = 1", ungm_u), ("CTM, UKF, n_x = 4, one bearing", ctm_u),
+            ("linear model, n_x = 3, two measurements", lin_u)]
+
+
+def check_update(my_update: Callable) -> None:
+    r"""Check a reader's Gaussian-assumed update
+    ``my_update(x_pred, P_pred, z, z_pred, Pzz, Pxz) -> (x_filt, P_filt)`` (one run: ``(n_x,)``,
+    ``(n_x, n_x)``, ``(n_z,)``, ``(n_z,)``, ``(n_z, n_z)``, ``(n_x, n_z)``) against the updates of
+    ``adaptfilt.gaf`` (:meth:`~adaptfilt.gaf.GaussianAssumedFilter.update`: UNGM's and the CTM's UKF
+    and a linear model with two measurements). Prints ``correct`` or what differs.
+    """
+    problems, n = [], 0
+    for name, u in _update_cases():
+        for r in range(u.x_pred.shape[0]):
+            n += 1
+            args = tuple(a[r].copy() for a in (u.x_pred, u.P_pred, u.innovation + u.z_pred, u.z_pred, u.Pzz, u.Pxz))
+            out, why = _call(my_update, args)
+            if why:
+                problems.append(f"{name} (case {r}): your function {why}")
+                continue
+            for what, mine, lib in (("x_filt", out[0], u.x_filt[r]), ("P_filt", out[1], u.P_filt[r])):
+                if _differs(mine, lib):
+                    problems.append(f"{name} (case {r}): {what} differs: yours {np.round(np.asarray(mine, dtype=float), 6).tolist()}, "
+                                    f"the library's {np.round(lib, 6).tolist()}")
+    if problems:
+        print("not yet:\n  " + "\n  ".join(problems))
+        print("hints: the gain K = Pxz Pzz^-1 has shape (n_x, n_z) (a matrix inverse, not a division, when n_z > 1); "
+              "the mean moves by K times the innovation z - z_pred; the covariance loses K Pzz K^T")
+        return
+    print(f"correct: your update agrees with adaptfilt's (gaf.GaussianAssumedFilter.update) in all {n} cases")
