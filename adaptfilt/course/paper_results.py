@@ -633,6 +633,7 @@ def plot_tradeoff_panels(res, names: Sequence[str], zoom: Sequence[str], floor: 
     plot_tradeoff(res, list(names), ax=ax, floor=floor, annotate=False, unit=unit)
     plot_tradeoff(res, list(zoom), ax=axz, annotate=False, unit=unit, logx=False, logy=False)
     handles, labels = ax.get_legend_handles_labels()
+    labels = [t.replace(" nx ", " $n_x$ ") for t in labels]  # "ideal ANEES = nx = 1"
     for a in (ax, axz):
         a.get_legend().remove()
     seeds = lambda n, m: list(getattr(res[n], "seed_points", {}).get(m, []))
