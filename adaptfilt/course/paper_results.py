@@ -1,5 +1,5 @@
-r"""Analyses behind the experiment chapters of the course (6: UKF on UNGM, 7: UKF on CTM,
-8: SIF on CTM): what a stored evaluation says at the seed level, and what the rule-based
+r"""Analyses behind the experiment chapters of the course (8: UKF on UNGM, 9: UKF on CTM,
+10: SIF on CTM): what a stored evaluation says at the seed level, and what the rule-based
 and learned policies choose, and why.
 
 ==============================  ================================================================
