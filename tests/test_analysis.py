@@ -229,6 +229,110 @@ def test_fixed_conventions_and_cost_time_figures(ungm_res):
         analysis.plot_fixed_conventions(none, refs=())
 
 
+def test_fixed_conventions_zoom_separates_the_reference_lines(ungm_res):
+    refs = ("ml", "greedy", "adaptive", "myopic")
+    fig = analysis.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000))
+    full, zoom = fig.axes
+    assert zoom.get_xlim()[0] == pytest.approx(100 / 1.3) and zoom.get_yscale() == "linear"
+    lo, hi = zoom.get_ylim()
+    iqm = {r: aggregate(ungm_res, claims.members(ungm_res, r), "rmse").iqm for r in refs}
+    assert lo < min(iqm.values()) and max(iqm.values()) < hi < 3.5  # the bands in view, not the whole grid
+    styles = {ln.get_label(): ln.get_linestyle() for ln in zoom.lines if ln.get_label().split(":")[0] in
+              ("ml", "greedy", "adaptive (IQM over seeds)", "myopic (IQM over seeds)")}
+    assert len(styles) == 4 and len(set(styles.values())) == 4  # coinciding lines stay visible
+    assert {t.get_text() for t in zoom.texts} == {"ml", "greedy", "adaptive", "myopic"}  # direct labels
+    assert any(t.get_text().startswith("greedy: 2.82 [") for t in fig.legends[0].get_texts())
+    with pytest.raises(ValueError, match="no ax"):
+        analysis.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000), ax=full)
+
+
+def _boxes(ax):
+    ax.figure.canvas.draw()
+    r = ax.figure.canvas.get_renderer()
+    from matplotlib.text import Text
+
+    return [Text.get_window_extent(t, r) for t in ax.texts]  # the text alone, not its leader line
+
+
+def test_place_labels_keeps_labels_apart_and_inside():
+    fig, ax = plt.subplots(figsize=(4, 3))
+    pts = {f"policy {i}": (1.0 + 0.01 * i, 2.0) for i in range(6)}  # six points on top of each other
+    ax.plot(*zip(*pts.values()), "o")
+    ax.set(xlim=(0, 3), ylim=(0, 4))
+    anns = analysis.place_labels(ax, pts)
+    assert set(anns) == set(pts)
+    boxes = _boxes(ax)
+    a = ax.get_window_extent()
+    for i, b in enumerate(boxes):
+        assert a.x0 - 1 <= b.x0 and b.x1 <= a.x1 + 1 and a.y0 - 1 <= b.y0 and b.y1 <= a.y1 + 1
+        assert not any(b.overlaps(o) for o in boxes[i + 1:])
+
+
+def test_tradeoff_panels_zoom_on_the_named_policies_and_label_without_overlap(ungm_res):
+    from adaptfilt.seed_stats import collapse_seeds
+
+    col = collapse_seeds(ungm_res)
+    names = report.figure_policies(col)
+    zoom = ["ml", "greedy", "adaptive", "myopic", "fixed-kappa=200"]
+    fig = analysis.plot_tradeoff_panels(col, names, zoom)
+    left, right = fig.axes
+    (x0, x1), (y0, y1) = right.get_xlim(), right.get_ylim()
+    for n in zoom:
+        assert x0 < col[n].rmse_ci[0] and col[n].rmse_ci[1] < x1 and y0 < col[n].anees_ci[0] < col[n].anees_ci[1] < y1
+    assert {t.get_text() for t in right.texts} == {"ml", "greedy", "adaptive", "myopic", "κ = 200"}
+    outside = {t.get_text() for t in left.texts}
+    assert "κ = 0" in outside and "greedy" not in outside  # the left panel labels what the zoom does not show
+    for ax in (left, right):
+        b = _boxes(ax)
+        assert not any(p.overlaps(q) for i, p in enumerate(b) for q in b[i + 1:])
+    assert ax.get_legend() is None and len(fig.legends) == 1  # the legend sits below the panels
+
+
+def test_rmse_steps_tell_the_fixed_conventions_apart_and_draw_a_floor_per_step(ungm_res):
+    from adaptfilt.seed_stats import collapse_seeds
+
+    col = collapse_seeds(ungm_res)
+    floor = np.linspace(0.5, 1.0, 500)
+    fig = analysis.plot_rmse_steps(col, ["fixed-kappa=200", "fixed-both-kappa=500", "greedy", "adaptive"], floor_t=floor)
+    lines = {ln.get_label(): ln for ln in fig.axes[0].lines}
+    assert lines["κ = 200"].get_color() != lines["both-κ = 500"].get_color()
+    assert lines["greedy"].get_color() == af.plots.policy_style(ungm_res, "greedy")["color"]
+    np.testing.assert_allclose(lines["Bayes floor"].get_ydata(), floor)
+    np.testing.assert_allclose(lines["adaptive"].get_ydata(),
+                               np.mean([ungm_res[f"adaptive-s{i}"].rmse_t for i in range(8)], axis=0))
+
+
+def test_ungm_floor_steps_is_the_point_mass_filter_on_the_evaluation_runs():
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.exact import PointMassFilter
+
+    f = analysis.ungm_floor_steps(n_runs=3, n_steps=20, eval_runs=5, chunk=2)
+    env = get_experiment("ungm-ukf").make_env(n_steps=20)
+    traj = env.model.simulate(5, 20, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
+    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901)).run(traj.z[:3])
+    np.testing.assert_allclose(f, np.sqrt(((traj.x[:3] - pmf.mean) ** 2).sum(-1).mean(axis=0)))
+
+
+def test_position_and_velocity_are_split_and_seed_groups_summarised():
+    exp = get_experiment("ctm-ukf")
+    env = exp.make_env(n_steps=15)
+    traj = exp.make_model().simulate(n_runs=40, n_steps=16, rng=np.random.default_rng(1))
+    pols = [FixedPolicy(0, "kappa", grid=env.grid), FixedPolicy(50, "kappa", grid=env.grid)]
+    pols[1].name = "group-s0"
+    pv = analysis.position_velocity_rmse(env, pols, traj)
+    run = af.UKF(exp.make_model()).run(traj.z[:, :15])
+    e = traj.x[:, :15] - run.mean
+    r = lambda i: np.sqrt((e[..., i] ** 2).sum(-1).mean(axis=0)).mean()
+    assert pv["fixed-kappa=0"]["position"] == pytest.approx(r([0, 2]))
+    assert pv["fixed-kappa=0"]["velocity"] == pytest.approx(r([1, 3]))
+    p = pv["fixed-kappa=0"]  # Minkowski: sqrt(pos^2 + vel^2) <= full <= pos + vel
+    assert np.hypot(p["position"], p["velocity"]) - 1e-9 <= p["full"] <= p["position"] + p["velocity"]
+    md = analysis.position_velocity_md(pv, ["fixed-kappa=0", "group"])
+    assert "| group |" in md and "position (m)" in md
+    with pytest.raises(KeyError, match="no policy"):
+        analysis.position_velocity_md(pv, ["nothing"])
+
+
 def test_plain_log_labels_plain_numbers():
     fig, ax = plt.subplots()
     ax.plot([1, 30], [2, 40])
@@ -267,8 +371,12 @@ def test_line_of_sight_of_a_consistent_filter_is_chi_square():
     np.testing.assert_allclose(los.sd_range ** 2, np.einsum("...i,...ij,...j->...", u, cov[..., [0, 2], :][..., [0, 2]], u))
     for e, sd in ((los.err_range, los.sd_range), (los.err_cross, los.sd_cross)):
         assert np.median((e / sd) ** 2) == pytest.approx(stats.chi2.median(1), abs=0.04)
-    line = analysis.line_of_sight_table(x, {"consistent": run}).splitlines()[1]
+    head, cols, line = analysis.line_of_sight_table(x, {"consistent": run}).splitlines()
+    assert "0.455 (chi2_1)" in head and "3.36 (chi2_4)" in head and "pos RMSE" in cols
     assert float(line.rsplit("|", 1)[1]) == pytest.approx(stats.chi2.median(4), abs=0.15)
+    e = x - mean
+    pos_rmse = np.sqrt((e[..., [0, 2]] ** 2).sum(-1).mean(axis=0)).mean()
+    assert float(line.split("|")[0].split()[2]) == pytest.approx(pos_rmse, abs=0.06)
     assert analysis.plot_line_of_sight(x, {"consistent": run}).axes[0].get_ylabel() == "position error (m)"
 
 

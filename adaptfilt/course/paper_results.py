@@ -1,5 +1,5 @@
-r"""Analyses behind the experiment chapters of the course (6: UKF on UNGM, 7: UKF on CTM,
-8: SIF on CTM): what a stored evaluation says at the seed level, and what the rule-based
+r"""Analyses behind the experiment chapters of the course (8: UKF on UNGM, 9: UKF on CTM,
+10: SIF on CTM): what a stored evaluation says at the seed level, and what the rule-based
 and learned policies choose, and why.
 
 ==============================  ================================================================
@@ -22,6 +22,14 @@ line_of_sight_table,            across the line of sight from the sensor (range 
 plot_line_of_sight              bearing sensor cannot see), per filter
 sif_spread                      the SIF's integration noise: spread of estimates on identical data
 table1_before_after_md          Table I now beside an earlier release's (``course.earlier_numbers``)
+place_labels                    point labels that overlap neither each other nor the markers
+plot_tradeoff_panels            Figures 3 and 6: every policy, and a zoom on the ones a chapter
+                                discusses, labelled without overlaps
+plot_rmse_steps,                RMSE_k in colours that can be told apart, with the Bayes floor
+ungm_floor_steps                per step (the point-mass filter on the evaluation's first runs)
+position_velocity_rmse,         CTM: the error of the position (m) and of the velocity (m/s)
+position_velocity_md,           apart, per policy (the full-state RMSE mixes the two)
+plot_position_velocity
 ==============================  ================================================================
 
 Seed groups are policies named ``<group>-s<seed>``
@@ -42,7 +50,9 @@ from adaptfilt.seed_stats import aggregate
 __all__ = ["seed_table_md", "differences_md", "usage_shares", "usage_md", "plain_log", "plot_fixed_conventions",
            "ungm_nis", "GateAnatomy", "gate_anatomy", "gate_table", "plot_gate", "plot_cost_time", "ReachAnatomy",
            "reach_anatomy", "reach_table", "LineOfSight",
-           "line_of_sight", "line_of_sight_table", "plot_line_of_sight", "sif_spread", "table1_before_after_md"]
+           "line_of_sight", "line_of_sight_table", "plot_line_of_sight", "sif_spread", "table1_before_after_md",
+           "place_labels", "plot_tradeoff_panels", "plot_rmse_steps", "ungm_floor_steps", "position_velocity_rmse",
+           "position_velocity_md", "plot_position_velocity"]
 
 
 def _md(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -132,46 +142,89 @@ def plain_log(ax, axis: str = "y") -> None:
         a.set_minor_formatter(NullFormatter())
 
 
-def _reference_band(ax, res, name: str, metric: str, color, label: str) -> None:
+def _reference_band(ax, res, name: str, metric: str, color, label: str, ls: str = "-") -> None:
     a = aggregate(res, members(res, name), metric)
-    ax.axhline(a.iqm, color=color, lw=1.4, label=label)
+    ax.axhline(a.iqm, color=color, lw=1.4, ls=ls, label=label)
     ax.axhspan(*a.iqm_ci, color=color, alpha=0.15, lw=0)
 
 
 def plot_fixed_conventions(res, metric: str = "rmse", refs: Sequence[str] = ("ml", "greedy", "adaptive"),
-                           ax=None, unit: str | None = None, floor: float | None = None):
+                           ax=None, unit: str | None = None, floor: float | None = None,
+                           zoom: tuple[float, float] | None = None):
     r"""A metric (95 % CIs) against a *fixed* :math:`\kappa` in the two conventions, the update
     only (``fixed-kappa=v``) and predict and update (``fixed-both-kappa=v``), on a symlog axis;
     the policies ``refs`` as horizontal lines with their interval as a band (a seed group: its
-    IQM and two-level interval). Returns the figure."""
+    IQM and two-level interval), each in its own line style so that coinciding lines stay visible.
+
+    ``zoom = (lo, hi)`` (only without ``ax``) adds a right panel on :math:`\kappa \in [lo, hi]` with a
+    linear axis from the lowest value there to twice the bands' height, where reference lines a few hundredths
+    apart can be told apart; the legend then gives each reference's value and interval. The legend
+    sits below the axes. Returns the figure."""
     from adaptfilt import style
     from adaptfilt.plots import policy_style
 
     fixed = [float(n.split("=")[1]) for n in res.names if n.startswith(("fixed-kappa=", "fixed-both-kappa="))]
     if not fixed:
         raise ValueError("these results have no fixed-kappa policies")
-    fig, ax = style.figure() if ax is None else (ax.figure, ax)
-    for prefix, label, ls in (("fixed-kappa=", "fixed κ, update only", "-"),
-                              ("fixed-both-kappa=", "fixed κ, predict and update", "--")):
-        names = sorted((n for n in res.names if n.startswith(prefix)), key=lambda n: float(n.split("=")[1]))
-        if not names:
-            continue
-        v = np.array([float(n.split("=")[1]) for n in names])
-        y = np.array([getattr(res[n], metric) for n in names])
-        ci = np.array([getattr(res[n], metric + "_ci") for n in names])
-        ax.errorbar(v, y, yerr=[y - ci[:, 0], ci[:, 1] - y], fmt="o" + ls, color="0.35" if ls == "-" else "0.6",
-                    ms=3.5, lw=1.2, capsize=2, label=label)
-    for r in refs:
-        _reference_band(ax, res, r, metric, policy_style(res, members(res, r)[0])["color"],
-                        style.policy_label(r) + (" (IQM over seeds)" if len(members(res, r)) > 1 else ""))
-    if floor is not None:
-        ax.axhline(floor, color="0.2", ls=":", lw=1.2, label=f"Bayes floor {floor:.3g}")
-    ax.set_xscale("symlog", linthresh=1)
-    ax.set_xlim(left=-0.3 if min(fixed) >= 0 else None)  # no empty negative decades
-    plain_log(ax)
+    if zoom is not None and ax is not None:
+        raise ValueError("zoom draws its own two panels: pass no ax")
+    if zoom is None:
+        fig, ax = style.figure() if ax is None else (ax.figure, ax)
+        axes = [ax]
+    else:
+        fig, axes = style.figure(1, 2, size=(13, 5.4))
     what = {"rmse": "time-averaged RMSE", "anees": "time-averaged ANEES", "cost": "mean one-step cost"}.get(metric, metric)
-    ax.set(xlabel=f"fixed {style.param_label('kappa')}", ylabel=what + (f" ({unit})" if unit else ""))
-    ax.legend(ncol=3, fontsize=8.5, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below: the curves fill the axes
+    styles = ("-", "--", "-.", ":")
+    for j, a in enumerate(axes):
+        ys, refs_hi = [], []
+        for prefix, label, ls in (("fixed-kappa=", "fixed κ, update only", "-"),
+                                  ("fixed-both-kappa=", "fixed κ, predict and update", "--")):
+            names = sorted((n for n in res.names if n.startswith(prefix)), key=lambda n: float(n.split("=")[1]))
+            if not names:
+                continue
+            v = np.array([float(n.split("=")[1]) for n in names])
+            y = np.array([getattr(res[n], metric) for n in names])
+            ci = np.array([getattr(res[n], metric + "_ci") for n in names])
+            a.errorbar(v, y, yerr=[y - ci[:, 0], ci[:, 1] - y], fmt="o" + ls, color="0.35" if ls == "-" else "0.6",
+                       ms=3.5, lw=1.2, capsize=2, label=label)
+            if zoom is not None:
+                ys.extend(ci[(v >= zoom[0]) & (v <= zoom[1])].ravel())
+        for i, r in enumerate(refs):
+            agg = aggregate(res, members(res, r), metric)
+            label = style.policy_label(r) + (" (IQM over seeds)" if len(members(res, r)) > 1 else "")
+            if zoom is not None:
+                label += f": {agg.iqm:.3g} [{agg.iqm_ci[0]:.3g}, {agg.iqm_ci[1]:.3g}]"
+            _reference_band(a, res, r, metric, policy_style(res, members(res, r)[0])["color"], label,
+                            ls=styles[i % len(styles)])
+            ys.extend(agg.iqm_ci)
+            refs_hi.append(agg.iqm_ci[1])
+        if floor is not None:
+            a.axhline(floor, color="0.2", ls=":", lw=1.2, label=f"Bayes floor {floor:.3g}")
+        a.set_xscale("symlog", linthresh=1)
+        a.set(xlabel=f"fixed {style.param_label('kappa')}", ylabel=what + (f" ({unit})" if unit else ""))
+        if j == 0:
+            a.set_xlim(left=-0.3 if min(fixed) >= 0 else None)  # no empty negative decades
+            plain_log(a)
+        else:
+            # the bands fill the lower half; fixed values far above them leave the panel at the top
+            lo = min(ys)
+            hi = max(refs_hi) + (max(refs_hi) - lo) if refs_hi else max(ys)
+            a.set(xlim=(zoom[0] / 1.3, zoom[1] * 1.3), ylim=(lo - 0.08 * (hi - lo), hi),
+                  title=f"zoom: {style.param_label('kappa')} from {zoom[0]:g} to {zoom[1]:g}")
+            # direct labels at the right end; lines that coincide get their labels stacked
+            last, off = None, 0.0
+            for r in sorted(refs, key=lambda r: aggregate(res, members(res, r), metric).iqm):
+                y = aggregate(res, members(res, r), metric).iqm
+                off = off + 9.0 if last is not None and abs(y - last) < 0.03 * (hi - lo) else 0.0
+                a.annotate(style.policy_label(r), (zoom[1] * 1.25, y), xytext=(0, 2 + off), textcoords="offset points",
+                           ha="right", va="bottom", fontsize=8.5,
+                           color=policy_style(res, members(res, r)[0])["color"]).set_in_layout(False)
+                last = y
+    if zoom is None:
+        ax.legend(ncol=3, fontsize=8.5, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below: the curves fill the axes
+    else:
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=8.5)
     return fig
 
 
@@ -408,23 +461,29 @@ def line_of_sight(x: np.ndarray, run, pos: Sequence[int] = (0, 2)) -> LineOfSigh
 
 
 def line_of_sight_table(x: np.ndarray, runs: dict, pos: Sequence[int] = (0, 2)) -> str:
-    """One printed line per filter of ``runs`` (``{name: FilterRun}``): time-averaged RMSE, RMS error
+    """One printed line per filter of ``runs`` (``{name: FilterRun}``): time-averaged RMSE of the full
+    state and of the position (``pos``) alone, RMS error
     and RMS claimed standard deviation in range and cross-range, the median normalised squared
     error in each direction (0.455 for a consistent filter) and the median NEES
-    (the chi-square median for ``nx`` degrees of freedom)."""
+    (the chi-square median for ``nx`` degrees of freedom). The chi-square medians of the header are the
+    yardstick for a Gaussian posterior; where the exact posterior is not Gaussian, even its own mean
+    and covariance give normalised errors of mean 1 (per direction) whose median differs from 0.455."""
     from scipy import stats
 
     nx = np.asarray(x).shape[-1]
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))
     w = max(len(n) for n in runs)
-    lines = [f"{'filter':<{w}}   RMSE | range: error  claimed sd  median (e/sd)^2 | cross: error  claimed sd  "
-             f"median (e/sd)^2 | median NEES (consistent: {stats.chi2.median(nx):.2f})"]
+    lines = [f"Gaussian and consistent: median (e/sd)^2 = {stats.chi2.median(1):.3f} (chi2_1), "
+             f"median NEES = {stats.chi2.median(nx):.2f} (chi2_{nx})",
+             f"{'filter':<{w}}   RMSE   pos RMSE | range: error  claimed sd  median (e/sd)^2 | cross: error  claimed sd  "
+             f"median (e/sd)^2 | median NEES"]
     for n, run in runs.items():
         los = line_of_sight(x, run, pos)
         e = np.asarray(x) - run.mean
         nees = np.einsum("...i,...i->...", e, np.linalg.solve(run.cov, e[..., None])[..., 0])
         rmse = float(np.sqrt((e ** 2).sum(-1).mean(axis=0)).mean())
-        lines.append(f"{n:<{w}}  {rmse:5.1f} | {rms(los.err_range):12.1f}  {rms(los.sd_range):10.1f}  "
+        prmse = float(np.sqrt((e[..., list(pos)] ** 2).sum(-1).mean(axis=0)).mean())
+        lines.append(f"{n:<{w}}  {rmse:5.1f}  {prmse:9.1f} | {rms(los.err_range):12.1f}  {rms(los.sd_range):10.1f}  "
                      f"{np.median((los.err_range / los.sd_range) ** 2):15.2f} | {rms(los.err_cross):12.1f}  "
                      f"{rms(los.sd_cross):10.1f}  {np.median((los.err_cross / los.sd_cross) ** 2):15.2f} | "
                      f"{np.median(nees):.2f}")
@@ -490,3 +549,225 @@ def table1_before_after_md(t1: dict, before: dict, metrics: Sequence[str] = ("rm
     if not rows:
         raise ValueError("no experiment of Table I is in the earlier release given")
     return _md(["cost", "policy"] + [f"{names.get(m, m)}: before → now" for m in metrics], rows)
+
+
+# ------------------------------------------------------------------ labels that keep clear of each other
+def place_labels(ax, points: dict, colors: dict | None = None, fontsize: float = 8, avoid=(), segments=(),
+                 max_dist: float = 42.0) -> dict:
+    """Label data points of ``ax`` with texts that overlap neither each other nor the markers.
+
+    ``points``: ``{label: (x, y)}`` in data coordinates, in priority order (the first label gets the
+    best place). ``avoid``: more ``(x, y)`` data points to keep clear of (unlabelled markers);
+    ``segments``: ``((x0, y0), (x1, y1))`` axis-parallel data segments to keep clear of (error bars).
+    Each label tries offsets in 16 directions at growing distances (up to ``max_dist`` points) and
+    takes the one with the least overlap (measured on the rendered text) with the markers, the
+    labels already placed and the outside of the axes; a label set away from its point gets a thin
+    leader line. Call it after the axes limits are final. Returns ``{label: Annotation}``."""
+    fig = ax.figure
+    fig.canvas.draw()  # settle the layout, so that the data-to-display transform is the final one
+    r = fig.canvas.get_renderer()
+    pt = fig.dpi / 72.0
+    disp = lambda xy: ax.transData.transform(np.asarray(xy, dtype=float))
+    a = ax.get_window_extent(r)
+    taken = [(x - 5 * pt, y - 5 * pt, x + 5 * pt, y + 5 * pt)
+             for x, y in (disp(xy) for xy in [*points.values(), *avoid])]
+    for p0, p1 in segments:
+        (u0, v0), (u1, v1) = disp(p0), disp(p1)
+        taken.append((min(u0, u1) - 2 * pt, min(v0, v1) - 2 * pt, max(u0, u1) + 2 * pt, max(v0, v1) + 2 * pt))
+
+    def cost(b):
+        inter = sum(max(0.0, min(b[2], o[2]) - max(b[0], o[0])) * max(0.0, min(b[3], o[3]) - max(b[1], o[1]))
+                    for o in taken)
+        inside = max(0.0, min(b[2], a.x1) - max(b[0], a.x0)) * max(0.0, min(b[3], a.y1) - max(b[1], a.y0))
+        return inter + 4.0 * ((b[2] - b[0]) * (b[3] - b[1]) - inside)
+
+    out = {}
+    for label, xy in points.items():
+        t = ax.text(0, 0, label, fontsize=fontsize)
+        bb = t.get_window_extent(r)
+        t.remove()
+        w, h = bb.width + 2 * pt, bb.height + 1 * pt
+        x0, y0 = disp(xy)
+        best = None
+        for d in np.arange(5.0, max_dist + 1e-9, 5.0):
+            for ang in np.deg2rad(np.arange(0, 360, 22.5)):
+                c, s = np.cos(ang), np.sin(ang)
+                cx, cy = x0 + d * pt * c + c * w / 2, y0 + d * pt * s + s * h / 2  # the box's near side at d
+                b = (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+                score = cost(b) + 0.4 * d * pt * h  # prefer near places among free ones
+                if best is None or score < best[0]:
+                    best = (score, b, cx, cy, d)
+        _, b, cx, cy, d = best
+        taken.append(b)
+        color = (colors or {}).get(label, "0.2")
+        ann = ax.annotate(label, xy, xytext=((cx - x0) / pt, (cy - y0) / pt), textcoords="offset points",
+                          ha="center", va="center", fontsize=fontsize, color=color, zorder=5,
+                          arrowprops=dict(arrowstyle="-", lw=0.5, color=color, shrinkA=0, shrinkB=3) if d > 12 else None)
+        ann.set_in_layout(False)
+        out[label] = ann
+    return out
+
+
+def _short(name: str) -> str:
+    from adaptfilt.style import policy_label
+
+    return policy_label(name[len("fixed-"):] if name.startswith("fixed-") else name)
+
+
+def plot_tradeoff_panels(res, names: Sequence[str], zoom: Sequence[str], floor: float | None = None,
+                         unit: str | None = None, label: Sequence[str] | None = None,
+                         size: tuple[float, float] = (13, 6.4)):
+    r"""Figures 3 and 6: time-averaged RMSE (across) against ANEES (up), every policy of ``names`` on
+    the left, and on the right a zoom on the policies ``zoom`` (chosen by the chapter: the ones it
+    discusses), whose box is drawn dashed on the left. Seed groups (``collapse_seeds``) show their
+    IQM with the two-level interval and one faint dot per seed; fixed values are joined in grid
+    order. Labels never overlap (:func:`place_labels`): on the left the points outside the zoom box,
+    on the right those of ``label`` (default: all of ``zoom``). The legend sits below the panels.
+    Returns the figure."""
+    from matplotlib.patches import Rectangle
+
+    from adaptfilt import style
+    from adaptfilt.plots import plot_tradeoff, policy_style
+
+    fig, (ax, axz) = style.figure(1, 2, size=size)
+    plot_tradeoff(res, list(names), ax=ax, floor=floor, annotate=False, unit=unit)
+    plot_tradeoff(res, list(zoom), ax=axz, annotate=False, unit=unit, logx=False, logy=False)
+    handles, labels = ax.get_legend_handles_labels()
+    labels = [t.replace(" nx ", " $n_x$ ") for t in labels]  # "ideal ANEES = nx = 1"
+    for a in (ax, axz):
+        a.get_legend().remove()
+    seeds = lambda n, m: list(getattr(res[n], "seed_points", {}).get(m, []))
+    xs = np.concatenate([res[n].rmse_ci for n in zoom])  # the intervals: a far seed dot may fall outside
+    ys = np.concatenate([res[n].anees_ci for n in zoom])
+    pad = lambda v: (v.min() - 0.06 * np.ptp(v), v.max() + 0.06 * np.ptp(v))
+    (x0, x1), (y0, y1) = pad(xs), pad(ys)
+    axz.set(xlim=(x0, x1), ylim=(y0, y1), title="zoom: the dashed box on the left", ylabel="")
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", lw=0.9, color="0.35", zorder=0))
+    ax.set_title("every policy")
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 5), fontsize=8.5)
+    color = lambda n: policy_style(res, n)["color"] if policy_style(res, n)["family"] != "fixed" else "0.25"
+    outside = [n for n in names if not (x0 <= res[n].rmse <= x1 and y0 <= res[n].anees <= y1)]
+    for a, sel, rest in ((axz, list(zoom if label is None else label), zoom), (ax, outside, names)):
+        order = sorted(sel, key=lambda n: n.startswith("fixed-"))  # adaptive policies place first
+        dots = [(u, v) for n in rest for u, v in zip(seeds(n, "rmse"), seeds(n, "anees"))]
+        bars = [s for n in rest for s in (((res[n].rmse_ci[0], res[n].anees), (res[n].rmse_ci[1], res[n].anees)),
+                                          ((res[n].rmse, res[n].anees_ci[0]), (res[n].rmse, res[n].anees_ci[1])))]
+        place_labels(a, {_short(n): (res[n].rmse, res[n].anees) for n in order},
+                     colors={_short(n): color(n) for n in order}, segments=bars,
+                     avoid=[(res[n].rmse, res[n].anees) for n in rest if n not in sel] + dots)
+    return fig
+
+
+def plot_rmse_steps(res, names: Sequence[str], floor_t: np.ndarray | None = None, floor_label: str = "Bayes floor",
+                    ax=None, unit: str | None = None):
+    """``RMSE_k`` of ``names`` (a seed group: the mean of its seeds' curves), the adaptive policies in
+    their colours of :mod:`adaptfilt.plots` and the fixed ones in colours that tell them apart (the
+    viridis map there gives a fixed value in the update and one in both steps neighbouring greens), with a per-step
+    reference ``floor_t`` (e.g. :func:`ungm_floor_steps`) dotted, on a log axis; the legend sits
+    right of the axes. Returns the figure."""
+    from adaptfilt import style
+
+    from adaptfilt.plots import policy_style
+
+    fig, ax = style.figure() if ax is None else (ax.figure, ax)
+    palette = iter(("#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442") * 4)  # none of the adaptive colours
+    for n in names:
+        y = np.mean([np.asarray(res[m].rmse_t, dtype=float) for m in members(res, n)], axis=0)
+        st = policy_style(res, members(res, n)[0])
+        c = next(palette) if st["family"] == "fixed" else st["color"]  # adaptive: the colours of every figure
+        ax.plot(np.arange(1, y.size + 1), y, color=c, lw=1.1, label=_short(n))
+    if floor_t is not None:
+        f = np.asarray(floor_t, dtype=float)
+        ax.plot(np.arange(1, f.size + 1), f, color="0.3", ls=":", lw=1.3, label=floor_label)
+    plain_log(ax)
+    ax.set(xlabel="time step $k$", ylabel="RMSE$_k$" + (f" ({unit})" if unit else ""),
+           xlim=(1, max(np.asarray(res[members(res, names[0])[0]].rmse_t).size, 2)))
+    ax.legend(fontsize=8.5, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    return fig
+
+
+def ungm_floor_steps(n_runs: int = 200, seed: int = 0, n_steps: int | None = None,
+                     eval_runs: int = 10_000, chunk: int = 100) -> np.ndarray:
+    """The Bayes floor per step on UNGM, ``RMSE_k (T,)`` of the point-mass filter (grid -45..45, 901
+    points, as :func:`adaptfilt.experiments.references.ungm_floor`) on the first ``n_runs``
+    trajectories of the UNGM evaluation with ``seed`` (the runs the stored floor and the policies
+    are scored on; ``data/`` stores only the floor's time average)."""
+    from adaptfilt import metrics
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.exact import PointMassFilter
+    from adaptfilt.experiment_registry import get_experiment
+
+    env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
+    traj = env.model.simulate(max(int(eval_runs), n_runs), env.n_steps,
+                              rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
+    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
+    x, z = traj.x[:n_runs], traj.z[:n_runs]
+    se = np.concatenate([metrics.squared_error(x[i:i + chunk], pmf.run(z[i:i + chunk]).mean)
+                         for i in range(0, n_runs, chunk)])
+    return np.sqrt(se.mean(axis=0))
+
+
+# ------------------------------------------------------------------ CTM: position and velocity apart
+def position_velocity_rmse(env, policies, traj, pos: Sequence[int] = (0, 2), vel: Sequence[int] = (1, 3)) -> dict:
+    """Roll every policy through ``env`` on ``traj`` and split its error: ``{name: {"full",
+    "position", "velocity"}}``, each a time-averaged RMSE (the full state mixes metres and metres per
+    second; position and velocity keep their units)."""
+    from adaptfilt.mdp import rollout
+
+    out = {}
+    for p in policies:
+        run, _ = rollout(env, p, traj=traj)
+        e = np.asarray(traj.x)[:, : run.mean.shape[1]] - run.mean
+        r = lambda idx: float(np.sqrt((e[..., list(idx)] ** 2).sum(-1).mean(axis=0)).mean())
+        out[p.name] = {"full": r(range(e.shape[-1])), "position": r(pos), "velocity": r(vel)}
+    return out
+
+
+def position_velocity_md(pv: dict, names: Sequence[str]) -> str:
+    """Table of :func:`position_velocity_rmse` for ``names``; a seed group (``<group>-s<i>``
+    members) as the median over its seeds with their range."""
+    rows = []
+    for n in names:
+        ms = [m for m in pv if m == n or (m.startswith(n + "-s") and m[len(n) + 2:].isdigit())]
+        if not ms:
+            raise KeyError(f"no policy {n!r} in these results")
+        cells = []
+        for k in ("full", "position", "velocity"):
+            v = np.array([pv[m][k] for m in ms])
+            cells.append(f"{np.median(v):.1f}" + (f" ({v.min():.1f}-{v.max():.1f})" if v.size > 1 else ""))
+        rows.append([n + (f" ({len(ms)} seeds: median, range)" if len(ms) > 1 else ""), *cells])
+    return _md(["policy", "RMSE full state", "position (m)", "velocity (m/s)"], rows)
+
+
+def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str, str] = ("m", "m/s"), ax=None,
+                           label: Sequence[str] | None = None):
+    """:func:`position_velocity_rmse` as a picture: position RMSE across, velocity RMSE up, one point
+    per policy of ``names`` in its colour of ``res`` (:func:`adaptfilt.plots.policy_style`); a seed
+    group as the median of its seeds (a star) with one faint dot per seed. Labels: ``label``
+    (default every name), placed without overlaps. Returns the figure."""
+    from adaptfilt import style
+    from adaptfilt.plots import policy_style
+
+    fig, ax = style.figure(size=(8, 5.2)) if ax is None else (ax.figure, ax)
+    pts, cols, dots = {}, {}, []
+    for n in names:
+        ms = [m for m in pv if m == n or (m.startswith(n + "-s") and m[len(n) + 2:].isdigit())]
+        st = policy_style(res, ms[0])
+        p, v = np.array([pv[m]["position"] for m in ms]), np.array([pv[m]["velocity"] for m in ms])
+        if len(ms) > 1:
+            ax.scatter(p, v, s=12, color=st["color"], alpha=0.45, lw=0, zorder=1)
+            dots += list(zip(p, v))
+        ax.plot(np.median(p), np.median(v), st["marker"], color=st["color"], ms=9 if st["family"] != "fixed" else 6,
+                mec="black" if st["family"] != "fixed" else st["color"], mew=0.6, zorder=3)
+        pts[n] = (float(np.median(p)), float(np.median(v)))
+        cols[_short(n)] = st["color"] if st["family"] != "fixed" else "0.25"
+    fixed = sorted((n for n in names if n.startswith("fixed-")), key=lambda n: float(n.split("=")[1]))
+    ax.plot([pts[n][0] for n in fixed], [pts[n][1] for n in fixed], color="0.6", lw=1, zorder=0)
+    ax.set(xlabel=f"time-averaged RMSE of the position ({unit[0]})",
+           ylabel=f"time-averaged RMSE of the velocity ({unit[1]})")
+    ax.grid(alpha=0.3)
+    sel = [n for n in names if label is None or n in label]
+    order = sorted(sel, key=lambda n: n.startswith("fixed-"))
+    place_labels(ax, {_short(n): pts[n] for n in order}, colors=cols,
+                 avoid=[pts[n] for n in names if n not in sel] + dots)
+    return fig
