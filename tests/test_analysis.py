@@ -21,7 +21,6 @@ from types import SimpleNamespace  # noqa: E402
 
 from scipy import stats  # noqa: E402
 
-from adaptfilt.course.earlier_numbers import CTM_UKF_BEFORE, SIF_FIXED_BEFORE, TABLE1_BEFORE  # noqa: E402
 from adaptfilt.seed_stats import aggregate  # noqa: E402
 from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
 from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
@@ -97,28 +96,6 @@ def test_table1_renderers_show_paper_ours_and_what_was_spent(sif_results):
     assert "n/a" in report.table1_compute_md(old)  # a table from before "spent" was recorded
     with pytest.raises(ValueError, match="no experiment 'ungm-ukf'"):
         report.table1_columns_md(t1, "ungm-ukf")
-
-
-def test_history_has_the_columns_of_table1_and_every_fixed_count(sif_results):
-    t1 = claims.table1(sif_results)
-    for e, cols in TABLE1_BEFORE.items():
-        assert set(cols) == set(t1[e]["ours"])
-        assert cols["fixed"]["policy"] == "default" and cols["fixed"]["mean_n_iter"] == 10
-    assert set(SIF_FIXED_BEFORE) == {int(v) for v in sif_results["ctm-sif-nis"].grid}
-    for u in CTM_UKF_BEFORE["usage"].values():
-        assert len(u) == len(CTM_UKF_BEFORE["grid"]) and sum(u) == pytest.approx(1.0, abs=2e-3)
-
-
-def test_table1_before_after_pairs_the_releases(sif_results):
-    t1 = claims.table1(sif_results)
-    md = analysis.table1_before_after_md(t1, TABLE1_BEFORE, ["rmse", "cost"], columns=["fixed", "greedy"])
-    assert md.count("\n") == 2 + 2 * 3
-    now = t1["ctm-sif-nis"]["ours"]["greedy"]["cost"]
-    assert f"| L_NIS + N_it/50 | greedy | 32 → {t1['ctm-sif-nis']['ours']['greedy']['rmse']:.4g} | 3.561 → {now:.4g} |" in md
-    same = analysis.table1_before_after_md(t1, {e: d["ours"] for e, d in t1.items()}, ["divergent_frac"], columns=["fixed"])
-    assert "| divergent runs (worst seed): before → now |" in same and same.count("| 0 % → 0 % |") == 3
-    with pytest.raises(ValueError, match="no experiment"):
-        analysis.table1_before_after_md(t1, {"ungm-ukf": {}})
 
 
 def test_figure_policies_keep_one_line_of_fixed_values(ungm_res):

@@ -9,7 +9,6 @@ It may import the library and the pipeline (``adaptfilt.experiments``); nothing 
 * :mod:`~adaptfilt.course.reporting` -- chapter 5: the bootstrap, paired differences, intervals over seeds;
 * :mod:`~adaptfilt.course.learning` -- chapters 6-7 and 11-13: the actor-critic, results over seeds;
 * :mod:`~adaptfilt.course.paper_results` -- chapters 8-10: the paper's experiments from ``data/``;
-* :mod:`~adaptfilt.course.earlier_numbers` -- earlier numbers that chapters 9 and 10 compare with;
 * :mod:`~adaptfilt.course.coursemap` -- which chapter builds which library module;
 * :mod:`~adaptfilt.course.prose_numbers` -- the check that a chapter's prose quotes only numbers it printed;
 * :mod:`~adaptfilt.course.book` -- ``adaptfilt book``: the static book (mdBook).

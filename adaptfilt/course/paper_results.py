@@ -21,7 +21,6 @@ line_of_sight,                  CTM: position errors and claimed standard deviat
 line_of_sight_table,            across the line of sight from the sensor (range is what a single
 plot_line_of_sight              bearing sensor cannot see), per filter
 sif_spread                      the SIF's integration noise: spread of estimates on identical data
-table1_before_after_md          Table I now beside an earlier release's (``course.earlier_numbers``)
 place_labels                    point labels that overlap neither each other nor the markers
 plot_tradeoff_panels            Figures 3 and 6: every policy, and a zoom on the ones a chapter
                                 discusses, labelled without overlaps
@@ -50,7 +49,7 @@ from adaptfilt.seed_stats import aggregate
 __all__ = ["seed_table_md", "differences_md", "usage_shares", "usage_md", "plain_log", "plot_fixed_conventions",
            "ungm_nis", "GateAnatomy", "gate_anatomy", "gate_table", "plot_gate", "plot_cost_time", "ReachAnatomy",
            "reach_anatomy", "reach_table", "LineOfSight",
-           "line_of_sight", "line_of_sight_table", "plot_line_of_sight", "sif_spread", "table1_before_after_md",
+           "line_of_sight", "line_of_sight_table", "plot_line_of_sight", "sif_spread",
            "place_labels", "plot_tradeoff_panels", "plot_rmse_steps", "ungm_floor_steps", "position_velocity_rmse",
            "position_velocity_md", "plot_position_velocity"]
 
@@ -526,29 +525,6 @@ def sif_spread(filt_factory, n_iters: Sequence[int], traj, n_filters: int = 500,
         spread.append(run.mean[:, -1, pos].std(axis=0).mean())
         claimed.append(np.sqrt(np.diagonal(run.cov[:, -1], axis1=-2, axis2=-1)[:, pos].mean()))
     return {"n_iter": np.asarray(n_iters, dtype=float), "spread": np.array(spread), "claimed": np.array(claimed)}
-
-
-def table1_before_after_md(t1: dict, before: dict, metrics: Sequence[str] = ("rmse", "anees", "cost", "mean_n_iter"),
-                           columns: Sequence[str] | None = None) -> str:
-    """Table I now (:func:`adaptfilt.experiments.claims.table1`; seed groups: the IQM over seeds)
-    beside an earlier release's values (e.g. :data:`adaptfilt.course.earlier_numbers.TABLE1_BEFORE`, or
-    ``{e: d["ours"] for e, d in artefacts.load_archive("onepass", "table1").items()}``),
-    "before -> now" per metric, for the columns both have (or ``columns``)."""
-    names = {"rmse": "RMSE", "anees": "ANEES", "cost": "cost", "mean_n_iter": "N_it chosen",
-             "cost_charged": "cost charged", "divergent_frac": "divergent runs (worst seed)"}
-    rows = []
-    for e, d in t1.items():
-        if e not in before:
-            continue
-        cols = [c for c in (columns or d["ours"]) if c in d["ours"] and c in before[e]]
-        for col in cols:
-            now, old = d["ours"][col], before[e][col]
-            rows.append([d["cost_label"], col + (f" ({now['n_seeds']} seeds)" if now["n_seeds"] > 1 else "")] +
-                        [f"{100 * old[m]:.2g} % → {100 * now[m]:.2g} %" if m == "divergent_frac" else
-                         f"{old[m]:.4g} → {now[m]:.4g}" for m in metrics])
-    if not rows:
-        raise ValueError("no experiment of Table I is in the earlier release given")
-    return _md(["cost", "policy"] + [f"{names.get(m, m)}: before → now" for m in metrics], rows)
 
 
 # ------------------------------------------------------------------ labels that keep clear of each other
