@@ -168,7 +168,7 @@ def plot_anees_time(results, policies: Sequence[str] | None = None, ax=None, ban
     nx, M = results.config["nx"], results.config["n_runs"]
     lo, hi = chi2_bounds(nx, M, level)
     ax.axhspan(lo, hi, facecolor="none", edgecolor="0.35", hatch="////", lw=0.6,
-               label=f"consistent ({level:.0%} chi2 band, nx = {nx})")
+               label=f"consistent ({level:.0%} $\\chi^2$ band, $n_x$ = {nx})")
     ax.axhline(nx, color="0.4", lw=0.8, ls="--")
     ax.legend(fontsize=8, ncol=2)
     return fig
@@ -215,7 +215,7 @@ def plot_rmse_bars(results, policies: Sequence[str] | None = None, ax=None, floo
 def plot_anees_bars(results, policies: Sequence[str] | None = None, ax=None, logx: bool | None = None) -> Figure:
     """Time-averaged ANEES per policy with 95 % bootstrap CIs and the ideal ``nx`` (paper Figs 2 and 5)."""
     fig, ax = _bars(results, "anees", policies, ax, "time-averaged ANEES", "Time-averaged ANEES", logx)
-    ax.axvline(results.config["nx"], color="0.4", ls="--", lw=1, label=f"ideal nx = {results.config['nx']}")
+    ax.axvline(results.config["nx"], color="0.4", ls="--", lw=1, label=f"ideal $n_x$ = {results.config['nx']}")
     ax.legend(fontsize=8)
     return fig
 
@@ -293,7 +293,7 @@ def _tradeoff_ax(results, names, ax, floor, logx, logy, annotate, zoom: bool, un
     if annotate:
         _place_labels(results, names, ax)
     if not zoom or ax.get_ylim()[0] <= nx <= ax.get_ylim()[1]:
-        ax.axhline(nx, color="0.4", ls="--", lw=1, label=None if zoom else f"ideal ANEES = nx = {nx}")
+        ax.axhline(nx, color="0.4", ls="--", lw=1, label=None if zoom else f"ideal ANEES = $n_x$ = {nx}")
     if floor is not None:
         ax.axvline(floor, color="0.3", ls=":", lw=1.2, label=None if zoom else f"RMSE floor {floor:.3g}")
     ax.set_xlabel("time-averaged RMSE" + _unit(unit))
