@@ -183,8 +183,16 @@ def test_chapter_11_helpers(ungm_results):
     fig = crl.plot_cost_divergence(res, ["a", "b"], title="x")
     ax = fig.axes[0]
     fixed = [n for n in res.names if n.startswith("fixed-")]
-    assert len(ax.lines[0].get_xdata()) == len(fixed) and ax.get_yscale() == "symlog"
-    assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"default", "greedy", "a (4 seeds)", "b (3 seeds)"}
+    line = next(ln for ln in ax.lines if ln.get_label() == "fixed $n_{it}$")
+    rel = 100 * (res[fixed[0]].cost_charged / res["default"].cost_charged - 1)
+    assert len(line.get_xdata()) == len(fixed) and ax.get_yscale() == "symlog"
+    assert line.get_xdata()[0] == pytest.approx(np.clip(rel, *ax.get_xlim()))
+    texts = {t.get_text() for t in ax.get_legend().get_texts()}
+    assert texts >= {"greedy", "a (4 seeds)", "b (3 seeds)"} and any(t.startswith("default") for t in texts)
+    # the legend sits off the axes, and every panel of several has the same x range
+    assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1
+    fig = crl.plot_cost_divergence(res, ["a"], xlim=(-5.0, 5.0), legend=None)
+    assert fig.axes[0].get_xlim() == (-5.0, 5.0) and fig.axes[0].get_legend() is None
     table = {"q1-r1": {"greedy": {"gain": 0.2}, "learned": {"gain": -0.1}}, "q4-r0.25": {"greedy": {"gain": 0.4}}}
     fig = crl.plot_ood_gains(table, "objective", columns=("greedy", "learned"))
     im = fig.axes[0].images[0]
@@ -193,18 +201,24 @@ def test_chapter_11_helpers(ungm_results):
     assert G[1, 1] == pytest.approx(0.2) and G[2, 0] == pytest.approx(0.4) and np.isnan(G[0, 0])
 
 
-def test_divergence_onsets_finds_the_first_lost_step():
+def test_divergence_onsets_use_the_librarys_one_definition():
+    from adaptfilt.metrics import DIVERGED_NEES, divergence_step, divergent
+
     env = get_experiment("ctm-sif-logmaxnis").make_env(seed=0, n_steps=40)
-    out = crl.divergence_onsets(env, 1.0, n_runs=400, seed=3, nees_limit=100.0)
-    N, onset = out["nees"], out["onset"]
-    assert N.shape == (40, 400) and onset.shape == (400,)
-    lost = ~(N <= 100.0 * env.model.nx)
-    np.testing.assert_array_equal(onset >= 0, lost.any(axis=0))
+    out = crl.divergence_onsets(env, 1.0, n_runs=400, seed=3)
+    N, onset, div = out["nees"], out["onset"], out["divergent"]
+    assert N.shape == (40, 400) and onset.shape == div.shape == (400,)
+    np.testing.assert_array_equal(div, divergent(N.T, env.model.nx))
+    np.testing.assert_array_equal(onset, divergence_step(N.T, env.model.nx))
+    # the onset is the first step at which the running time average crosses DIVERGED_NEES * nx
+    running = np.cumsum(np.where(np.isfinite(N), N, np.inf), axis=0) / np.arange(1, 41)[:, None]
     for m in np.flatnonzero(onset >= 0)[:20]:
-        assert lost[onset[m], m] and not lost[: onset[m], m].any()
-    # the same runs with ten iterations: fewer lost runs (the SIF with one iteration is the fragile one)
+        assert not running[onset[m], m] <= DIVERGED_NEES * env.model.nx
+        assert (running[: onset[m], m] <= DIVERGED_NEES * env.model.nx).all()
+    assert (onset[div] >= 0).all()
+    # the same runs with ten iterations: no more divergent runs (the SIF with one iteration is the fragile one)
     ten = crl.divergence_onsets(env, 10.0, n_runs=400, seed=3)
-    assert (ten["onset"] >= 0).sum() <= (onset >= 0).sum()
+    assert ten["divergent"].sum() <= div.sum()
     with pytest.raises(ValueError, match="not on the grid"):
         crl.divergence_onsets(env, 4.0, n_runs=2)
 
@@ -285,3 +299,18 @@ def test_kappa_bands_partition_the_grid():
     bands = crl.kappa_bands(grid)
     assert list(bands) == ["0-2", "5-50", "100-500", "1000-10000"]
     assert (np.sum(list(bands.values()), axis=0) == 1).all()
+
+
+def test_seed_differences_show_every_seed_and_cut_at_the_edge(ungm_results):
+    res = ungm_results
+    fig = crl.plot_seed_differences(res, ["a", "b"], "greedy", ("rmse", "cost"), xlim={"cost": (-0.1, 0.1)})
+    ax_rmse, ax_cost = fig.axes
+    labels = [t.get_text() for t in ax_rmse.get_yticklabels()]
+    assert labels[:4] == ["a-s0", "a-s1", "a-s2", "a-s3"] and "a: IQM of 4" in labels and "b: mean of 3" in labels
+    # without xlim the range holds every interval and 0; with one, what lies beyond is written at the edge
+    lo, hi = ax_rmse.get_xlim()
+    d = res.paired_difference("a-s3", "greedy", "rmse")
+    assert lo <= min(d[1], 0.0) and hi >= max(d[2], 0.0)
+    assert ax_cost.get_xlim() == (-0.1, 0.1)
+    big = res.paired_difference("a-s3", "greedy", "cost")[0]
+    assert abs(big) > 0.1 and any(f"{big:+.3g}" in t.get_text() for t in ax_cost.texts)

@@ -174,9 +174,17 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None):
         lo, hi = min(ys), max(ys)
         pad = 0.15 * (hi - lo or 1.0)
         ax.set_ylim(lo - pad, hi + pad)
-        ax.set(xlabel="look-ahead horizon H (0: greedy)", ylabel=f"gain over greedy in {m}",
+        ax.set(xlabel="look-ahead horizon H (0: greedy)", ylabel="gain over greedy in " + {"cost_charged": "cost, compute charged"}.get(m, m),
                title=f"{e} (M = {s['n_runs']})")
-        ax.legend(fontsize=7.5, loc="best")
+    # one legend for all panels, below them, off the data (the bands fill much of each panel)
+    labels: dict[str, object] = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            labels.setdefault(lab, h)
+    constrained = type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    fig.legend(list(labels.values()), list(labels), ncol=min(len(labels), 5), fontsize=8,
+               **({"loc": "outside lower center"} if constrained else {"loc": "upper center",
+                                                                      "bbox_to_anchor": (0.5, 0.0)}))
     return fig
 
 
