@@ -77,4 +77,6 @@ def test_the_check_reads_declarations_against_the_named_chapter():
     assert [m.number for m in unmatched(nb, printed=output_numbers([out]))] == []
     nb["cells"][0]["source"] = "RMSE $9.69\\times10^6$ m and `kappa=0.5` (code, not a result) and 0.07."
     printed = [(9.6912e6, -2), (0.0462, 4)]
+    ranged = {"cell_type": "code", "source": "", "outputs": [{"output_type": "stream", "text": "RMSE 2.50..4.07\n"}]}
+    assert (2.5, 2) in output_numbers([ranged]) and (4.07, 2) in output_numbers([ranged])
     assert [m.number for m in unmatched(nb, printed=printed)] == ["0.07"]

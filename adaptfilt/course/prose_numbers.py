@@ -91,12 +91,17 @@ def _decimals(token: str) -> int:
     return d - exp  # negative for 9.69e6 (resolution 10^4)
 
 
+def _ranges_apart(text: str) -> str:
+    """``2.50..4.07`` (a range as some helpers print it) as two numbers."""
+    return re.sub(r"(?<=\d)\.\.(?=[-−+]?\d)", " .. ", text)
+
+
 def output_numbers(cells: Iterable[Mapping[str, Any]]) -> list[tuple[float, int]]:
     """Every decimal number printed by the code cells: (magnitude, decimals printed)."""
     found = set()
     for cell in cells:
         if cell.get("cell_type") == "code":
-            for m in _NUMBER.finditer(_output_text(cell)):
+            for m in _NUMBER.finditer(_ranges_apart(_output_text(cell))):
                 found.add((abs(float(m.group(1))), _decimals(m.group(1))))
     return sorted(found)
 
@@ -109,6 +114,7 @@ def prose_numbers(markdown: str) -> list[tuple[str, bool, str]]:
     text = _FROM.sub(" ", _QUOTED.sub(" ", markdown))
     text = _CODE_SPAN.sub(lambda m: " " * len(m.group()), text)
     text = _URL.sub(lambda m: " " * len(m.group()), text)
+    text = _ranges_apart(text)
     out = []
     for m in _NUMBER.finditer(text):
         after = text[m.end():m.end() + 24]
