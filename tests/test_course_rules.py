@@ -243,3 +243,16 @@ def test_section_outline_matches_the_paper():
             found[f"{romans[sec - 1]}-{'ABCDEFGH'[sub - 1]}"] = title
     norm = lambda s: re.sub(r"\W+", " ", s).strip().lower()
     assert {k: norm(v) for k, v in found.items()} == {k: norm(v) for k, v in PAPER_SECTIONS.items()}
+
+
+#: Words that tell the project's history rather than teach (issue 27: a chapter teaches the current
+#: method and its evidence; REPRODUCTION.md, "Earlier releases", keeps the history).
+HISTORY = re.compile(r"\breleases?\b|\b(earlier|previous|first|old) (version|numbers|policies|tables?)\b"
+                     r"|\bwhat changed\b|\bchangelog\b", re.I)
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_no_teaching_cell_tells_the_projects_history(stem):
+    cells = load(stem)["cells"]
+    found = [(i, m.group()) for i, c in enumerate(cells) for m in HISTORY.finditer(text(c))]
+    assert not found, f"{stem}: history in teaching cells (move it to REPRODUCTION.md, 'Earlier releases'): {found}"
