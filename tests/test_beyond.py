@@ -258,3 +258,22 @@ def test_quick_anchor_and_look_studies(tmp_path):
     md = summary_md(summary)
     assert "How much can looking ahead buy?" in md and "adaptive-anchored" in md
     assert (tmp_path / "beyond" / "figures" / "look-gain.png").stat().st_size > 1000
+
+
+def test_look_gain_figure_cuts_far_values_at_the_edge():
+    """Each panel's range is its own; a reference or a learned interval beyond it ends at the edge in a
+    triangle with its value written there, and the learned groups sit right of the largest horizon."""
+    from adaptfilt.experiments.look import plot_look_gain
+
+    look = {"e": {"verdict_cost": "cost", "n_runs": 10,
+                  "references": {"rollout-H1-S4": {"minus_greedy": {"cost": [21.3, 21.2, 21.4]}},
+                                 "rollout-H2-S4": {"minus_greedy": {"cost": [0.05, 0.02, 0.08]}}},
+                  "learned": {"g": {"n_seeds": 4, "minus_greedy": {"cost": [-0.3, -0.4, 8.0]}}}}}
+    fig = plot_look_gain(look, ylim={"e": (-1.0, 0.5)})
+    ax = fig.axes[0]
+    assert ax.get_ylim() == (-1.0, 0.5)
+    texts = [t.get_text() for t in ax.texts]
+    assert "-21.3\n[-21.4, -21.2]" in texts and "to -8" in texts
+    assert ax.get_xlim()[1] > 2.2 and list(ax.get_xticks()) == [0, 1, 2]
+    fig = plot_look_gain(look)  # by default the range fits everything
+    assert ax is not fig.axes[0] and fig.axes[0].get_ylim()[0] < -21.4

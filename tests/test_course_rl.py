@@ -193,6 +193,15 @@ def test_chapter_11_helpers(ungm_results):
     assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1
     fig = crl.plot_cost_divergence(res, ["a"], xlim=(-5.0, 5.0), legend=None)
     assert fig.axes[0].get_xlim() == (-5.0, 5.0) and fig.axes[0].get_legend() is None
+    # crowded n_it labels are all drawn (none dropped) and no two of them overlap
+    fig = crl.plot_cost_divergence(res, ["a"], xlim=(-1e4, 1e4), legend=None)
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    labels = [t for t in ax.texts if t.get_text() in {n.split("=")[1] for n in fixed}]
+    shown = [n for n in fixed if -1e4 <= 100 * (res[n].cost_charged / res["default"].cost_charged - 1) <= 1e4]
+    assert len(labels) == len(shown)
+    boxes = [t.get_window_extent() for t in labels]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
     table = {"q1-r1": {"greedy": {"gain": 0.2}, "learned": {"gain": -0.1}}, "q4-r0.25": {"greedy": {"gain": 0.4}}}
     fig = crl.plot_ood_gains(table, "objective", columns=("greedy", "learned"))
     im = fig.axes[0].images[0]

@@ -649,22 +649,24 @@ def plot_seed_differences(results, groups: Sequence[str], other: str, metrics: S
 
 
 def _label_points(ax, xs, ys, texts, min_px: float = 14.0):
-    """Label points on one line without overlap: alternate above and below, and skip a label
-    that would still sit within ``min_px`` display pixels of the last one on the same side."""
+    """Label points on one line without overlap and without dropping any: each label goes to the
+    nearest free row (above, below, two rows above, two below, ...), a row being free when its last
+    label is at least ``min_px`` display pixels to the left; a label off its point's own row gets a
+    thin leader line to the point."""
     ax.figure.canvas.draw()
     to_px = ax.transData.transform
-    last = {1: -np.inf, -1: -np.inf}
-    side = 1
+    last: dict[int, float] = {}
+    rows = [1, -1, 2, -2, 3, -3, 4, -4]
     for x, y, t in sorted(zip(xs, ys, texts), key=lambda r: r[0]):
         if not (np.isfinite(x) and ax.get_xlim()[0] <= x <= ax.get_xlim()[1]):
             continue
         px = to_px((x, y))[0]
-        for s in (side, -side):
-            if px - last[s] >= min_px:
-                ax.annotate(t, (x, y), textcoords="offset points", xytext=(0, 6 if s > 0 else -11), ha="center",
-                            fontsize=8, color="0.3")
-                last[s], side = px, -s
-                break
+        row = next((r for r in rows if px - last.get(r, -np.inf) >= min_px), rows[-1])
+        last[row] = px
+        dy = 6 + 10 * (row - 1) if row > 0 else -11 - 10 * (-row - 1)
+        ax.annotate(t, (x, y), textcoords="offset points", xytext=(0, dy), ha="center", fontsize=8, color="0.3",
+                    zorder=6, arrowprops=dict(arrowstyle="-", color="0.6", lw=0.6, shrinkA=0, shrinkB=3)
+                    if abs(row) > 1 else None)
 
 
 def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: str | None = None,
@@ -675,9 +677,11 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
     (greedy's candidates included): the fixed iteration counts (a grey line, labelled with n_it),
     greedy, and each seed of ``groups``; the default is the dotted vertical line at 0.
 
-    The x axis is ``100 (cost / default's cost - 1)`` in %, on the same linear range ``xlim`` in
-    every panel, so that panels of different costs read alike; a point beyond it is drawn at the edge
-    as a triangle with its value written beside it. The divergent fraction is on a symlog axis so that
+    The x axis is ``100 (cost / default's cost - 1)`` in %, on the linear range ``xlim``; give each
+    panel of a figure a range that fits its own policies (the costs differ by orders of magnitude in
+    how far the policies spread) and say so in the caption. A point beyond it is drawn at the edge as
+    a triangle with its value written beside it. The n_it labels never overlap: a crowded one moves
+    to a further row with a leader line. The divergent fraction is on a symlog axis so that
     0 (never diverged) stays on the plot. The learned seeds are drawn last, above the fixed line.
     ``legend``: ``"right"`` of the axes, ``"figure"`` (below all panels of a constrained-layout
     figure), or ``None``."""

@@ -137,10 +137,30 @@ def _parse(name: str) -> tuple[str, int, int]:
     return "rollout", int(parts[1][1:]), int(parts[2][1:])
 
 
-def plot_look_gain(look: dict, metric: str | None = None, axes=None):
+def _clipped_vbar(ax, x, v, lo, hi, lim, color, marker="o", ms=6, lw=1.5):
+    """A point ``v`` with the interval ``[lo, hi]`` at abscissa ``x``, cut at the view ``lim``: a part
+    beyond it ends at the edge in a triangle, with the value (or the interval end) written beside it."""
+    a, b = lim
+    c = min(max(v, a), b)
+    ax.errorbar(x, c, yerr=[[max(c - max(lo, a), 0)], [max(min(hi, b) - c, 0)]], fmt=marker if a <= v <= b else "none",
+                ms=ms, color=color, capsize=3, lw=lw, mec="black" if marker != "o" else color, zorder=4)
+    for end, text in ((b, "above"), (a, "below")):
+        past = [w for w in (v, hi if end == b else lo) if (w > b if end == b else w < a)]
+        if not past:
+            continue
+        ax.plot(x, end, "^" if end == b else "v", ms=7, color=color, clip_on=False, zorder=5)
+        what = f"{v:+.3g}\n[{lo:+.3g}, {hi:+.3g}]" if not a <= v <= b else f"to {past[-1]:+.3g}"
+        ax.annotate(what, (x, end), textcoords="offset points", xytext=(4, -4 if end == b else 4), ha="left",
+                    va="top" if end == b else "bottom", fontsize=8, color=color, zorder=6)
+
+
+def plot_look_gain(look: dict, metric: str | None = None, axes=None, ylim: dict | None = None):
     """The gain over greedy (greedy minus policy, on each experiment's verdict cost: positive is better)
-    against the look-ahead horizon H, one line per S, with paired 95 % intervals; the learned groups'
-    seed-level gains as horizontal bands. Returns the figure."""
+    against the look-ahead horizon H, one line per S, with paired 95 % intervals; each learned group's
+    seed-level gain (IQM, two-level interval) as a bar right of the largest H with its IQM as a dashed
+    line across the panel. ``ylim[experiment]`` fixes a panel's range (by default it fits the references'
+    and the learned groups' gains and intervals); a point or interval end beyond it is cut at the edge,
+    marked with a triangle and its value written beside it. Returns the figure."""
     import matplotlib.pyplot as plt
 
     exps = list(look)
@@ -156,27 +176,41 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None):
             kind, h, samples = _parse(n)
             if kind == "rollout":
                 by_s.setdefault(samples, []).append((h, row["minus_greedy"][m]))
+        curves = {}
         for samples, pts in sorted(by_s.items()):
             pts.sort()
             h = np.array([0] + [p[0] for p in pts])
-            g = -np.array([[0.0, 0.0, 0.0]] + [p[1] for p in pts])  # gain = greedy - policy
-            ax.errorbar(h + 0.04 * (samples - 8) / 8, g[:, 0], yerr=[g[:, 0] - g[:, 2], g[:, 1] - g[:, 0]],
-                        marker="o", capsize=3, label=f"rollout, S = {samples}")
-        for i, (gname, row) in enumerate(s["learned"].items()):
-            d = -np.array(row["minus_greedy"][m])
-            ax.axhspan(d[2], d[1], alpha=0.15, color=f"C{i + 3}")
-            ax.axhline(d[0], color=f"C{i + 3}", lw=1, ls="--", label=f"learned: {gname} (IQM of {row['n_seeds']})")
+            curves[samples] = (h + 0.04 * (samples - 8) / 8, -np.array([[0.0, 0.0, 0.0]] + [p[1] for p in pts]))
+        learned = {g: (row["n_seeds"], -np.array(row["minus_greedy"][m])) for g, row in s["learned"].items()}
+        ends = [0.0] + [v for _, g in curves.values() for v in g.ravel()] + [v for _, d in learned.values() for v in d]
+        lim = (ylim or {}).get(e)
+        if lim is None:
+            lo, hi = min(ends), max(ends)
+            pad = 0.1 * (hi - lo or 1.0)
+            lim = (lo - pad, hi + pad)
+        h_max = max([1] + [int(round(h.max())) for h, _ in curves.values()])
+        right = h_max + 0.35 + 0.3 * max(len(learned) - 1, 0) * h_max / 2 + 0.3 * h_max / 2
+        ax.set_xlim(-0.15 * h_max / 2, right)
+        for i, (samples, (h, g)) in enumerate(curves.items()):  # gain = greedy - policy
+            col = f"C{i}"
+            ax.plot(h, g[:, 0], "-", color=col, label=f"rollout, S = {samples}")  # runs off the view where it must
+            for x, (v, a, b) in zip(h, g[:, [0, 2, 1]]):  # gain interval: [-(upper), -(lower)]
+                _clipped_vbar(ax, x, v, a, b, lim, col)
+        for i, (gname, (n_seeds, d)) in enumerate(learned.items()):
+            col, x = f"C{i + 3}", h_max + 0.35 + 0.3 * i * h_max / 2
+            if lim[0] <= d[0] <= lim[1]:
+                ax.axhline(d[0], color=col, lw=1, ls="--", zorder=1)
+            ax.plot([], [], "D--", color=col, mec="black", label=f"learned: {gname} (IQM of {n_seeds})")
+            _clipped_vbar(ax, x, d[0], d[2], d[1], lim, col, marker="D", lw=2.2)
         ax.axhline(0, color="black", lw=0.8)
-        # the view fits the references and the learned IQMs; a group's band may run off it (UNGM's
-        # candidate-aware seed 4 stretches its interval to about -8)
-        ys = [0.0] + [v for pts in by_s.values() for _, d in pts for v in -np.asarray(d)]
-        ys += [-row["minus_greedy"][m][0] for row in s["learned"].values()]
-        lo, hi = min(ys), max(ys)
-        pad = 0.15 * (hi - lo or 1.0)
-        ax.set_ylim(lo - pad, hi + pad)
+        ax.axvspan(h_max + 0.2, right, color="0.94", zorder=0)  # the learned groups' column
+        ax.set_ylim(*lim)
+        ax.set_xticks(list(range(h_max + 1)))
+        ax.text(h_max + 0.22, 0.98, "learned", transform=ax.get_xaxis_transform(), va="top", fontsize=8,
+                color="0.3")
         ax.set(xlabel="look-ahead horizon H (0: greedy)", ylabel="gain over greedy in " + {"cost_charged": "cost, compute charged"}.get(m, m),
                title=f"{e} (M = {s['n_runs']})")
-    # one legend for all panels, below them, off the data (the bands fill much of each panel)
+    # one legend for all panels, below them, off the data
     labels: dict[str, object] = {}
     for ax in axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
