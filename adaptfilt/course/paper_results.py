@@ -323,17 +323,25 @@ def plot_gate(anatomies: Sequence[GateAnatomy], ax=None, bins=None):
     fig, ax = style.figure() if ax is None else (ax.figure, ax)
     bins = np.logspace(-4, 4, 33) if bins is None else np.asarray(bins, dtype=float)
     mid = np.sqrt(bins[:-1] * bins[1:])
+    n_other = sum(a.name != "greedy" for a in anatomies)
+    # other lines: each its own colour and marker, the earlier ones wider, so coinciding lines stay visible
+    looks = iter(zip(style.colors(max(1, n_other)), np.linspace(2.8, 1.2, max(1, n_other)), "osD^v<>ph" * 4))
     for a in anatomies:
         idx = np.digitize(a.nis0.ravel(), bins) - 1
         k = a.kappa.ravel()
         med = np.array([np.median(k[idx == i]) if (idx == i).sum() >= 20 else np.nan for i in range(mid.size)])
-        ax.plot(mid, med, "o-", ms=3, label=style.policy_label(a.name))
-    ax.axvline(1.0, color="0.4", ls="--", lw=1)
+        if a.name == "greedy":
+            # the reference: thick, dashed and on top, so it stays visible where the other lines follow it
+            ax.plot(mid, med, color="black", ls="--", lw=2.2, zorder=5, label="greedy")
+        else:
+            col, lw, mk = next(looks)
+            ax.plot(mid, med, marker=mk, ms=1.5 * lw + 1.5, lw=lw, color=col, zorder=3, label=style.policy_label(a.name))
+    ax.axvline(1.0, color="0.6", ls=":", lw=1)
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=1)
     ax.set_ylim(-0.3 if np.nanmin([a.kappa.min() for a in anatomies]) >= 0 else None, None)
     ax.set(xlabel=r"NIS that the full update ($\kappa_\min$) would give", ylabel=r"median $\kappa$ chosen")
-    ax.legend(fontsize=8.5)
+    ax.legend(fontsize=8.5, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
     return fig
 
 

@@ -115,11 +115,16 @@ def plot_paired(results, a: str, b: str, metric: str = "rmse", seed: int = 0, ax
                 ylabel=f"{style.policy_label(a)}: same run",
                 title=f"same runs: correlation {np.corrcoef(ra, rb)[0, 1]:.2f}")
     ba, bb = (np.asarray(getattr(results[n], "boot_" + metric), float) for n in (a, b))
-    for reps, col, lab in ((ba - bb, style.OKABE_ITO[0], "paired"), (unpaired(ba, bb, seed), style.OKABE_ITO[1], "unpaired")):
-        lo, hi = metrics.percentile_ci(reps)
-        axes[1].hist(reps, bins=40, color=col, alpha=0.6, label=f"{lab} [{lo:+.3f}, {hi:+.3f}]")
+    reps = {"paired": ba - bb, "unpaired": unpaired(ba, bb, seed)}
+    # common bins and outline (step) histograms: the narrower paired histogram would otherwise
+    # disappear under the filled unpaired one; the interval lines differ in style, not only colour
+    bins = np.histogram_bin_edges(np.concatenate(list(reps.values())), bins=50)
+    for (lab, r), col, ls in zip(reps.items(), (style.OKABE_ITO[0], style.OKABE_ITO[1]), ("-", "--")):
+        lo, hi = metrics.percentile_ci(r)
+        axes[1].hist(r, bins=bins, histtype="step", lw=2, ls=ls, color=col, label=f"{lab} [{lo:+.3f}, {hi:+.3f}]",
+                     zorder=3 if lab == "paired" else 2)
         for x in (lo, hi):
-            axes[1].axvline(x, color=col, lw=1.2)
+            axes[1].axvline(x, color=col, ls=ls, lw=1.5, zorder=3 if lab == "paired" else 2)
     axes[1].axvline(0, color="black", lw=0.8)
     axes[1].set(xlabel=f"{metric}: {style.policy_label(a)} − {style.policy_label(b)}", ylabel="replicates")
     axes[1].legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False, title="95 % interval")
@@ -159,7 +164,8 @@ def plot_divergence(results, names: Sequence[str], ax=None):
     runs = [np.asarray(results[n].run_anees, float) / nx for n in names]
     bins = np.geomspace(min(r.min() for r in runs), max(r.max() for r in runs), 80)
     for r, n, col in zip(runs, names, style.colors(len(names))):
-        ax.hist(r, bins=bins, histtype="step", lw=1.5, color=col, label=style.policy_label(n))
+        # the policy's own name, as the chapters print it in their tables and prose
+        ax.hist(r, bins=bins, histtype="step", lw=1.5, color=col, label=n)
     ax.axvline(metrics.DIVERGED_NEES, color="black", ls="--", lw=1.2, label=r"diverged: NEES $> 10^4\,n_x$")
     ax.set(xscale="log", yscale="log", xlabel=r"time-averaged NEES of one run / $n_x$", ylabel="runs")
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
