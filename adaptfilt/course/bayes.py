@@ -172,7 +172,8 @@ def plot_posteriors(grid: np.ndarray, dens: np.ndarray, x: np.ndarray, cases: Se
         ax.axvline(m, color=style.OKABE_ITO[3], lw=1.2, label="posterior mean")
         ax.set(xlim=xlim, xlabel="$x_k$", title=f"run {r}, k = {t + 1}")
     np.atleast_1d(axes)[0].set_ylabel("$p(x_k|z^k)$")
-    np.atleast_1d(axes)[-1].legend(loc="upper left")
+    # one legend for the row, below the panels: inside any panel it would cover a peak or a line
+    fig.legend(*np.atleast_1d(axes)[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, frameon=False)
     return fig
 
 

@@ -253,7 +253,8 @@ def plot_per_run_rmse(scores: Mapping[str, Score], bins=None, ax=None, title: st
     for n, s in scores.items():
         ax.hist(s.run_rmse, bins=bins, histtype="step", lw=1.5, label=f"{policy_label(n)} (median {s.median_run_rmse:.2f})")
     ax.set(xscale="log", xlabel="per-run RMSE (over the run's steps)", ylabel="runs", title=title)
-    ax.legend()
+    # below the axes: the histograms spread over the whole log range, up to a spike at ~25
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     return fig
 
 
