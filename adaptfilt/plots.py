@@ -216,7 +216,9 @@ def plot_anees_bars(results, policies: Sequence[str] | None = None, ax=None, log
     """Time-averaged ANEES per policy with 95 % bootstrap CIs and the ideal ``nx`` (paper Figs 2 and 5)."""
     fig, ax = _bars(results, "anees", policies, ax, "time-averaged ANEES", "Time-averaged ANEES", logx)
     ax.axvline(results.config["nx"], color="0.4", ls="--", lw=1, label=f"ideal $n_x$ = {results.config['nx']}")
-    ax.legend(fontsize=8)
+    # Outside the axes, right of the top row: inside, the legend covered the first policy's marker whenever
+    # its ANEES was large (the default's on a log axis). Constrained layout makes room for it.
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     return fig
 
 
