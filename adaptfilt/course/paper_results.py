@@ -812,18 +812,23 @@ def innovation_responses(experiments: Sequence[str], groups: Sequence[str] = ("a
 
 def innovation_response_md(responses: dict, what: str = "N_it") -> str:
     """:func:`innovation_responses` as a table, one row per (experiment, group): each statistic as
-    the IQM over the seeds with the seeds' range, and how many seeds choose more at steps
-    ``1..early`` than after them, and more in the loudest quarter of the innovation than in the quietest."""
+    the IQM over the seeds with the seeds' range, and two differences per seed, with their IQM, range
+    and how many seeds have them above zero: steps ``1..early`` less the steps after them, and the
+    loudest quarter of the innovation less the quietest."""
     from adaptfilt.seed_stats import iqm
 
     cell = lambda v: f"{iqm(v):.1f} ({v.min():.1f}-{v.max():.1f})" if v.size > 1 else f"{v[0]:.1f}"
+    # a difference: two decimals (a seed that nearly always chooses one value differs by hundredths), and how
+    # many seeds have it above zero
+    diff = lambda d: (f"{iqm(d):+.2f} ({d.min():+.2f} to {d.max():+.2f}); " if d.size > 1 else f"{d[0]:+.2f}; ") \
+        + f"{np.sum(d > 0)} / {d.size} > 0"
     rows = []
     for (e, g), rs in responses.items():
         early, late = np.array([r["early"] for r in rs]), np.array([r["late"] for r in rs])
         qs = np.array([r["quartiles"] for r in rs])
         rows.append([e, g, str(len(rs)), cell(early), cell(late), *(cell(qs[:, k]) for k in range(4)),
-                     f"{np.sum(early > late)} / {len(rs)}", f"{np.sum(qs[:, 3] > qs[:, 0])} / {len(rs)}"])
+                     diff(early - late), diff(qs[:, 3] - qs[:, 0])])
     k = next(iter(responses.values()))[0]["early_steps"]
     head = ["experiment", "group", "seeds", f"{what}, steps 1-{k}", "after", "quartile 1 (quietest)", "quartile 2",
-            "quartile 3", "quartile 4 (loudest)", "seeds: more early", "seeds: more in q4 than q1"]
+            "quartile 3", "quartile 4 (loudest)", "early - after", "quartile 4 - quartile 1"]
     return _md(head, rows)
