@@ -310,6 +310,57 @@ def test_position_and_velocity_are_split_and_seed_groups_summarised():
         analysis.position_velocity_md(pv, ["nothing"])
 
 
+class _Stored(dict):
+    """The two things position_velocity_md reads of a Results: ``config`` and ``[name].rmse``."""
+    config = {"n_runs": 10000}
+
+    def __getitem__(self, n):
+        return SimpleNamespace(rmse=dict.__getitem__(self, n))
+
+
+def test_position_velocity_table_sets_the_stored_rmse_beside():
+    pv = {"a": {"full": 3.0, "position": 2.0, "velocity": 1.0},
+          **{f"g-s{i}": {"full": 4.0 + i, "position": 3.0, "velocity": 1.0} for i in range(3)}}
+    stored = _Stored({"a": 9.0, "g-s0": 1.0, "g-s1": 2.0, "g-s2": 7.0})
+    md = analysis.position_velocity_md(pv, ["a", "g"], stored=stored)
+    assert "RMSE full state, stored (M = 10000)" in md
+    assert "| a | 3.0 | 2.0 | 1.0 | 9.0 |" in md and md.rstrip().endswith("| 2.0 (1.0-7.0) |")
+    assert "stored" not in analysis.position_velocity_md(pv, ["a"])
+
+
+class _Loud:
+    """A SIF policy that chooses 5 iterations where the one-iteration innovation exceeds ``t`` rad, else 1."""
+    feature_set = "paper+circ+innov@1"
+
+    def __init__(self, t, name="loud"):
+        self.t, self.name = t, name
+
+    def act(self, d):
+        one, five = (int(np.flatnonzero(d.grid == v)[0]) for v in (1, 5))  # a policy acts with grid indices
+        return np.where(np.abs(d.observe(self.feature_set)[:, -1]) > self.t, five, one)
+
+
+def test_innovation_response_follows_the_innovation_a_policy_sees():
+    env = lambda: get_experiment("ctm-sif-nis").make_env(0, n_steps=14)
+    fixed = analysis.innovation_response(env(), FixedPolicy(3, "n_iter", grid=env().grid), n_runs=20, early=4)
+    assert fixed["early"] == fixed["late"] == 3 and np.all(fixed["quartiles"] == 3)
+    r = analysis.innovation_response(env(), _Loud(0.1), n_runs=20, early=4)
+    q, e = r["quartiles"], r["edges"]
+    assert np.all(np.diff(q) >= 0) and q[0] < q[3] and np.all(np.diff(e) > 0)  # a step in |innov| rises by quartile
+    assert 1 <= r["late"] <= 5 and r["early_steps"] == 4
+    # the loop: every seed of every group on the same runs; the table summarises them over the seeds
+    load = lambda e, g, seed: _Loud(0.05 * (seed + 1), name=f"{g}-s{seed}")
+    rs = analysis.innovation_responses(["ctm-sif-nis"], ("adaptive",), seeds=[0, 1, 2], n_runs=20, load=load, n_steps=14)
+    assert list(rs) == [("ctm-sif-nis", "adaptive")] and len(rs["ctm-sif-nis", "adaptive"]) == 3
+    assert rs["ctm-sif-nis", "adaptive"][1]["quartiles"] == pytest.approx(r["quartiles"])  # seed 1 is _Loud(0.1)
+    md = analysis.innovation_response_md(rs)
+    q4 = np.array([x["quartiles"][3] for x in rs["ctm-sif-nis", "adaptive"]])
+    iqm3 = stats.trim_mean(q4, 0.25)  # of three seeds: the middle one
+    assert "N_it, steps 1-10" in md and f"| {iqm3:.1f} ({q4.min():.1f}-{q4.max():.1f}) |" in md
+    d = q4 - np.array([x["quartiles"][0] for x in rs["ctm-sif-nis", "adaptive"]])
+    assert md.count("\n") == 3 and f"{stats.trim_mean(d, 0.25):+.2f} ({d.min():+.2f} to {d.max():+.2f}); {np.sum(d > 0)} / 3 > 0 |" in md
+
+
 def test_plain_log_labels_plain_numbers():
     fig, ax = plt.subplots()
     ax.plot([1, 30], [2, 40])

@@ -26,6 +26,19 @@ def ctm_results():
     return evaluate(env, pols, seed=3, progress=False, n_boot=200, traj=traj), traj
 
 
+def test_anees_bars_name_the_ideal_line_off_the_data(ctm_results):
+    """The ideal-nx line is named in the x label, not in a legend that could cover a policy's marker
+    or narrow the caller's panels."""
+    from adaptfilt.plots import plot_anees_bars, plt
+    res, _ = ctm_results
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.4), layout="constrained")
+    plot_anees_bars(res, ax=ax[1])
+    assert ax[1].get_legend() is None and not fig.legends
+    assert ax[1].get_xlabel() == f"time-averaged ANEES (dashed: ideal, $n_x$ = {res.config['nx']})"
+    assert any(ln.get_linestyle() == "--" and ln.get_xdata()[0] == res.config["nx"] for ln in ax[1].get_lines())
+    plt.close(fig)
+
+
 def test_metrics_match_a_direct_filter_run(ctm_results):
     res, traj = ctm_results
     run = af.UKF(af.models.coordinated_turn(), kappa=20.0).run(traj.z)

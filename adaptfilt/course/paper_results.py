@@ -27,8 +27,11 @@ plot_tradeoff_panels            Figures 3 and 6: every policy, and a zoom on the
 plot_rmse_steps,                RMSE_k in colours that can be told apart, with the Bayes floor
 ungm_floor_steps                per step (the point-mass filter on the evaluation's first runs)
 position_velocity_rmse,         CTM: the error of the position (m) and of the velocity (m/s)
-position_velocity_md,           apart, per policy (the full-state RMSE mixes the two)
-plot_position_velocity
+position_velocity_md,           apart, per policy (the full-state RMSE mixes the two; the table can
+plot_position_velocity          set the stored evaluation's full-state RMSE beside it)
+innovation_response,            SIF: the iterations a policy chooses early and late in the run and
+innovation_responses,           by quartile of the one-iteration innovation it saw, per training
+innovation_response_md          seed, and summarised over the seeds of each group
 ==============================  ================================================================
 
 Seed groups are policies named ``<group>-s<seed>``
@@ -51,7 +54,8 @@ __all__ = ["seed_table_md", "differences_md", "usage_shares", "usage_md", "plain
            "reach_anatomy", "reach_table", "LineOfSight",
            "line_of_sight", "line_of_sight_table", "plot_line_of_sight", "sif_spread",
            "place_labels", "plot_tradeoff_panels", "plot_rmse_steps", "ungm_floor_steps", "position_velocity_rmse",
-           "position_velocity_md", "plot_position_velocity"]
+           "position_velocity_md", "plot_position_velocity", "innovation_response", "innovation_responses",
+           "innovation_response_md"]
 
 
 def _md(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -707,20 +711,26 @@ def position_velocity_rmse(env, policies, traj, pos: Sequence[int] = (0, 2), vel
     return out
 
 
-def position_velocity_md(pv: dict, names: Sequence[str]) -> str:
+def position_velocity_md(pv: dict, names: Sequence[str], stored=None) -> str:
     """Table of :func:`position_velocity_rmse` for ``names``; a seed group (``<group>-s<i>``
-    members) as the median over its seeds with their range."""
+    members) as the median over its seeds with their range. ``stored`` (the evaluation the runs
+    of ``pv`` were drawn beside, a :class:`~adaptfilt.evaluation.Results`) adds its full-state
+    RMSE as the last column, summarised the same way, so that an order that differs between the
+    two sets of runs shows in numbers."""
+    summary = lambda v: f"{np.median(v):.1f}" + (f" ({v.min():.1f}-{v.max():.1f})" if v.size > 1 else "")
     rows = []
     for n in names:
         ms = [m for m in pv if m == n or (m.startswith(n + "-s") and m[len(n) + 2:].isdigit())]
         if not ms:
             raise KeyError(f"no policy {n!r} in these results")
-        cells = []
-        for k in ("full", "position", "velocity"):
-            v = np.array([pv[m][k] for m in ms])
-            cells.append(f"{np.median(v):.1f}" + (f" ({v.min():.1f}-{v.max():.1f})" if v.size > 1 else ""))
+        cells = [summary(np.array([pv[m][k] for m in ms])) for k in ("full", "position", "velocity")]
+        if stored is not None:
+            cells.append(summary(np.array([stored[m].rmse for m in ms])))
         rows.append([n + (f" ({len(ms)} seeds: median, range)" if len(ms) > 1 else ""), *cells])
-    return _md(["policy", "RMSE full state", "position (m)", "velocity (m/s)"], rows)
+    head = ["policy", "RMSE full state", "position (m)", "velocity (m/s)"]
+    if stored is not None:
+        head.append(f"RMSE full state, stored (M = {stored.config['n_runs']})")
+    return _md(head, rows)
 
 
 def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str, str] = ("m", "m/s"), ax=None,
@@ -755,3 +765,78 @@ def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str,
     place_labels(ax, {_short(n): pts[n] for n in order}, colors=cols,
                  avoid=[pts[n] for n in names if n not in sel] + dots)
     return fig
+
+
+def innovation_response(env, policy, n_runs: int = 200, seed: int = 5, early: int = 10,
+                        features: str = "paper+innov@1") -> dict:
+    """Roll ``policy`` through ``env`` on ``n_runs`` runs (``rng = default_rng(seed)``) and record,
+    at every step, the parameter it chose and the size of the innovation feature it saw (the norm
+    of the ``innov@...`` block of its own feature set, else of ``features``; on the SIF's CTM the
+    bearing innovation of a one-iteration update, in radians).
+
+    Returns ``{"early", "late", "quartiles", "edges"}``: the mean parameter over steps
+    ``1..early`` and after them, and over the run-steps in each quartile of the innovation
+    (pooled over runs and steps; non-finite innovations, a diverged run's, left out), with the
+    three quartile edges. A policy whose choice follows the innovation has rising ``quartiles``.
+    """
+    from adaptfilt.features import FeatureSet
+    from adaptfilt.mdp import rollout
+
+    fs = FeatureSet.parse(getattr(policy, "feature_set", None) or features)
+    cols = [i for i, n in enumerate(fs.names(env.model, env.grid)) if n.startswith("innov")]
+    seen = []
+
+    class _Watch:  # passes the choices through, and records the innovation each one saw
+        name, predict_param = getattr(policy, "name", "policy"), getattr(policy, "predict_param", None)
+
+        def act(self, d):
+            seen.append(np.linalg.norm(d.observe(fs)[:, cols], axis=-1))
+            return policy.act(d)
+
+    run, _ = rollout(env, _Watch(), n_runs=n_runs, rng=np.random.default_rng(seed))
+    n, a = np.asarray(run.params, dtype=float).T, np.array(seen)  # (T, M): chosen, innovation seen
+    ok = np.isfinite(a)
+    edges = np.quantile(a[ok], [0.25, 0.5, 0.75])
+    q = np.digitize(a, edges)
+    quart = np.array([n[ok & (q == k)].mean() if np.any(ok & (q == k)) else np.nan for k in range(4)])
+    return {"early": float(n[:early].mean()), "late": float(n[early:].mean()), "quartiles": quart, "edges": edges,
+            "early_steps": early}
+
+
+def innovation_responses(experiments: Sequence[str], groups: Sequence[str] = ("adaptive", "myopic"),
+                         seeds: Sequence[int] = range(8), n_runs: int = 200, seed: int = 5, load=None,
+                         n_steps: int | None = None) -> dict:
+    """:func:`innovation_response` of every training seed of every group, each on the same runs
+    (``seed``) in a fresh environment of its experiment (``make_env(0, n_steps)``):
+    ``{(experiment, group): [response of seed 0, seed 1, ...]}``. ``load(experiment, group, seed=s)``
+    gives a policy (default :func:`adaptfilt.experiments.artefacts.load_policy`)."""
+    from adaptfilt.experiment_registry import get_experiment
+
+    if load is None:
+        from adaptfilt.experiments.artefacts import load_policy as load
+    return {(e, g): [innovation_response(get_experiment(e).make_env(0, n_steps), load(e, g, seed=s), n_runs, seed)
+                     for s in seeds] for e in experiments for g in groups}
+
+
+def innovation_response_md(responses: dict, what: str = "N_it") -> str:
+    """:func:`innovation_responses` as a table, one row per (experiment, group): each statistic as
+    the IQM over the seeds with the seeds' range, and two differences per seed, with their IQM, range
+    and how many seeds have them above zero: steps ``1..early`` less the steps after them, and the
+    loudest quarter of the innovation less the quietest."""
+    from adaptfilt.seed_stats import iqm
+
+    cell = lambda v: f"{iqm(v):.1f} ({v.min():.1f}-{v.max():.1f})" if v.size > 1 else f"{v[0]:.1f}"
+    # a difference: two decimals (a seed that nearly always chooses one value differs by hundredths), and how
+    # many seeds have it above zero
+    diff = lambda d: (f"{iqm(d):+.2f} ({d.min():+.2f} to {d.max():+.2f}); " if d.size > 1 else f"{d[0]:+.2f}; ") \
+        + f"{np.sum(d > 0)} / {d.size} > 0"
+    rows = []
+    for (e, g), rs in responses.items():
+        early, late = np.array([r["early"] for r in rs]), np.array([r["late"] for r in rs])
+        qs = np.array([r["quartiles"] for r in rs])
+        rows.append([e, g, str(len(rs)), cell(early), cell(late), *(cell(qs[:, k]) for k in range(4)),
+                     diff(early - late), diff(qs[:, 3] - qs[:, 0])])
+    k = next(iter(responses.values()))[0]["early_steps"]
+    head = ["experiment", "group", "seeds", f"{what}, steps 1-{k}", "after", "quartile 1 (quietest)", "quartile 2",
+            "quartile 3", "quartile 4 (loudest)", "early - after", "quartile 4 - quartile 1"]
+    return _md(head, rows)
