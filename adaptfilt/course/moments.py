@@ -347,10 +347,8 @@ def check_unscented(my_unscented: Callable) -> None:
         if why:
             problems.append(f"{name}: your function {why}")
             continue
-        for what, mine, lib in (("mean", np.atleast_1d(out[0]), mean), ("covariance", np.atleast_2d(out[1]), cov)):
-            if _differs(mine, lib):
-                problems.append(f"{name}: the {what} differs: yours {np.round(np.asarray(mine, dtype=float), 6).tolist()}, "
-                                f"the library's {np.round(lib, 6).tolist()}")
+        problems += _differences(name, (("the mean", np.atleast_1d(out[0]), mean),
+                                        ("the covariance", np.atleast_2d(out[1]), cov)))
     if problems:
         print("not yet:\n  " + "\n  ".join(problems))
         print("hints: the points are m and m +- sqrt(n + kappa) L[:, j] with L = np.linalg.cholesky(P); the centre "
@@ -363,6 +361,12 @@ def check_unscented(my_unscented: Callable) -> None:
     ok = not _differs(np.ravel(mine[0]), np.array([closed[0]])) and not _differs(np.ravel(mine[1]), np.array([closed[1]]))
     print(f"correct: your unscented transform agrees with adaptfilt's UnscentedRule in all {len(_unscented_cases())} "
           f"settings" + (" and with the closed form for x^2/20" if ok else ""))
+
+
+def _differences(case: str, pairs) -> list[str]:
+    """One line per ``(what, yours, the library's)`` that differs, both shown rounded."""
+    return [f"{case}: {what} differs: yours {np.round(np.asarray(mine, dtype=float), 6).tolist()}, "
+            f"the library's {np.round(lib, 6).tolist()}" for what, mine, lib in pairs if _differs(mine, lib)]
 
 
 def _update_cases() -> list[tuple[str, object]]:
@@ -400,10 +404,7 @@ def check_update(my_update: Callable) -> None:
             if why:
                 problems.append(f"{name} (case {r}): your function {why}")
                 continue
-            for what, mine, lib in (("x_filt", out[0], u.x_filt[r]), ("P_filt", out[1], u.P_filt[r])):
-                if _differs(mine, lib):
-                    problems.append(f"{name} (case {r}): {what} differs: yours {np.round(np.asarray(mine, dtype=float), 6).tolist()}, "
-                                    f"the library's {np.round(lib, 6).tolist()}")
+            problems += _differences(f"{name} (case {r})", (("x_filt", out[0], u.x_filt[r]), ("P_filt", out[1], u.P_filt[r])))
     if problems:
         print("not yet:\n  " + "\n  ".join(problems))
         print("hints: the gain K = Pxz Pzz^-1 has shape (n_x, n_z) (a matrix inverse, not a division, when n_z > 1); "
