@@ -66,6 +66,7 @@ from scipy import stats
 from adaptfilt import metrics
 from adaptfilt.mdp import FilterEnv, rollout
 from adaptfilt.models import Trajectory
+from adaptfilt.particle_env import ParticleCountEnv
 from adaptfilt.results import RESULTS_FORMAT, PolicyResult, Results  # what evaluate returns (adaptfilt.results)
 
 __all__ = ["PolicyResult", "Results", "evaluate", "learned_name", "learned_names",
@@ -291,7 +292,7 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
         env = exp.make_env(seed=seed, n_steps=n_steps)
         if policies is None:
             policies = exp.baselines()
-    elif isinstance(exp, FilterEnv):
+    elif isinstance(exp, (FilterEnv, ParticleCountEnv)):
         env, exp = exp, None
         if n_steps is not None and n_steps != env.n_steps:
             raise ValueError(f"n_steps={n_steps} for an environment with horizon {env.n_steps}: "
@@ -299,7 +300,7 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
         if policies is None:
             raise ValueError("give the policies to evaluate (an environment has no baselines; an Experiment has)")
     else:
-        raise TypeError(f"expected an Experiment, an experiment name or a FilterEnv, got {type(exp).__name__}")
+        raise TypeError(f"expected an Experiment, an experiment name, a FilterEnv or a ParticleCountEnv, got {type(exp).__name__}")
     policies = list(policies)
     if not policies:
         raise ValueError("no policies to evaluate")

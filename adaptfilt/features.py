@@ -257,8 +257,10 @@ def fit_scaler(env, features: "str | FeatureSet | None" = None, runs: int = 64, 
     """
     fs = FeatureSet.parse(features)
     f = visited_states(env, fs, runs, seed, visit)
-    model = getattr(env, "model", None)
-    names = fs.names(model, env.grid) if model is not None else getattr(env, "feature_names", ())
+    names = getattr(env, "feature_names", None)  # an environment with features of its own names them
+    if names is None:
+        model = getattr(env, "model", None)
+        names = fs.names(model, env.grid) if model is not None else ()
     return FeatureScaler.fit(f[np.isfinite(f).all(axis=1)], names=names, squash=squash)
 
 

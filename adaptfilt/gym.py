@@ -99,8 +99,11 @@ class _Observer:
         self.shield = None if anchor is None else anchor.shield
         self.features = FeatureSet.parse(features)
         self.scaler = scaler if scaler is not None else fit_scaler(env, self.features, seed=scaler_seed)
-        model = getattr(env, "model", None)  # the toy MDPs have none: their names are the scaler's
-        names = self.features.names(model, env.grid) if model is not None else list(self.scaler.names)
+        names = getattr(env, "feature_names", None)  # an environment with features of its own names them
+        if names is None:
+            model = getattr(env, "model", None)  # the toy MDPs have none: their names are the scaler's
+            names = self.features.names(model, env.grid) if model is not None else list(self.scaler.names)
+        names = list(names)
         if self.scaler.names and list(self.scaler.names) != list(names):
             raise ValueError(f"the scaler was fitted on features {list(self.scaler.names)}, "
                              f"the environment's feature set {self.features.name!r} has {names}")

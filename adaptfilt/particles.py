@@ -148,60 +148,80 @@ class ParticleCountFilter:
             raise ValueError(f"n_particles must be integers >= 1, got values in [{n.min()}, {n.max()}]")
         return n.astype(np.int64)
 
-    def run(self, z, n_particles, run_ids: Sequence[int] | None = None) -> FilterRun:
+    def predict(self, x_old: np.ndarray | None, w_old: np.ndarray | None, n_old: np.ndarray | None, t: int,
+                n: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """The ``n[i]`` predicted particles of run ``i`` at step ``t``, ``(M, max n, nx)`` (zeros beyond
+        ``n[i]``): drawn from the prior at ``t = 0``, else resampled from the weighted ``x_old (M, ., nx)``
+        (``w_old``, ``n_old`` particles each) and propagated. Particle ``j`` is the same whatever ``n[i] > j``."""
+        model, nx, M = self.model, self.model.nx, len(n)
+        cap = int(n.max())
+        noise = np.zeros((M, cap, nx))
+        anc = np.zeros((M, cap), dtype=np.int64)
+        if t:
+            cdf = np.cumsum(w_old, axis=1)
+        for i in range(M):  # each run's own streams: its draws do not depend on the other runs' counts
+            gu, gw = self._rngs(ids[i], t)
+            u = gu.random(n[i])
+            noise[i, :n[i]] = gw.standard_normal((n[i], nx))
+            if t:  # multinomial resampling: particle j's ancestor is where its uniform falls in the cdf
+                c = cdf[i, :n_old[i]]
+                anc[i, :n[i]] = np.minimum(np.searchsorted(c, u * c[-1], side="right"), n_old[i] - 1)
+        if t == 0:
+            return model.m0 + noise @ self._L0.T
+        return model.f(np.take_along_axis(x_old, anc[..., None], axis=1), t) + noise @ self._Lq.T
+
+    def loglik_particles(self, x: np.ndarray, z_t: np.ndarray, t: int) -> np.ndarray:
+        """``log N(z_t - h(x_j); 0, R)`` of every particle ``x (M, N, nx)``, ``z_t (M, nz)``: ``(M, N)``."""
         model = self.model
+        r = model.diff_z(z_t[:, None, :], model.h(x, t + 1))
+        return -0.5 * (np.einsum("mni,ij,mnj->mn", r, self._Rinv, r) + self._logdetR + model.nz * np.log(2 * np.pi))
+
+    def weigh(self, x: np.ndarray, n: np.ndarray, z_t: np.ndarray, t: int, ids: np.ndarray) -> dict:
+        """Weight the first ``n[i]`` particles of ``x (M, cap, nx)`` by ``z_t (M, nz)``: a dict of ``w (M, cap)``
+        (zero beyond ``n``), ``mean (M, nx)``, ``cov (M, nx, nx)``, ``loglik (M,)`` (log p-hat(z_t | z^{t-1}))
+        and ``ess (M,)``. FloatingPointError naming the step and runs where no particle explains ``z_t``."""
+        valid = np.arange(x.shape[1])[None, :] < n[:, None]
+        logl = np.where(valid, self.loglik_particles(x, z_t, t), -np.inf)
+        amax = logl.max(axis=1, keepdims=True)
+        if not np.isfinite(amax).all():
+            bad = np.flatnonzero(~np.isfinite(amax[:, 0]))
+            raise FloatingPointError(f"particle filter: no particle explains the measurement at step t={t} in runs "
+                                     f"{ids[bad[:10]].tolist()}: use more particles")
+        e = np.exp(logl - amax)
+        s = _sum(e)
+        w = e / s[:, None]
+        mean = _sum(w[..., None] * x)
+        d = x - mean[:, None, :]
+        cov = _sum(w[..., None, None] * d[..., :, None] * d[..., None, :])
+        return {"w": w, "mean": mean, "cov": cov, "loglik": np.log(s) + amax[:, 0] - np.log(n),
+                "ess": 1.0 / _sum(w * w)}
+
+    def check_z(self, z) -> np.ndarray:
+        """``z`` as ``(M, T, nz)`` floats; ValueError naming a wrong shape or a non-finite value."""
         z = np.asarray(z, dtype=float)
-        if z.ndim == 2 and model.nz == 1:
+        if z.ndim == 2 and self.model.nz == 1:
             z = z[..., None]
-        if z.ndim != 3 or z.shape[2] != model.nz:
-            raise ValueError(f"z must have shape (M, T, {model.nz}), got {z.shape}")
+        if z.ndim != 3 or z.shape[2] != self.model.nz:
+            raise ValueError(f"z must have shape (M, T, {self.model.nz}), got {z.shape}")
         if not np.all(np.isfinite(z)):
             raise ValueError("z holds non-finite values")
+        return z
+
+    def run(self, z, n_particles, run_ids: Sequence[int] | None = None) -> FilterRun:
+        z = self.check_z(z)
         M, T, _ = z.shape
         counts = self._counts(n_particles, M, T)
         ids = np.arange(M) if run_ids is None else np.asarray(run_ids, dtype=int)
         if ids.shape != (M,):
             raise ValueError(f"run_ids must name one id per run ({M}), got shape {ids.shape}")
-        nx = model.nx
+        nx = self.model.nx
         mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
         ll, ess = np.empty((M, T)), np.empty((M, T))
         x_old = w_old = None
         for t in range(T):
-            Nt = counts[:, t]
-            cap = int(Nt.max())
-            valid = np.arange(cap)[None, :] < Nt[:, None]  # (M, cap)
-            noise = np.zeros((M, cap, nx))
-            anc = np.zeros((M, cap), dtype=np.int64)
-            if t:
-                cdf = np.cumsum(w_old, axis=1)
-            for i in range(M):  # each run's own streams: its draws do not depend on the other runs' counts
-                gu, gw = self._rngs(ids[i], t)
-                u = gu.random(Nt[i])
-                noise[i, :Nt[i]] = gw.standard_normal((Nt[i], nx))
-                if t:  # multinomial resampling: particle j's ancestor is where its uniform falls in the cdf
-                    n_old = counts[i, t - 1]
-                    c = cdf[i, :n_old]
-                    anc[i, :Nt[i]] = np.minimum(np.searchsorted(c, u * c[-1], side="right"), n_old - 1)
-            if t == 0:
-                x = model.m0 + noise @ self._L0.T
-            else:
-                x = model.f(np.take_along_axis(x_old, anc[..., None], axis=1), t) + noise @ self._Lq.T
-            r = model.diff_z(z[:, t, None, :], model.h(x, t + 1))
-            logl = -0.5 * (np.einsum("mni,ij,mnj->mn", r, self._Rinv, r) + self._logdetR + model.nz * np.log(2 * np.pi))
-            logl = np.where(valid, logl, -np.inf)
-            amax = logl.max(axis=1, keepdims=True)
-            if not np.isfinite(amax).all():
-                bad = np.flatnonzero(~np.isfinite(amax[:, 0]))
-                raise FloatingPointError(f"particle filter: no particle explains the measurement at step t={t} in runs "
-                                         f"{ids[bad[:10]].tolist()}: use more particles")
-            e = np.exp(logl - amax)
-            s = _sum(e)
-            ll[:, t] = np.log(s) + amax[:, 0] - np.log(Nt)
-            w = e / s[:, None]
-            mean[:, t] = _sum(w[..., None] * x)
-            d = x - mean[:, t, None, :]
-            cov[:, t] = _sum(w[..., None, None] * d[..., :, None] * d[..., None, :])
-            ess[:, t] = 1.0 / _sum(w * w)
-            x_old, w_old = x, w
+            x = self.predict(x_old, w_old, counts[:, t - 1] if t else None, t, counts[:, t], ids)
+            post = self.weigh(x, counts[:, t], z[:, t], t, ids)
+            mean[:, t], cov[:, t], ll[:, t], ess[:, t] = post["mean"], post["cov"], post["loglik"], post["ess"]
+            x_old, w_old = x, post["w"]
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
                          params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum())})

@@ -1,0 +1,439 @@
+r"""The particle count as the parameter of a Markov decision problem, and its non-learned baselines.
+
+The paper adapts the UKF's kappa and the SIF's iteration count; its introduction names the number of
+particles as the first example of a filter parameter. :class:`ParticleCountEnv` poses that choice with
+the interface of :class:`~adaptfilt.mdp.FilterEnv` (``reset``, ``step``, a decision per step, a grid of
+counts), so that :func:`~adaptfilt.mdp.rollout`, :func:`~adaptfilt.evaluation.evaluate`, the greedy
+policy and the trainers run on it unchanged. At step ``t`` a policy sees the information state of the
+last posterior cloud and the new measurement, picks ``N_t`` from the grid, the filter
+(:class:`~adaptfilt.particles.ParticleCountFilter`) resamples ``N_t`` particles, propagates and weighs
+them, and the step pays
+
+.. math::
+    L(s_t, z_t, N_t) = L_\mathrm{est} + \lambda N_t,
+
+with ``L_est`` one of the paper's costs computed from the particles (:class:`ParticleCost`) and
+``lambda`` a price per particle (the computation term, as ``n_iter/50`` for the SIF).
+
+**Information state** (:data:`FEATURES`, ``nx + 4 + 2 nz + 1`` numbers, plus the model's time features):
+the last posterior's mean, ``log tr P``, effective sample size over count ``ESS/N``, weight entropy over
+``log N``, and log-likelihood; the measurement; the innovation ``z_t - mean h(x_j)`` and ``log tr`` of the
+spread of the first ``grid[0]`` predicted particles. Those particles are the first ones of any count on
+the grid (particle ``j`` is the same whatever the count), so the state costs no particle beyond the ones
+the chosen count keeps. For a circular measurement (the CTM's bearing) ``z`` enters as sine and cosine.
+
+**Compute** is counted in particles per step (``spent``): the chosen count, plus what a decision drew
+beyond it (``extra_spent``): greedy weighs every grid count, i.e. ``max(grid)`` particles a step.
+
+**Baselines** (besides :class:`~adaptfilt.policies.FixedPolicy` over the grid and
+:class:`~adaptfilt.policies.GreedyPolicy`): :class:`KLDSamplingPolicy` (Fox 2003) and
+:class:`ESSTargetPolicy`.
+
+Example
+-------
+>>> import numpy as np, adaptfilt as af
+>>> from adaptfilt.particle_env import ParticleCountEnv, ParticleCost, KLDSamplingPolicy
+>>> env = ParticleCountEnv(af.models.ungm(), ParticleCost("logmaxnis", price=1e-4), n_steps=20)
+>>> run, cost = af.mdp.rollout(env, KLDSamplingPolicy(bin_size=1.0), n_runs=4, rng=0)
+>>> cost.shape, bool(np.isin(run.params, env.grid).all())
+((4, 20), True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from adaptfilt.models import StateSpaceModel, Trajectory
+from adaptfilt.particles import ParticleCountFilter, kld_count
+
+__all__ = ["PARTICLE_GRID", "ParticleCost", "ParticleUpdate", "ParticleDecision", "ParticleCountEnv",
+           "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
+
+#: Counts a policy chooses from: 50 to 5000 in 13 steps of at most 1.67x (as many values as the kappa grid).
+PARTICLE_GRID = (50, 75, 100, 150, 200, 300, 500, 750, 1000, 1500, 2000, 3000, 5000)
+
+
+@dataclass(frozen=True)
+class ParticleCost:
+    r"""One-step cost of a particle filter's update with ``N`` particles, plus ``price * N``.
+
+    From the ``N`` predicted particles, the predicted measurement is fitted by a Gaussian
+    (:math:`\tilde z = \overline{z - h(x_j)}`, :math:`S = \mathrm{cov}(z - h(x_j)) + R`) so that the
+    paper's costs read as for a Gaussian filter: ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"``
+    ``log(1 + max(0, NIS - nz))``, ``"stateinnov"`` the update's move of the mean
+    ``||x_filt - x_pred||`` (the particle form of ``||K z~||``). ``"sqerr"`` is
+    ``||x_filt - x||^2`` against the true state: a cost only a simulation can pay (training in
+    simulation knows the truth; the policy still sees only the information state).
+
+    >>> ParticleCost("logmaxnis", price=1e-4).name
+    'logmaxnis+1e-04*N'
+    """
+
+    kind: Literal["nis", "logmaxnis", "stateinnov", "sqerr"] = "logmaxnis"
+    price: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in ("nis", "logmaxnis", "stateinnov", "sqerr"):
+            raise ValueError(f"unknown cost {self.kind!r}: choose 'nis', 'logmaxnis', 'stateinnov' or 'sqerr'")
+        if not (np.isfinite(self.price) and self.price >= 0):
+            raise ValueError(f"price must be finite and >= 0, got {self.price}")
+
+    @property
+    def compute_weight(self) -> float:
+        """The price of one particle: what :func:`~adaptfilt.evaluation.evaluate` charges ``extra_spent`` at."""
+        return self.price
+
+    @property
+    def name(self) -> str:
+        return self.kind if self.price == 0 else f"{self.kind}+{self.price:.0e}*N"
+
+    def estimation_cost(self, u: "ParticleUpdate", nz: int) -> np.ndarray:
+        if self.kind == "nis":
+            return (u.nis - nz) ** 2
+        if self.kind == "logmaxnis":
+            return np.log1p(np.maximum(0.0, u.nis - nz))
+        if self.kind == "stateinnov":
+            return np.sqrt((u.dx * u.dx).sum(axis=1))
+        if not np.all(np.isfinite(u.err)):
+            raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
+        return (u.err * u.err).sum(axis=1)
+
+    def __call__(self, u: "ParticleUpdate", theta: np.ndarray, nz: int) -> np.ndarray:
+        c = self.estimation_cost(u, nz)
+        return c + self.price * np.asarray(theta, dtype=float) if self.price else c
+
+
+@dataclass
+class ParticleUpdate:
+    """What a :class:`ParticleCost` reads of one update, per run: ``nis (M,)``, ``dx = x_filt - x_pred
+    (M, nx)``, ``err = x_filt - x (M, nx)`` (NaN where the truth is unknown)."""
+
+    nis: np.ndarray
+    dx: np.ndarray
+    err: np.ndarray
+
+
+class _CountRule:
+    """What :func:`~adaptfilt.mdp.rollout` and the evaluation ask of a filter's parameter."""
+
+    param_name = "n_particles"
+    compute_unit = "particles"
+
+    @staticmethod
+    def spent(theta) -> np.ndarray:
+        return np.asarray(theta, dtype=float)
+
+    @staticmethod
+    def check_param(grid, nx: int) -> None:
+        g = np.asarray(grid, dtype=float)
+        if not (np.isfinite(g).all() and (g >= 1).all() and (g == np.round(g)).all()):
+            raise ValueError(f"particle counts must be integers >= 1, got {g.tolist()}")
+        if np.any(np.diff(g) <= 0):
+            raise ValueError(f"the grid of counts must increase, got {g.tolist()}")
+
+
+class _Filter:
+    """The environment's filter as the evaluation sees it: the rule, the default count, a repr."""
+
+    rule = _CountRule()
+
+    def __init__(self, pf: ParticleCountFilter, param: int):
+        self.pf, self.param, self.model = pf, int(param), pf.model
+
+    def __repr__(self) -> str:
+        return f"ParticleCountFilter(bootstrap, multinomial resampling, seed={self.pf.seed})"
+
+
+def particle_feature_names(model: StateSpaceModel) -> list[str]:
+    """Names of :class:`ParticleCountEnv`'s information state for ``model``, in order."""
+    z = []
+    for i in range(model.nz):
+        z += [f"sin z[{i}]", f"cos z[{i}]"] if i in model.circular_z else [f"z[{i}]"]
+    return ([f"x_prev[{i}]" for i in range(model.nx)] + ["log tr P_prev", "ESS/N prev", "entropy/log N prev",
+                                                         "loglik prev"]
+            + z + [f"innov[{i}]" for i in range(model.nz)] + ["log tr P_pred"]
+            + [f"time[{n}]" for n in model.time_feature_names])
+
+
+@dataclass
+class ParticleDecision:
+    """What a policy sees at step ``t``, batched over ``M`` runs (the particle form of
+    :class:`~adaptfilt.mdp.Decision`): ``features (M, d)``, ``z (M, nz)``, ``grid``, and
+
+    * :meth:`predicted` ``(n)``: the first ``n`` predicted particles of every run, ``(M, n, nx)``, the
+      same particles whatever count is chosen (charged to nobody: a rule that keeps at least the
+      particles it looked at, as KLD-sampling, spends only what it keeps);
+    * :meth:`candidates`: the cost of every grid count (greedy), which weighs ``max(grid)`` particles
+      (``extra_spent``); the step then runs the chosen count.
+    * ``ess_prev``, ``n_prev`` ``(M,)``: the last update's effective sample size and count.
+    """
+
+    t: int
+    grid: np.ndarray
+    default_index: int
+    _env: "ParticleCountEnv" = field(repr=False)
+    _state: dict = field(repr=False)
+    z: np.ndarray = field(repr=False)
+    _pred: np.ndarray | None = field(default=None, repr=False)
+    _feat: np.ndarray | None = field(default=None, repr=False)
+    _cand: dict | None = field(default=None, repr=False)
+    extra_spent: float = 0.0
+
+    @property
+    def n_runs(self) -> int:
+        return self.z.shape[0]
+
+    @property
+    def env(self) -> "ParticleCountEnv":
+        return self._env
+
+    @property
+    def ess_prev(self) -> np.ndarray:
+        return self._state["ess"]
+
+    @property
+    def n_prev(self) -> np.ndarray:
+        return self._state["n"]
+
+    def predicted(self, n: int) -> np.ndarray:
+        """The first ``n`` predicted particles of every run, ``(M, n, nx)`` (computed once, extended on demand)."""
+        n = int(n)
+        if self._pred is None or self._pred.shape[1] < n:
+            self._pred = self._env._predict(self._state, self.t, np.full(self.n_runs, n))
+        return self._pred[:, :n]
+
+    @property
+    def features(self) -> np.ndarray:
+        if self._feat is None:
+            self._feat = self._env._features(self)
+        return self._feat
+
+    def candidates(self) -> dict:
+        """``{"cost": (G, M), "nis": (G, M)}`` of every grid count (a common weight shift for all counts:
+        the chosen count's cost may differ from the step's in the last bits)."""
+        if self._cand is None:
+            self._cand = self._env._candidates(self)
+            self.extra_spent = float(self.grid.max())
+        return self._cand
+
+
+class ParticleCountEnv:
+    """The particle count per step as a Markov decision problem (see the module docstring).
+
+    ``model``: a model with additive Gaussian noise; ``cost``: a :class:`ParticleCost` (or None: no cost);
+    ``grid``: the counts (default :data:`PARTICLE_GRID`), ``default``: the count of the "default"
+    policy (1000); ``seed`` keys the particles' random streams (run ``i`` of episode ``stream``: key
+    ``(seed, stream * 2**32 + i)``). The same interface as :class:`~adaptfilt.mdp.FilterEnv`:
+    ``reset(n_runs, rng, traj, stream)``, ``step(actions)``.
+    """
+
+    def __init__(self, model: StateSpaceModel, cost: ParticleCost | None = None, grid: Sequence[int] = PARTICLE_GRID,
+                 default: int = 1000, seed: int = 0, n_steps: int | None = None):
+        if cost is not None and not isinstance(cost, ParticleCost):
+            raise TypeError(f"cost must be a ParticleCost (or None), got {type(cost).__name__}")
+        self.model = self.truth = model
+        grid = np.asarray(grid, dtype=float)
+        if grid.ndim != 1 or grid.size < 1:
+            raise ValueError(f"grid must be a non-empty 1-D sequence of counts, got shape {grid.shape}")
+        _CountRule.check_param(grid, model.nx)
+        matches = np.flatnonzero(grid == default)
+        if matches.size == 0:
+            raise ValueError(f"the grid {grid.astype(int).tolist()} must contain the default count {default}")
+        self.grid, self.default_index, self.cost = grid, int(matches[0]), cost
+        self.filt = _Filter(ParticleCountFilter(model, seed), default)
+        self.n_steps = model.n_steps if n_steps is None else int(n_steps)
+        if self.n_steps is None or self.n_steps < 1:
+            raise ValueError("n_steps must be given (the model has no default horizon)")
+        self.nx, self.nz = model.nx, model.nz
+        self.feature_names = particle_feature_names(model)
+        self.n_features = len(self.feature_names)
+        self.traj: Trajectory | None = None
+        self._decision: ParticleDecision | None = None
+
+    def __repr__(self) -> str:
+        return (f"ParticleCountEnv({self.model.name}, cost={None if self.cost is None else self.cost.name}, "
+                f"grid={self.grid.astype(int).tolist()}, n_steps={self.n_steps})")
+
+    # ----------------------------------------------------------- helpers
+    def _predict(self, state: dict, t: int, n: np.ndarray) -> np.ndarray:
+        return self.filt.pf.predict(state["x"], state["w"], state["n"], t, n.astype(np.int64), self._ids)
+
+    def _features(self, d: ParticleDecision) -> np.ndarray:
+        s, model = d._state, self.model
+        x0 = d.predicted(int(self.grid[0]))
+        r = model.diff_z(d.z[:, None, :], model.h(x0, d.t + 1))  # (M, n0, nz)
+        spread = np.log(np.trace(np.einsum("mni,mnj->mij", x0 - x0.mean(1, keepdims=True),
+                                           x0 - x0.mean(1, keepdims=True)) / x0.shape[1], axis1=1, axis2=2))
+        zc = []
+        for i in range(self.nz):
+            zc += [np.sin(d.z[:, i]), np.cos(d.z[:, i])] if i in model.circular_z else [d.z[:, i]]
+        blocks = [s["mean"].T, np.log(np.trace(s["cov"], axis1=1, axis2=2))[None], (s["ess"] / s["n"])[None],
+                  s["entropy"][None], s["loglik"][None], np.stack(zc), r.mean(axis=1).T, spread[None]]
+        if model.time_features is not None:
+            tf = np.asarray(model.time_features(d.t + 1), dtype=float)
+            blocks.append(np.repeat(tf[:, None], d.n_runs, axis=1))
+        return np.concatenate(blocks, axis=0).T
+
+    def _update(self, x: np.ndarray, n: np.ndarray, z: np.ndarray, t: int) -> tuple[dict, ParticleUpdate]:
+        """Weigh the first ``n`` of ``x``; the posterior and what a cost reads."""
+        post = self.filt.pf.weigh(x, n, z, t, self._ids)
+        valid = np.arange(x.shape[1])[None, :] < n[:, None]
+        x_pred = (x * valid[..., None]).sum(axis=1) / n[:, None]
+        dp = (x - x_pred[:, None, :]) * valid[..., None]
+        post["x_pred"], post["P_pred"] = x_pred, np.einsum("mni,mnj->mij", dp, dp) / n[:, None, None]
+        post["nis"] = self._nis(x, valid, n, z, t)
+        truth = self.traj.x[:, t] if self.traj is not None and self.traj.x.shape[1] > t else np.nan
+        return post, ParticleUpdate(nis=post["nis"], dx=post["mean"] - x_pred, err=post["mean"] - truth)
+
+    def _nis(self, x: np.ndarray, valid: np.ndarray, n: np.ndarray, z: np.ndarray, t: int) -> np.ndarray:
+        """NIS of ``z`` under the Gaussian fit of the predicted measurement of the first ``n`` particles."""
+        r = self.model.diff_z(z[:, None, :], self.model.h(x, t + 1)) * valid[..., None]  # (M, cap, nz)
+        innov = r.sum(axis=1) / n[:, None]
+        d = (r - innov[:, None, :]) * valid[..., None]
+        S = np.einsum("mni,mnj->mij", d, d) / np.maximum(n - 1, 1)[:, None, None] + self.model.R
+        return np.einsum("mi,mi->m", innov, np.linalg.solve(S, innov[..., None])[..., 0])
+
+    def _candidates(self, d: ParticleDecision) -> dict:
+        G, M, cap = self.grid.size, d.n_runs, int(self.grid.max())
+        x = d.predicted(cap)
+        nis, cost = np.empty((G, M)), np.empty((G, M))
+        for g, n in enumerate(self.grid.astype(np.int64)):
+            nn = np.full(M, n)
+            _, u = self._update(x[:, :n], nn, d.z, d.t)
+            nis[g] = u.nis
+            cost[g] = self.cost(u, nn, self.nz) if self.cost is not None else np.nan
+        return {"cost": cost if self.cost is not None else None, "nis": nis}
+
+    def _new_decision(self) -> ParticleDecision:
+        self._decision = ParticleDecision(self._t, self.grid, self.default_index, self, self._state,
+                                          self._zs[self._t])
+        return self._decision
+
+    # --------------------------------------------------------------- API
+    def reset(self, n_runs: int | None = None, rng: np.random.Generator | int | None = None,
+              traj: Trajectory | None = None, stream: int | None = None) -> ParticleDecision:
+        """Start an episode: simulate ``n_runs`` trajectories (one step beyond the horizon, for a learner's
+        bootstrap) or replay ``traj``; ``stream`` keys the particles of this episode."""
+        if traj is None:
+            if n_runs is None:
+                raise ValueError("reset needs n_runs (to simulate) or traj (to replay)")
+            traj = self.truth.simulate(n_runs, self.n_steps + 1, rng=rng)
+        if traj.z.ndim != 3 or traj.z.shape[1] < self.n_steps or traj.z.shape[2] != self.nz:
+            raise ValueError(f"traj.z must have shape (M, >= {self.n_steps}, {self.nz}), got {traj.z.shape}")
+        self.filt.pf.check_z(traj.z)
+        M = traj.z.shape[0]
+        self.traj, self.stream = traj, stream
+        self._ids = np.arange(M, dtype=np.int64) + (0 if stream is None else int(stream) << 32)
+        self._zs = np.ascontiguousarray(np.moveaxis(traj.z, 1, 0))  # (T, M, nz)
+        self._t = 0
+        nx = self.nx
+        self._state = {"x": None, "w": None, "n": np.ones(M, dtype=np.int64),
+                       "mean": np.repeat(self.model.m0[None], M, axis=0),
+                       "cov": np.repeat(self.model.P0[None], M, axis=0).reshape(M, nx, nx),
+                       "ess": np.ones(M), "entropy": np.ones(M), "loglik": np.zeros(M)}
+        return self._new_decision()
+
+    def check_actions(self, actions) -> np.ndarray:
+        a = np.asarray(actions)
+        M = self._zs.shape[1]
+        if a.shape != (M,):
+            raise ValueError(f"actions must be one grid index per run, shape ({M},); got shape {a.shape}")
+        if not np.issubdtype(a.dtype, np.integer):
+            if not (np.isfinite(a).all() and (a == np.round(a)).all()):
+                raise ValueError("actions must be integer grid indices")
+            a = a.astype(np.int64)
+        if (a < 0).any() or (a >= self.grid.size).any():
+            bad = a[(a < 0) | (a >= self.grid.size)]
+            raise ValueError(f"action index {int(bad[0])} out of range: the grid has {self.grid.size} values "
+                             f"(0..{self.grid.size - 1})")
+        return a
+
+    def step(self, actions, predict_param=None) -> tuple[ParticleDecision | None, np.ndarray | None, bool, dict]:
+        """Resample, propagate and weigh ``grid[actions]`` particles per run; pay the cost.
+
+        Returns ``(decision, cost, done, info)`` with the keys of :meth:`FilterEnv.step
+        <adaptfilt.mdp.FilterEnv.step>` (``x_filt``, ``P_filt``: the particles' weighted mean and
+        covariance; ``nis``: of the Gaussian fit; ``loglik``: log p-hat(z_t | z^{t-1}); ``ess``)."""
+        if self._decision is None:
+            raise RuntimeError("call reset() before step()")
+        if predict_param is not None:
+            raise ValueError("a particle count is chosen per step: there is no separate predict parameter")
+        a = self.check_actions(actions)
+        theta = self.grid[a]
+        n = theta.astype(np.int64)
+        d, t = self._decision, self._t
+        x = d._pred[:, :int(n.max())] if d._pred is not None and d._pred.shape[1] >= n.max() else \
+            self._predict(self._state, t, n)
+        post, u = self._update(x, n, self._zs[t], t)
+        cost = None if self.cost is None else self.cost(u, theta, self.nz)
+        w = post["w"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            entropy = -np.where(w > 0, w * np.log(w), 0.0).sum(axis=1) / np.log(np.maximum(n, 2))
+        info = {"t": t, "theta": theta, "update": u, "x_filt": post["mean"], "P_filt": post["cov"],
+                "nis": u.nis, "loglik": post["loglik"], "ess": post["ess"],
+                "x_pred": post["x_pred"], "P_pred": post["P_pred"],
+                "extra_spent": d.extra_spent - (theta if d._cand is not None else 0.0),
+                "repaired": np.zeros(len(n), dtype=bool), "terminated": False, "truncated": False}
+        self._state = {"x": x, "w": w, "n": n, "mean": post["mean"], "cov": post["cov"], "ess": post["ess"],
+                       "entropy": entropy, "loglik": post["loglik"]}
+        done = t + 1 >= self.n_steps
+        if done and self._zs.shape[0] <= self.n_steps:
+            self._decision = None
+            info.update(truncated=True, final_decision=None)
+            return None, cost, True, info
+        self._t = t + 1
+        if done:
+            info.update(truncated=True, final_decision=self._new_decision())
+            self._decision = None
+            return None, cost, True, info
+        return self._new_decision(), cost, False, info
+
+
+class KLDSamplingPolicy:
+    r"""KLD-sampling (Fox 2003) on the grid: the count is the smallest grid value at or above the
+    sequential stopping count of :func:`~adaptfilt.particles.kld_count` on the step's predicted
+    particles (bins of ``bin_size`` per state dimension; ``epsilon = 0.05``, ``delta = 0.01`` and at
+    least ``n_min`` particles, Fox's usual values). The particles it examines are the first ones of
+    the count it keeps, so it spends only that count."""
+
+    name = "kld"
+
+    def __init__(self, bin_size: float | Sequence[float], epsilon: float = 0.05, delta: float = 0.01,
+                 n_min: int = 50, grid=None):
+        self.bin_size = np.asarray(bin_size, dtype=float)
+        if not (np.isfinite(self.bin_size).all() and (self.bin_size > 0).all()):
+            raise ValueError(f"bin_size must be positive, got {self.bin_size.tolist()}")
+        self.epsilon, self.delta, self.n_min = float(epsilon), float(delta), int(n_min)
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def counts(self, decision) -> np.ndarray:
+        """The stopping count of every run, ``(M,)`` (before rounding up to the grid)."""
+        cap = int(decision.grid.max())
+        x = decision.predicted(cap)
+        return np.array([kld_count(x[i], self.bin_size, self.epsilon, self.delta, self.n_min, cap)
+                         for i in range(decision.n_runs)])
+
+    def act(self, decision) -> np.ndarray:
+        n = self.counts(decision)
+        return np.minimum(np.searchsorted(decision.grid, n, side="left"), decision.grid.size - 1)
+
+
+class ESSTargetPolicy:
+    r"""Keep the effective sample size near a target: ``N_t`` is the smallest grid count at or above
+    ``target * N_{t-1} / ESS_{t-1}`` (the count that, at the last step's weight degeneracy, would
+    leave ``target`` effective particles), the default count at the first step."""
+
+    def __init__(self, target: float = 200.0, grid=None):
+        if not (np.isfinite(target) and target >= 1):
+            raise ValueError(f"target must be >= 1, got {target}")
+        self.target = float(target)
+        self.name = f"ess-{self.target:g}"
+        self.grid = None if grid is None else np.asarray(grid, dtype=float)
+
+    def act(self, decision) -> np.ndarray:
+        if decision.t == 0:
+            return np.full(decision.n_runs, decision.default_index)
+        want = self.target * decision.n_prev / decision.ess_prev
+        return np.minimum(np.searchsorted(decision.grid, want, side="left"), decision.grid.size - 1)
