@@ -87,7 +87,9 @@ def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.
     M, T = run.nis.shape
     se = metrics.squared_error(x, run.mean)  # (M, T)
     # a clipped filter stores the rare indefinite P_filt before repairing it: see metrics.nees
-    ne = metrics.nees(x, run.mean, run.cov)  # filters return positive definite P_filt (gaf.update_rl)
+    # filters return positive definite P_filt (gaf.update_rl); a particle cloud collapsed onto one
+    # point has none, and its run says so (info["on_indefinite"] = "inf": it counts as diverged)
+    ne = metrics.nees(x, run.mean, run.cov, on_indefinite=(getattr(run, "info", None) or {}).get("on_indefinite", "raise"))
     a = (1.0 - level) / 2.0
     # RMSE: bootstrap the per-step mean squared error, then sqrt and time-average
     # (RMSE is not a mean over runs, so it is resampled through se, not per run).

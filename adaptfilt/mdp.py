@@ -464,7 +464,7 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     tr = lambda a: None if a is None else np.swapaxes(a, 0, 1)  # public (M, T, ...) views
     return FilterRun(mean=tr(mean), cov=tr(cov), nis=tr(nis), loglik=tr(ll), params=tr(params),
                      x_pred=tr(xp), P_pred=tr(Pp), n_repairs=n_repairs,
-                     info={"extra_spent": extra_spent / T, "spent": (spent + extra_spent) / T,
+                     info={**getattr(env, "run_info", {}), "extra_spent": extra_spent / T, "spent": (spent + extra_spent) / T,
                            "extra_costs": [tr(b) for b in extra]}), tr(costs)
 
 

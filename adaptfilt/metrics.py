@@ -77,7 +77,7 @@ def _indefinite_error(bad: np.ndarray, shape: tuple[int, ...], cov: np.ndarray,
 
 
 def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
-         on_indefinite: Literal["raise", "nan", "solve"] = "raise") -> np.ndarray:
+         on_indefinite: Literal["raise", "nan", "solve", "inf"] = "raise") -> np.ndarray:
     r"""Normalised estimation error squared per run and step, ``(M, T)``.
 
     ``NEES_k(l) = e^T P^{-1} e`` with ``e = x_k(l) - x_{k|k}(l)`` and
@@ -98,7 +98,10 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
         * ``"raise"`` (default): ``ValueError`` naming the first such (run, step);
         * ``"nan"``: NaN there (an explicit opt-in; average with ``np.nanmean``);
         * ``"solve"``: ``e^T P^{-1} e`` of the indefinite matrix itself through a
-          plain solve (it may be negative; a singular ``P`` is still an error).
+          plain solve (it may be negative; a singular ``P`` is still an error);
+        * ``"inf"``: infinity there: a particle cloud whose weight sits on one point
+          claims certainty (:mod:`adaptfilt.particles`), and the run counts as diverged
+          (:func:`divergent`).
 
         The filters return positive definite ``P_{k|k}`` (with
         ``on_indefinite="clip"`` they repair it before returning it), so
@@ -117,8 +120,8 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
     ...
     ValueError: covariance P is not positive definite at run 0, step 0: ...
     """
-    if on_indefinite not in ("raise", "nan", "solve"):
-        raise ValueError(f"on_indefinite must be 'raise', 'nan' or 'solve', got {on_indefinite!r}")
+    if on_indefinite not in ("raise", "nan", "solve", "inf"):
+        raise ValueError(f"on_indefinite must be 'raise', 'nan', 'solve' or 'inf', got {on_indefinite!r}")
     e = errors(x, mean)
     cov = np.asarray(cov, dtype=float)
     if cov.shape != e.shape + e.shape[-1:]:
@@ -137,7 +140,7 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
         if bad.size:
             if on_indefinite == "raise":
                 raise _indefinite_error(bad, lead, cov)
-            out.reshape(-1)[bad] = np.nan
+            out.reshape(-1)[bad] = np.inf if on_indefinite == "inf" else np.nan
         return out
     er = e.reshape(-1, nx).T  # (nx, N) run-last
     flat_cov = cov.reshape(-1, nx, nx)  # one copy when cov is a transposed view (FilterRun.cov)
@@ -154,8 +157,8 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
         L = chol(P)
     out = (er * solve_spd(L, er[:, None, :])[:, 0, :]).sum(axis=0)
     if bad.size:
-        if on_indefinite == "nan":
-            out[bad] = np.nan
+        if on_indefinite in ("nan", "inf"):
+            out[bad] = np.nan if on_indefinite == "nan" else np.inf
         else:
             eb, Pb = er[:, bad].T, flat_cov[bad]
             try:

@@ -251,6 +251,8 @@ class ParticleCountEnv:
         self.n_features = len(self.feature_names)
         self.traj: Trajectory | None = None
         self._decision: ParticleDecision | None = None
+        #: read by :func:`~adaptfilt.mdp.rollout` into the run: a collapsed cloud's NEES is infinite
+        self.run_info = {"on_indefinite": "inf"}
 
     def __repr__(self) -> str:
         return (f"ParticleCountEnv({self.model.name}, cost={None if self.cost is None else self.cost.name}, "
@@ -264,12 +266,14 @@ class ParticleCountEnv:
         s, model = d._state, self.model
         x0 = d.predicted(int(self.grid[0]))
         r = model.diff_z(d.z[:, None, :], model.h(x0, d.t + 1))  # (M, n0, nz)
-        spread = np.log(np.trace(np.einsum("mni,mnj->mij", x0 - x0.mean(1, keepdims=True),
+        spread = np.log(1e-12 + np.trace(np.einsum("mni,mnj->mij", x0 - x0.mean(1, keepdims=True),
                                            x0 - x0.mean(1, keepdims=True)) / x0.shape[1], axis1=1, axis2=2))
         zc = []
         for i in range(self.nz):
             zc += [np.sin(d.z[:, i]), np.cos(d.z[:, i])] if i in model.circular_z else [d.z[:, i]]
-        blocks = [s["mean"].T, np.log(np.trace(s["cov"], axis1=1, axis2=2))[None], (s["ess"] / s["n"])[None],
+        # a cloud collapsed onto one point has no spread: it reads as 1e-12 (finite features)
+        blocks = [s["mean"].T, np.log(np.maximum(np.trace(s["cov"], axis1=1, axis2=2), 1e-12))[None],
+                  (s["ess"] / s["n"])[None],
                   s["entropy"][None], s["loglik"][None], np.stack(zc), r.mean(axis=1).T, spread[None]]
         if model.time_features is not None:
             tf = np.asarray(model.time_features(d.t + 1), dtype=float)

@@ -115,6 +115,10 @@ class ParticleCountFilter:
     effective sample size :math:`1/\sum_j (w^{(j)})^2` after each update, ``loglik`` the log of
     :math:`\hat p(\mathbf z_k \mid \mathbf z^{k-1})`. ``nis`` is NaN (not defined for a particle cloud).
 
+    When the weights collapse onto one point (few particles, an informative measurement) the
+    weighted covariance is singular: the cloud claims certainty. ``info["on_indefinite"] = "inf"``
+    tells :func:`~adaptfilt.evaluation.evaluate` to read that as an infinite NEES (a diverged run).
+
     For models with additive Gaussian noise. ``seed``: an int; the same seed and ``run_ids``, the
     same numbers. Compute grows with the total number of particles, ``params.sum()``.
     """
@@ -224,4 +228,5 @@ class ParticleCountFilter:
             mean[:, t], cov[:, t], ll[:, t], ess[:, t] = post["mean"], post["cov"], post["loglik"], post["ess"]
             x_old, w_old = x, post["w"]
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
-                         params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum())})
+                         params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum()),
+                                                                "on_indefinite": "inf"})

@@ -149,3 +149,19 @@ def test_bad_input_is_named(ungm):
         env.step(np.zeros(6, dtype=int), predict_param=3)
     with pytest.raises(ValueError, match="bin_size"):
         KLDSamplingPolicy(bin_size=0)
+
+
+def test_a_collapsed_cloud_has_infinite_nees_and_counts_as_diverged():
+    from adaptfilt import metrics
+
+    e = np.array([[[1.0], [0.5]]])  # one run, two steps, nx = 1
+    cov = np.array([[[[2.0]], [[0.0]]]])  # the second step's cloud sits on one point
+    ne = metrics.nees(e, np.zeros_like(e), cov, on_indefinite="inf")
+    assert ne[0, 0] == 0.5 and np.isinf(ne[0, 1])
+    assert metrics.divergent(ne, 1, np.zeros_like(e)).tolist() == [True]
+    e2 = np.ones((1, 2, 2))
+    cov2 = np.stack([np.eye(2), np.zeros((2, 2))])[None]
+    ne2 = metrics.nees(e2, np.zeros_like(e2), cov2, on_indefinite="inf")
+    assert ne2[0, 0] == 2.0 and np.isinf(ne2[0, 1])
+    with pytest.raises(ValueError, match="not positive definite"):
+        metrics.nees(e, np.zeros_like(e), cov)  # the Gaussian filters' default stays strict
