@@ -46,7 +46,7 @@ from typing import Literal, Sequence
 import numpy as np
 
 from adaptfilt.models import StateSpaceModel, Trajectory
-from adaptfilt.particles import ParticleCountFilter, kld_count
+from adaptfilt.particles import ParticleCountFilter, kld_counts
 
 __all__ = ["PARTICLE_GRID", "ParticleCost", "ParticleUpdate", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
@@ -397,7 +397,7 @@ class ParticleCountEnv:
 
 class KLDSamplingPolicy:
     r"""KLD-sampling (Fox 2003) on the grid: the count is the smallest grid value at or above the
-    sequential stopping count of :func:`~adaptfilt.particles.kld_count` on the step's predicted
+    sequential stopping count of :func:`~adaptfilt.particles.kld_count` (batched: :func:`~adaptfilt.particles.kld_counts`) on the step's predicted
     particles (bins of ``bin_size`` per state dimension; ``epsilon = 0.05``, ``delta = 0.01`` and at
     least ``n_min`` particles, Fox's usual values). The particles it examines are the first ones of
     the count it keeps, so it spends only that count."""
@@ -416,8 +416,7 @@ class KLDSamplingPolicy:
         """The stopping count of every run, ``(M,)`` (before rounding up to the grid)."""
         cap = int(decision.grid.max())
         x = decision.predicted(cap)
-        return np.array([kld_count(x[i], self.bin_size, self.epsilon, self.delta, self.n_min, cap)
-                         for i in range(decision.n_runs)])
+        return kld_counts(x, self.bin_size, self.epsilon, self.delta, self.n_min)
 
     def act(self, decision) -> np.ndarray:
         n = self.counts(decision)

@@ -97,3 +97,14 @@ def test_bad_input_is_named(ungm_runs):
         pf.run(z, 10)
     with pytest.raises(ValueError, match="run_ids"):
         pf.run(traj.z, 10, run_ids=[0, 1])
+
+
+def test_the_batched_kld_count_is_the_stopping_rule_run_by_run():
+    from adaptfilt.particles import kld_counts
+
+    rng = np.random.default_rng(5)
+    for nx, bins in ((1, 0.3), (2, [0.5, 2.0]), (4, [5.0, 1.0, 5.0, 1.0])):
+        x = rng.standard_normal((7, 3000, nx)) * rng.uniform(0.2, 8, size=(7, 1, 1))
+        want = [kld_count(x[i], bins, n_min=50) for i in range(7)]
+        assert kld_counts(x, bins, n_min=50).tolist() == want
+        assert len(set(want)) > 1  # the runs differ: the batch cannot pass by repeating one count
