@@ -74,6 +74,27 @@ def test_claims_subset_md_rederives_every_row_and_catches_a_changed_one(ungm_res
     assert "| experiment |" in report.claims_subset_md(cl, ["C4"])  # two experiments: the column is there
 
 
+def test_every_sif_cost_verdict_is_on_the_charged_cost(sif_results, ungm_res):
+    """Issue 25, item 1: a SIF comparison of cost is judged on the cost with compute charged (the paper's cost
+    term N_it/50 for every iteration computed, greedy's candidates and a learned policy's look included); the
+    paper's uncharged cost follows as a comparison row. A cost that charges no compute (the UKF's) keeps one row.
+    The charge decides learned logmaxNIS against greedy: confirmed charged, contradicted uncharged."""
+    rows = claims.cost_rows(sif_results["ctm-sif-logmaxnis"], "adaptive", "greedy")
+    assert [(r["metric"], r["role"]) for r in rows] == [("cost_charged", "verdict"), ("cost", "uncharged")]
+    assert rows[0]["verdict"] == "confirmed" and rows[1]["verdict"] == "contradicted"
+    assert [(r["metric"], r["role"]) for r in claims.cost_rows(ungm_res, "adaptive", "greedy")] == [("cost", "verdict")]
+    cl = artefacts.load_claims()
+    sif = [r for k in ("C5", "C6") for r in cl[k] if r["experiment"] in claims.SIF_EXPERIMENTS
+           and r["metric"] in ("cost", "cost_charged")]
+    assert len(sif) >= 20 and all((r["metric"] == "cost_charged") == (r["role"] == "verdict") for r in sif)
+    assert all(r["role"] == "verdict" for k in ("C5", "C6") for r in cl[k]
+               if r["experiment"] not in claims.SIF_EXPERIMENTS)
+    for e, d in artefacts.load_table1().items():
+        for pair, by_metric in d["differences"].items():
+            roles = (by_metric["cost_charged"]["role"], by_metric["cost"]["role"])
+            assert roles == ("verdict", "uncharged"), (e, pair)
+
+
 # ---------------------------------------------------------------- Table I
 
 
