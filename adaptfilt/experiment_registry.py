@@ -61,10 +61,12 @@ import numpy as np
 from adaptfilt.gaf import SIF, UKF, GaussianAssumedFilter
 from adaptfilt.mdp import Cost, FilterEnv
 from adaptfilt.models import StateSpaceModel, coordinated_turn, ungm
+from adaptfilt.particle_env import PARTICLE_GRID, ESSTargetPolicy, KLDSamplingPolicy, ParticleCost, ParticleCountEnv
 from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy, default_policy
 
-__all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "SIF_FORMS", "get_experiment", "describe_experiments",
-           "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID"]
+__all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment",
+           "describe_experiments", "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES",
+           "ESS_TARGETS"]
 
 UNGM_KAPPA_GRID = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 3000.0, 10000.0)
 CTM_KAPPA_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
@@ -83,9 +85,9 @@ class Experiment:
     name: str
     description: str
     model_factory: Callable[[], StateSpaceModel]
-    filter_kind: str  # "ukf" or "sif"
+    filter_kind: str  # "ukf", "sif" or "pf" (a particle filter whose count is the parameter)
     grid: tuple[float, ...]
-    cost: Cost
+    cost: "Cost | ParticleCost"
     ml_baseline: bool = True
     extra: dict = field(default_factory=dict)
     #: the information state learned policies see by default (:mod:`adaptfilt.features`): the paper's
@@ -96,23 +98,29 @@ class Experiment:
 
     @property
     def param_name(self) -> str:
-        return "kappa" if self.filter_kind == "ukf" else "n_iter"
+        return {"ukf": "kappa", "sif": "n_iter", "pf": "n_particles"}[self.filter_kind]
 
     def make_model(self) -> StateSpaceModel:
         return self.model_factory()
 
     def make_filter(self, seed: int = 0, model: StateSpaceModel | None = None) -> GaussianAssumedFilter:
         model = self.make_model() if model is None else model
+        if self.filter_kind == "pf":
+            return self.make_env(seed, model=model).filt
         if self.filter_kind == "ukf":
             return UKF(model, on_indefinite="clip", **self.filter_options)
         return SIF(model, seed=seed, on_indefinite="clip", **self.filter_options)
 
-    def make_env(self, seed: int = 0, n_steps: int | None = None, model: StateSpaceModel | None = None) -> FilterEnv:
+    def make_env(self, seed: int = 0, n_steps: int | None = None,
+                 model: StateSpaceModel | None = None) -> "FilterEnv | ParticleCountEnv":
+        if self.filter_kind == "pf":
+            return ParticleCountEnv(self.make_model() if model is None else model, self.cost, self.grid,
+                                    default=self.extra["default"], seed=seed, n_steps=n_steps)
         return FilterEnv(self.make_filter(seed, model), self.grid, cost=self.cost, n_steps=n_steps)
 
     @property
     def default_value(self) -> float:
-        return self.make_filter().param
+        return self.extra["default"] if self.filter_kind == "pf" else self.make_filter().param
 
     def baselines(self, fixed: bool = True) -> list:
         """``default``, every fixed grid value, ``ml`` (UKF only: for the SIF
@@ -124,6 +132,8 @@ class Experiment:
         adaptation) and in both steps (``fixed-both-kappa=v``, a UKF with one
         constant kappa)."""
         grid = np.asarray(self.grid)
+        if self.filter_kind == "pf":
+            return self._particle_baselines(grid, fixed)
         pols = [default_policy(self.default_value, grid=grid)]
         if fixed:
             pols += [FixedPolicy(v, self.param_name, grid=grid) for v in self.grid]
@@ -131,6 +141,16 @@ class Experiment:
                 pols += [FixedPolicy(v, self.param_name, grid=grid, both_steps=True) for v in self.grid]
         if self.ml_baseline:
             pols.append(MaxLikelihoodPolicy(grid=grid))
+        pols.append(GreedyPolicy(grid=grid))
+        return pols
+
+    def _particle_baselines(self, grid: np.ndarray, fixed: bool) -> list:
+        """``default``, every fixed count, KLD-sampling with the experiment's bins, the ESS targets and greedy."""
+        pols = [default_policy(self.default_value, grid=grid)]
+        if fixed:
+            pols += [FixedPolicy(v, self.param_name, grid=grid) for v in self.grid]
+        pols.append(KLDSamplingPolicy(self.extra["kld_bins"], grid=grid))
+        pols += [ESSTargetPolicy(t, grid=grid) for t in ESS_TARGETS]
         pols.append(GreedyPolicy(grid=grid))
         return pols
 
@@ -174,12 +194,39 @@ VARIANTS: dict[str, Experiment] = {
 }
 
 
+#: Prices per particle of the particle-count experiments (beyond the paper): the learned count is judged
+#: at each against the fixed counts, KLD-sampling and the ESS targets (chapter 14).
+PARTICLE_PRICES = ("1e-4", "1e-3")
+#: Effective sample sizes the ESS-target baselines keep (:class:`~adaptfilt.particle_env.ESSTargetPolicy`).
+ESS_TARGETS = (50, 200, 1000)
+
+
+def _ungm_short() -> StateSpaceModel:
+    return ungm(n_steps=100)
+
+
+#: The particle count as the parameter (beyond the paper; :mod:`adaptfilt.particle_env`): UNGM (100 steps
+#: of the paper's 500, so that a policy trains in minutes) and the CTM, the filter's squared error plus a
+#: price per particle (a simulation-only cost: training knows the truth, the policy sees its information
+#: state only). KLD-sampling's bins are the process noise's standard deviation per state dimension.
+PARTICLE_EXPERIMENTS: dict[str, Experiment] = {
+    f"{m}-pf-{p}": Experiment(
+        f"{m}-pf-{p}", f"particle count on {label}, ||x_filt - x||^2 + {p} N (beyond the paper)", factory, "pf",
+        tuple(float(g) for g in PARTICLE_GRID), ParticleCost("sqerr", float(p)), ml_baseline=False,
+        extra={"default": 1000, "kld_bins": bins})
+    for m, label, factory, bins in (("ungm", "UNGM (100 steps)", _ungm_short, (1.0,)),
+                                    ("ctm", "the bearing-only CTM", coordinated_turn,
+                                     tuple(float(b) for b in np.sqrt(np.diag(coordinated_turn().Q)))))
+    for p in PARTICLE_PRICES
+}
+
+
 def get_experiment(name: str) -> Experiment:
     """The experiment (or variant) called ``name``; ``KeyError`` listing the known names otherwise."""
-    try:
-        return EXPERIMENTS[name] if name in EXPERIMENTS else VARIANTS[name]
-    except KeyError:
-        raise KeyError(f"unknown experiment {name!r}; known: {', '.join([*EXPERIMENTS, *VARIANTS])}") from None
+    for table in (EXPERIMENTS, VARIANTS, PARTICLE_EXPERIMENTS):
+        if name in table:
+            return table[name]
+    raise KeyError(f"unknown experiment {name!r}; known: {', '.join([*EXPERIMENTS, *VARIANTS, *PARTICLE_EXPERIMENTS])}")
 
 
 def describe_experiments() -> str:
@@ -190,4 +237,6 @@ def describe_experiments() -> str:
         rows.append(f"{e.name:<20} {e.cost.name:<24} {e.param_name:<10} {e.description}\n{'':<20} {g}")
     rows.append("\nvariants (for comparison):")
     rows += [f"{e.name:<28} {e.description}" for e in VARIANTS.values()]
+    rows.append("\nthe particle count (beyond the paper):")
+    rows += [f"{e.name:<28} {e.description}" for e in PARTICLE_EXPERIMENTS.values()]
     return "\n".join(rows)

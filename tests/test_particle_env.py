@@ -165,3 +165,19 @@ def test_a_collapsed_cloud_has_infinite_nees_and_counts_as_diverged():
     assert ne2[0, 0] == 2.0 and np.isinf(ne2[0, 1])
     with pytest.raises(ValueError, match="not positive definite"):
         metrics.nees(e, np.zeros_like(e), cov)  # the Gaussian filters' default stays strict
+
+
+def test_the_particle_experiments_are_named_with_their_baselines():
+    from adaptfilt.experiment_registry import ESS_TARGETS, PARTICLE_EXPERIMENTS, PARTICLE_PRICES, get_experiment
+
+    assert sorted(PARTICLE_EXPERIMENTS) == sorted(f"{m}-pf-{p}" for m in ("ungm", "ctm") for p in PARTICLE_PRICES)
+    exp = get_experiment("ctm-pf-1e-3")
+    env = exp.make_env(seed=3, n_steps=5)
+    assert isinstance(env, ParticleCountEnv) and env.cost == ParticleCost("sqerr", 1e-3) and env.n_steps == 5
+    assert exp.param_name == "n_particles" and exp.default_value == 1000
+    names = [p.name for p in exp.baselines()]
+    assert names[0] == "default" and "kld" in names and names[-1] == "greedy"
+    assert [n for n in names if n.startswith("ess-")] == [f"ess-{t}" for t in ESS_TARGETS]
+    kld = next(p for p in exp.baselines() if p.name == "kld")
+    np.testing.assert_allclose(kld.bin_size, np.sqrt(np.diag(exp.make_model().Q)))  # the rule: noise std per dimension
+    assert get_experiment("ungm-pf-1e-4").make_model().n_steps == 100
