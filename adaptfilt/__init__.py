@@ -16,7 +16,7 @@ course (``adaptfilt.course``) are imported by their own names; the layers and th
 >>> af.metrics.rmse(traj.x, run.mean).shape
 (500,)
 """
-import importlib
+import importlib as _importlib
 
 from adaptfilt import (evaluation, experiment_registry, linalg, lookahead, mdp, metrics, models, policies, rules,
                        seed_stats)
@@ -34,7 +34,7 @@ _LAZY = ("plots", "learned", "actor_critic", "toy", "style", "gym", "trainers", 
 
 def __getattr__(name: str):
     if name in _LAZY:
-        return importlib.import_module(f"adaptfilt.{name}")
+        return _importlib.import_module(f"adaptfilt.{name}")
     raise AttributeError(f"module 'adaptfilt' has no attribute {name!r}")
 
 __all__ = [

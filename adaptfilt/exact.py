@@ -1,7 +1,8 @@
-r"""Exact references: the Kalman filter and the point-mass (grid) filter.
+r"""Exact references: the Kalman filter, the point-mass (grid) filter and the bootstrap particle filter.
 
 They are written independently of the Gaussian-assumed filter (plain
-``(M, n, n)`` numpy, no shared code), so that agreement with them is evidence.
+``(M, n, n)`` numpy; the only shared code is the result container
+:class:`~adaptfilt.gaf.FilterRun`), so that agreement with them is evidence.
 
 * :class:`KalmanFilter`: linear-Gaussian models; every moment rule must agree with it.
 * :class:`PointMassFilter`: scalar models with additive Gaussian noise; the
@@ -27,6 +28,7 @@ class KalmanFilter:
         \hat x_{k|k-1} = F \hat x_{k-1|k-1},\quad P_{k|k-1} = F P_{k-1|k-1} F^T + Q,\quad
         S = H P_{k|k-1} H^T + R,\quad K = P_{k|k-1} H^T S^{-1},
 
+    .. math::
         \hat x_{k|k} = \hat x_{k|k-1} + K (z_k - H \hat x_{k|k-1}),\quad
         P_{k|k} = (I - K H) P_{k|k-1} (I - K H)^T + K R K^T \;\text{(Joseph form)}.
 

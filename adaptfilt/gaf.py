@@ -7,8 +7,12 @@ A GAF is one recursion plus a moment rule (:mod:`adaptfilt.rules`):
     \hat x_{k|k-1} = E[f(x_{k-1})],\quad
     P_{k|k-1} = \mathrm{Cov}[f(x_{k-1})] + Q \qquad\text{(predict)}
 
+.. math::
+
     \hat z_{k|k-1} = E[h(x_k)],\quad P^{zz} = \mathrm{Cov}[h(x_k)] + R,\quad
     P^{xz} = \mathrm{Cov}[x_k, h(x_k)]
+
+.. math::
 
     K = P^{xz} (P^{zz})^{-1},\quad \tilde z = z_k - \hat z_{k|k-1},\quad
     \hat x_{k|k} = \hat x_{k|k-1} + K \tilde z,\quad

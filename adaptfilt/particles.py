@@ -9,6 +9,7 @@ adapted. :class:`ParticleCountFilter` makes it one, in the layout of the other f
     a_j \sim \mathrm{Cat}\big(w^{(1)}_{k-1}, \dots, w^{(N_{k-1})}_{k-1}\big),\qquad
     j = 1..N_k,
 
+.. math::
     w^{(j)}_k \propto \mathcal N\big(\mathbf z_k - \mathbf h(\mathbf x^{(j)}_k); \mathbf 0, \mathbf R\big),\qquad
     \hat p(\mathbf z_k \mid \mathbf z^{k-1}) = \frac1{N_k} \sum_j
     \mathcal N\big(\mathbf z_k - \mathbf h(\mathbf x^{(j)}_k); \mathbf 0, \mathbf R\big):

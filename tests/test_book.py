@@ -12,6 +12,7 @@ screenshots and Chromium's log go to build/book-test (a CI artefact).
 """
 from __future__ import annotations
 
+import ast
 import functools
 import html
 import http.server
@@ -419,6 +420,33 @@ def test_repo_book_pages_and_images(repo_book):
     _check_built_book(out, notebooks)
 
 
+def _broken_links(out: Path) -> list[str]:
+    """Links of the book's pages to a file of the book (another chapter, the library reference's
+    pages) that reach no file. 404.html is left out: its links start at a web server's root."""
+    broken = []
+    for page in sorted(out.glob("*.html")):
+        if page.name == "404.html":
+            continue
+        for href in _parse(page).links:
+            target = html.unescape(href).split("#")[0].split("?")[0]
+            if target and not re.match(r"^[a-z]+:", target) and not (page.parent / target).is_file():
+                broken.append(f"{page.name}: {href}")
+    return broken
+
+
+def test_links_between_pages_reach_files(repo_book, tmp_path):
+    """No chapter (nor the navigation, the print page, the front pages) links to a page of the book,
+    the library reference's included, that is not there. The check itself sees a broken link."""
+    out, _ = repo_book
+    assert _broken_links(out) == []
+    (tmp_path / "reference" / "adaptfilt").mkdir(parents=True)
+    (tmp_path / "reference" / "adaptfilt" / "gaf.html").write_text("<p>gaf</p>")
+    (tmp_path / "ch.html").write_text('<a href="reference/adaptfilt/gaf.html#UKF">ok</a> <a href="https://x.org/a">web</a>'
+                                      ' <a href="#top">here</a>'
+                                      ' <a href="reference/adaptfilt/gaff.html">typo</a>')
+    assert _broken_links(tmp_path) == ["ch.html: reference/adaptfilt/gaff.html"]
+
+
 def test_readme_links_to_the_architecture_page(repo_book):
     out, _ = repo_book
     intro = (out / "introduction.html").read_text(encoding="utf-8")
@@ -470,6 +498,50 @@ def test_library_reference_is_built_and_linked(repo_book):
             if not target or re.match(r"^[a-z]+:", target):
                 continue
             assert (page.parent / target).is_file(), f"{page.relative_to(out)}: broken link {href}"
+
+
+def test_simple_tables_become_markdown_tables():
+    """pdoc leaves reST simple tables as a paragraph of ``=`` signs; the reference converts them."""
+    from adaptfilt.course.reference import simple_tables_to_markdown
+
+    text = ("Intro.\n\n====  =========\nname  what\n====  =========\n``a``   one\n      two | three\n"
+            "``b`` four\n====  =========\n\nAfter ====  ==== stays.")
+    assert simple_tables_to_markdown(text).split("\n") == [
+        "Intro.", "", "| name | what |", "| --- | --- |", "| ``a`` | one two \\| three |", "| ``b`` | four |", "",
+        "After ====  ==== stays."]
+    headless = simple_tables_to_markdown("  ===  ===\n  x    y\n  ===  ===")
+    assert headless.split("\n") == ["  |  |  |", "  | --- | --- |", "  | x | y |"]
+    unclosed = "===  ===\nx    y\n\nz"
+    assert simple_tables_to_markdown(unclosed) == unclosed
+
+
+def _library_docstrings():
+    from adaptfilt.course.reference import library_modules
+
+    for module in library_modules():
+        path = ROOT.joinpath(*module.split("."))
+        path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                doc = ast.get_docstring(node)
+                if doc:
+                    yield f"{path.relative_to(ROOT)}:{getattr(node, 'name', 'module')}", doc
+
+
+def test_library_docstrings_render_in_the_reference():
+    """What pdoc would show wrongly: a ``.. math::`` block with a blank line inside (pdoc puts its parts
+    in separate paragraphs between one pair of ``$$``, which MathJax leaves raw; write one directive per
+    formula), and a reST table the converter does not handle (it would stay a paragraph of ``=``)."""
+    from adaptfilt.course.reference import _BORDER, simple_tables_to_markdown
+
+    split_maths, tables = [], []
+    for where, doc in _library_docstrings():
+        for block in re.finditer(r"^([ \t]*)\.\. math::[ \t]*\n((?:\1[ \t]+\S.*\n|[ \t]*\n)*)", doc + "\n", flags=re.M):
+            if re.search(r"\S.*\n[ \t]*\n[ \t]*\S", block.group(2)):
+                split_maths.append(where)
+        if any(_BORDER.match(line) for line in simple_tables_to_markdown(doc).split("\n")):
+            tables.append(where)
+    assert split_maths == [] and tables == []
 
 
 def test_landing_page_without_notebooks(tmp_path):
@@ -821,3 +893,27 @@ def test_browser_reference_typesets_formulas(browser, repo_book):
     seen = visit["value"]
     assert visit["errors"] == [] and seen["mathjax"] and seen["typeset"] == "done", (visit["errors"], seen["typeset"])
     assert seen["rendered"] >= 3 and seen["errors"] == 0 and seen["mathErrors"] == []
+
+
+def test_browser_every_page_of_the_library_reference(browser, repo_book):
+    """Every pdoc page of the library reference, checked as the book's own pages are (at a phone's
+    width): no console error, MathJax done without an error or an undefined macro, no raw TeX left in
+    the text (a ``.. math::`` block split into paragraphs), no text cut off (a docstring's table)."""
+    from adaptfilt.course.reference import library_modules
+
+    out, _ = repo_book
+    # pdoc's index.html is a bare redirect to adaptfilt.html
+    pages = sorted(p for p in (out / "reference").rglob("*.html") if p.name != "index.html")
+    assert pages and len(pages) == len(library_modules())
+    problems, timings, formulas = [], [], 0
+    for page in pages:
+        name = str(page.relative_to(out))
+        started = time.monotonic()
+        visit = _visit(browser, page.as_uri())
+        timings.append(f"{time.monotonic() - started:6.1f} s  {name}")
+        formulas += visit["value"]["rendered"]
+        problems += _problems(name, visit)
+    ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTEFACTS / "browser-reference-pages.txt").write_text("\n".join(timings) + "\n", encoding="utf-8")
+    assert problems == []
+    assert formulas >= 50  # 74 formulas in the library's docstrings when this was written

@@ -7,7 +7,8 @@ Every ``import`` of an ``adaptfilt`` module counts, the lazy ones inside functio
 * the pipeline never imports the course;
 * nothing inside the package imports its faces (``adaptfilt/__init__``: the library's public names;
   ``adaptfilt/cli.py``, ``adaptfilt/__main__.py``: the command line, which may import every layer);
-  the package face itself imports the library only;
+  the package face itself imports the library only, eagerly or through its lazy list (``_LAZY``), and
+  no other module imports by a computed name (``importlib.import_module``);
 * the graph has no circle.
 """
 import ast
@@ -113,6 +114,52 @@ def cycles() -> list[list[str]]:
         if v not in index:
             visit(v)
     return out
+
+
+def dynamic_imports() -> list[str]:
+    """What the ``import`` statements do not show: ``importlib.import_module`` / ``__import__`` anywhere
+    but the face, and a name of the face's lazy list (``_LAZY``, loaded by its ``__getattr__``) that is
+    not a library module."""
+    bad, mods = [], modules()
+    for m, path in mods.items():
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and m != "adaptfilt" and (
+                    (isinstance(node.func, ast.Attribute) and node.func.attr == "import_module")
+                    or (isinstance(node.func, ast.Name) and node.func.id in ("import_module", "__import__"))):
+                where = f"{path.relative_to(PKG.parent)}:{node.lineno}"
+                bad.append(f"{where}: a dynamic import (write an import statement)")
+            if m == "adaptfilt" and isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id == "_LAZY" for t in node.targets):
+                for name in ast.literal_eval(node.value):
+                    target = f"adaptfilt.{name}"
+                    if target not in mods or target in CLI or layer(target) != LIBRARY:
+                        bad.append(f"{path.relative_to(PKG.parent)}:{node.lineno}: the face loads {target} lazily"
+                                   " (it exports the library only)")
+    return bad
+
+
+def test_dynamic_imports_load_the_library_only():
+    assert dynamic_imports() == []
+
+
+@pytest.mark.parametrize("edit", ["lazy-course", "import_module"])
+def test_the_check_sees_a_dynamic_import(tmp_path, monkeypatch, edit):
+    fake = tmp_path / "adaptfilt"
+    for p in PKG.rglob("*.py"):
+        q = fake / p.relative_to(PKG)
+        q.parent.mkdir(parents=True, exist_ok=True)
+        q.write_text(p.read_text())
+    if edit == "lazy-course":
+        face = (fake / "__init__.py").read_text()
+        assert face.count("_LAZY = (") == 1
+        (fake / "__init__.py").write_text(face.replace("_LAZY = (", '_LAZY = ("course", '))
+    else:
+        (fake / "zz_probe.py").write_text(
+            'import importlib\n\ndef f():\n    return importlib.import_module("adaptfilt.course")\n')
+    monkeypatch.setattr(sys.modules[__name__], "PKG", fake)
+    bad = dynamic_imports()
+    assert len(bad) == 1 and ("adaptfilt.course" in bad[0] if edit == "lazy-course" else "zz_probe" in bad[0])
 
 
 def test_every_import_runs_downwards():

@@ -7,7 +7,9 @@ into the book as they are) and :func:`reference_chapter` is the book page that t
 "Library reference" entry opens: one link per library module. The pages typeset their formulas with
 the book's own MathJax 2.7 (no network): pdoc's ``--math`` template, which loads MathJax 3 from a
 CDN, is replaced by :data:`_MATH_TEMPLATE`; pdoc writes ``.. math::`` blocks as ``$$ ... $$`` and
-``:math:`` roles as ``\( ... \)``.
+``:math:`` roles as ``\( ... \)`` (one directive per formula: a blank line inside one would split it
+into paragraphs that MathJax leaves raw). pdoc leaves reST simple tables as text;
+:func:`simple_tables_to_markdown` turns them into Markdown tables before pdoc renders a docstring.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["NOT_LIBRARY", "library_modules", "write_reference", "reference_chapter", "REFERENCE_DIR"]
+__all__ = ["NOT_LIBRARY", "library_modules", "simple_tables_to_markdown", "write_reference", "reference_chapter",
+           "REFERENCE_DIR"]
 
 #: The folder of the book's sources (and of the built book) that holds the pages.
 REFERENCE_DIR = "reference"
@@ -37,10 +40,60 @@ _MATH_TEMPLATE = r"""{# adaptfilt: the book's local MathJax 2.7 instead of pdoc'
 </script>
 <script src="{{ up }}mathjax/MathJax.js?config=TeX-AMS-MML_HTMLorMML-full"></script>
 <style>
-    .MathJax_Display { max-width: 100%; overflow-x: auto; overflow-y: hidden; }
+    /* as the book's pages (adaptfilt.course.book): room above and below, or tall formulas are clipped */
+    .MathJax_Display { max-width: 100%; overflow-x: auto; overflow-y: hidden; padding: 0.5em 0; margin: 0.5em 0; }
+    /* a table wider than the column scrolls sideways instead of running past it */
+    .pdoc .docstring table { display: block; max-width: 100%; overflow-x: auto; }
     .MJX_Assistive_MathML, .MJX_Assistive_MathML * { font-family: inherit !important; }
 </style>
 """
+
+
+_BORDER = re.compile(r"^(?P<indent>[ \t]*)=+(?:[ \t]+=+)+[ \t]*$")
+
+
+def simple_tables_to_markdown(text: str) -> str:
+    """reST *simple tables* (columns under ``=====  =====`` borders, an optional header between the
+    first two) as Markdown tables, which pdoc renders: its reST support leaves them as text, a
+    paragraph of ``=`` signs. A row whose first column is blank continues the row above."""
+    lines = text.split("\n")
+    out, i = [], 0
+    while i < len(lines):
+        top = _BORDER.match(lines[i])
+        borders = [i]
+        if top:  # the table's other borders: same columns, until a blank line or the text's end
+            j = i + 1
+            while j < len(lines) and lines[j].strip():
+                if lines[j].rstrip() == lines[i].rstrip():
+                    borders.append(j)
+                j += 1
+        if not top or len(borders) not in (2, 3) or borders[-1] != j - 1:  # other forms stay as they are
+            out.append(lines[i])
+            i += 1
+            continue
+        border, indent = lines[i].rstrip(), top.group("indent")
+        starts = [m.start() for m in re.finditer(r"=+", border)]
+
+        def cells(line: str) -> list[str]:
+            line = line.ljust(len(border))
+            return [line[a:b].strip() for a, b in zip(starts, starts[1:] + [len(line)])]
+
+        def rows(a: int, b: int) -> list[list[str]]:
+            got: list[list[str]] = []
+            for line in lines[a:b]:
+                c = cells(line)
+                if got and not c[0]:
+                    got[-1] = [f"{x} {y}".strip() for x, y in zip(got[-1], c)]
+                else:
+                    got.append(c)
+            return got
+
+        head = rows(borders[0] + 1, borders[1]) if len(borders) == 3 else [[""] * len(starts)]
+        body = rows(borders[-2] + 1, borders[-1])
+        for row in [head[0], ["---"] * len(starts), *body]:
+            out.append(indent + "| " + " | ".join(c.replace("|", "\\|") for c in row) + " |")
+        i = borders[-1] + 1
+    return "\n".join(out)
 
 
 def library_modules(package_dir: Path | None = None) -> list[str]:
@@ -70,9 +123,11 @@ def write_reference(dest: Path) -> list[str]:
     ``dest/adaptfilt/<module>.html``, ...); return the module names. Imports the library (torch
     included), not the pipeline or the course."""
     import pdoc
+    import pdoc.docstrings
     import pdoc.render
 
     modules = library_modules()
+    rst = pdoc.docstrings.rst  # pdoc's reST conversion, with simple tables first
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "math.html.jinja2").write_text(_MATH_TEMPLATE, encoding="utf-8")
         pdoc.render.configure(docformat="restructuredtext", math=True, search=False, show_source=True,
@@ -81,7 +136,13 @@ def write_reference(dest: Path) -> list[str]:
             shutil.rmtree(dest)
         with warnings.catch_warnings():  # a package's spec adds the submodules of its __all__ again: harmless
             warnings.filterwarnings("ignore", message="The module specification", category=UserWarning)
-            pdoc.pdoc(*modules, output_directory=Path(dest))
+            pdoc.docstrings.rst = lambda contents, source_file: rst(simple_tables_to_markdown(contents), source_file)
+            pdoc.docstrings.convert.cache_clear()
+            try:
+                pdoc.pdoc(*modules, output_directory=Path(dest))
+            finally:
+                pdoc.docstrings.rst = rst
+                pdoc.docstrings.convert.cache_clear()
     return modules
 
 
