@@ -160,11 +160,18 @@ class ParticleCountFilter:
     def _rngs(self, run_id: int, t: int) -> tuple[np.random.Generator, np.random.Generator]:
         # two streams, so that particle j's ancestor uniform and its noise are the j-th draws of
         # their own stream whatever the count (one stream would shift the noise by N uniforms).
-        # Philox is counter-based: key (seed, run), counter (t, stream) address a stream directly,
-        # 2.5x cheaper to open than a SeedSequence-hashed generator (one pair per run and step)
-        key = [self.seed, int(run_id)]
-        return (np.random.Generator(np.random.Philox(key=key, counter=[t, 0, 0, 0])),
-                np.random.Generator(np.random.Philox(key=key, counter=[t, 1, 0, 0])))
+        # Philox is counter-based: key (seed, run), counter (t, stream) address a stream directly.
+        # Two generators are kept and re-pointed by assigning their state, 5x cheaper than opening
+        # new ones (one pair per run and step); the draws are the same as from fresh generators.
+        if not hasattr(self, "_streams"):
+            self._streams = [np.random.Generator(np.random.Philox(key=[0, 0])) for _ in range(2)]
+        for stream, g in enumerate(self._streams):
+            st = g.bit_generator.state
+            st["state"]["counter"][:] = (t, stream, 0, 0)
+            st["state"]["key"][:] = (self.seed, int(run_id))
+            st["buffer_pos"], st["has_uint32"], st["uinteger"] = 4, 0, 0  # an empty buffer: a fresh stream
+            g.bit_generator.state = st
+        return self._streams[0], self._streams[1]
 
     def _counts(self, n_particles, M: int, T: int) -> np.ndarray:
         n = np.asarray(n_particles)

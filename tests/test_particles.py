@@ -108,3 +108,13 @@ def test_the_batched_kld_count_is_the_stopping_rule_run_by_run():
         want = [kld_count(x[i], bins, n_min=50) for i in range(7)]
         assert kld_counts(x, bins, n_min=50).tolist() == want
         assert len(set(want)) > 1  # the runs differ: the batch cannot pass by repeating one count
+
+
+def test_the_streams_are_those_of_fresh_philox_generators():
+    pf = ParticleCountFilter(af.models.ungm(), seed=3)
+    for run_id, t in ((7, 11), (0, 0), (2**40 + 5, 499)):
+        gu, gw = pf._rngs(run_id, t)
+        u, w = gu.random(9), gw.standard_normal(9)
+        fresh = [np.random.Generator(np.random.Philox(key=[3, run_id], counter=[t, s, 0, 0])) for s in (0, 1)]
+        np.testing.assert_array_equal(u, fresh[0].random(9))
+        np.testing.assert_array_equal(w, fresh[1].standard_normal(9))
