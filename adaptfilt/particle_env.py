@@ -143,7 +143,9 @@ class _Filter:
         self.pf, self.param, self.model = pf, int(param), pf.model
 
     def __repr__(self) -> str:
-        return f"ParticleCountFilter(bootstrap, multinomial resampling, seed={self.pf.seed})"
+        # the form of the filter, not its seed (which keys random streams): a policy trained with one seed
+        # acts in an environment with another (learned.check_compatible compares this)
+        return "ParticleCountFilter(bootstrap, multinomial resampling)"
 
 
 def particle_feature_names(model: StateSpaceModel) -> list[str]:
@@ -402,10 +404,9 @@ class KLDSamplingPolicy:
     least ``n_min`` particles, Fox's usual values). The particles it examines are the first ones of
     the count it keeps, so it spends only that count."""
 
-    name = "kld"
-
     def __init__(self, bin_size: float | Sequence[float], epsilon: float = 0.05, delta: float = 0.01,
-                 n_min: int = 50, grid=None):
+                 n_min: int = 50, grid=None, name: str = "kld"):
+        self.name = name
         self.bin_size = np.asarray(bin_size, dtype=float)
         if not (np.isfinite(self.bin_size).all() and (self.bin_size > 0).all()):
             raise ValueError(f"bin_size must be positive, got {self.bin_size.tolist()}")

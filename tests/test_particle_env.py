@@ -168,16 +168,45 @@ def test_a_collapsed_cloud_has_infinite_nees_and_counts_as_diverged():
 
 
 def test_the_particle_experiments_are_named_with_their_baselines():
-    from adaptfilt.experiment_registry import ESS_TARGETS, PARTICLE_EXPERIMENTS, PARTICLE_PRICES, get_experiment
+    from adaptfilt.experiment_registry import (ESS_TARGETS, KLD_BIN_SCALES, PARTICLE_EXPERIMENTS, PARTICLE_PRICES,
+                                               get_experiment)
 
-    assert sorted(PARTICLE_EXPERIMENTS) == sorted(f"{m}-pf-{p}" for m in ("ungm", "ctm") for p in PARTICLE_PRICES)
-    exp = get_experiment("ctm-pf-1e-3")
+    assert sorted(PARTICLE_EXPERIMENTS) == sorted(f"{m}-pf-{p}" for m, ps in PARTICLE_PRICES.items() for p in ps)
+    exp = get_experiment("ctm-pf-0.1")
     env = exp.make_env(seed=3, n_steps=5)
-    assert isinstance(env, ParticleCountEnv) and env.cost == ParticleCost("sqerr", 1e-3) and env.n_steps == 5
+    assert isinstance(env, ParticleCountEnv) and env.cost == ParticleCost("sqerr", 0.1) and env.n_steps == 5
     assert exp.param_name == "n_particles" and exp.default_value == 1000
     names = [p.name for p in exp.baselines()]
-    assert names[0] == "default" and "kld" in names and names[-1] == "greedy"
+    assert names[0] == "default" and names[-1] == "greedy"
     assert [n for n in names if n.startswith("ess-")] == [f"ess-{t}" for t in ESS_TARGETS]
-    kld = next(p for p in exp.baselines() if p.name == "kld")
-    np.testing.assert_allclose(kld.bin_size, np.sqrt(np.diag(exp.make_model().Q)))  # the rule: noise std per dimension
+    klds = [p for p in exp.baselines() if p.name.startswith("kld")]
+    assert [p.name for p in klds] == [f"kld-x{k}" for k in KLD_BIN_SCALES]
+    noise_std = np.sqrt(np.diag(exp.make_model().Q))
+    for k, p in zip(KLD_BIN_SCALES, klds):  # the rule: multiples of the process noise's std per dimension
+        np.testing.assert_allclose(p.bin_size, k * noise_std)
     assert get_experiment("ungm-pf-1e-4").make_model().n_steps == 100
+
+
+def test_the_study_summary_compares_the_learned_group_with_the_best_kld_and_fixed_count():
+    from adaptfilt.experiments.beyond import summary_md
+    from adaptfilt.experiments.particles_study import particle_rows
+
+    env = ParticleCountEnv(af.models.ungm(), ParticleCost("sqerr", 1e-3), n_steps=8)
+    # stand-ins for two learned seeds: any policy named like one is grouped as one
+    pols = [FixedPolicy(n, "n_particles") for n in (50, 300, 2000)] + [
+        KLDSamplingPolicy(1.0, name="kld-x1"), KLDSamplingPolicy(4.0, name="kld-x4"),
+        FixedPolicy(200, "n_particles", name="adaptive-s0"), ESSTargetPolicy(50, grid=None)]
+    pols.append(ESSTargetPolicy(200))
+    pols[-1].name = "adaptive-s1"
+    res = evaluate(env, pols, n_runs=30, progress=False, n_boot=100)
+    rows = particle_rows(res, {"rmse": 0.6, "runs": 3})
+    best = min(("kld-x1", "kld-x4"), key=lambda n: res[n].cost_charged)
+    assert rows["best kld"] == best
+    assert rows["best fixed"] == min(("fixed-n_particles=50", "fixed-n_particles=300", "fixed-n_particles=2000"),
+                                     key=lambda n: res[n].cost_charged)
+    a = rows["adaptive"]
+    assert a["particles"] == [res["adaptive-s0"].spent, res["adaptive-s1"].spent]
+    lo, hi = a["minus_best kld"]["cost_charged"][1:]
+    assert lo <= a["minus_best kld"]["cost_charged"][0] <= hi
+    md = summary_md({"particles": {"ungm-test": rows}}, ("particles",))
+    assert "point-mass floor (3 runs)" in md and f"| ungm-test | {best} |" in md

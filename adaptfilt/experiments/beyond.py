@@ -1,6 +1,6 @@
-r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw]``.
+r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles]``.
 
-Four studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
+Studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
 into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json``):
 
 1. **Candidate-aware information state** (``cand``): the paper's information state cannot see what
@@ -25,6 +25,11 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    trained on ``-L`` itself (``adaptive-raw``, gamma 0.5, the fast mode, ``--cost-transform none``)
    on UNGM-UKF and CTM-UKF, against the reproduction's adaptive policies (trained on ``log(1 + L)``),
    greedy, ML and the default, on the same runs.
+
+7. **The particle count** (``particles``, :mod:`adaptfilt.experiments.particles_study`): learned counts
+   against fixed counts, KLD-sampling, ESS targets, greedy and (UNGM) the point-mass floor.
+
+(Studies 5 and 6, ``anchor`` and ``look``: :mod:`adaptfilt.anchor`, :mod:`adaptfilt.experiments.look`.)
 
 Every training and evaluation is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or
 Dask), recorded as it finishes in ``DIR/beyond/journal.jsonl`` (:mod:`adaptfilt.experiments.journal`):
@@ -66,7 +71,7 @@ SELECTION_SEED = 1
 COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
 CAND_EXPERIMENTS = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 RAW_EXPERIMENTS = ("ungm-ukf", "ctm-ukf")
-STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look")
+STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look", "particles")
 #: The anchored learner of the ``anchor`` study (:mod:`adaptfilt.anchor`): a residual over greedy's choice
 #: (strength, KL weight and shield: the library's defaults, recorded explicitly in each file's command).
 ANCHOR = ("greedy", 3.0, 0.01, 1.0)
@@ -239,6 +244,17 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                 jobs.append((e, "adaptive-anchored", 0.5, s, str(out / rel), scale, feats, "fast", 0.0, None, "log1p",
                              ANCHOR))
                 metas.append(rel)
+    if "particles" in studies:  # the particle count (chapter 14): its own budget and horizon
+        from adaptfilt.experiment_registry import PARTICLE_EXPERIMENTS
+        from adaptfilt.experiments.particles_study import PARTICLE_FULL, PARTICLE_QUICK
+
+        ps = PARTICLE_QUICK if quick else PARTICLE_FULL
+        pscale = BeyondScale(scale.name, ps.episodes, scale.seeds, ps.n_steps, ps.eval_runs, 0)
+        for e in PARTICLE_EXPERIMENTS:
+            for s in scale.seeds:
+                rel = f"policies/{e}-adaptive-s{s}.npz"
+                jobs.append((e, "adaptive", 0.5, s, str(out / rel), pscale, None, "fast", 0.0))
+                metas.append(rel)
     listed = _listed_policies(out)
     todo = [(j, m) for j, m in zip(jobs, metas) if not _same_training(listed.get(m), _train_command(*j), out / m)]
     keys = [(_train_command(*j), j[3]) for j, _ in todo]
@@ -282,6 +298,18 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             files += [str(p) for p in sorted((out / "policies").glob(f"{e}-adaptive-cand-s*.npz"))]
             ejobs.append((e, files, scale, ("default", "ml", "greedy"), ANCHOR_EVAL_SEED))
             names.append(("anchor", e))
+    floors: dict = {}
+    if "particles" in studies:
+        from adaptfilt.experiments.particles_study import floor_job
+
+        for e in PARTICLE_EXPERIMENTS:
+            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")]
+            ejobs.append((e, files, pscale, None))
+            names.append(("particles", e))
+        fjobs = [(e, ps) for e in PARTICLE_EXPERIMENTS]
+        floors = dict(zip(PARTICLE_EXPERIMENTS, journal.run(
+            floor_job, fjobs, [(f"beyond floor {e} runs={ps.eval_runs} floor={ps.floor_runs} steps={ps.n_steps}", 0)
+                               for e, ps in fjobs], workers=workers, cluster=cluster, progress=False)))
     results = journal.run(_evaluate_job, ejobs, [(_job_key("evaluate", study, e, files, scale, keep, *rest), 0)
                                                   for (study, e), (_, files, _, keep, *rest) in zip(names, ejobs)],
                           save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
@@ -292,7 +320,12 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         res.save(d, drop=COMPACT)
         entries.update({f"results/{study}-{e}/{f}": {"command": cmd, "wall_time_s": wall}
                         for f in ("results.json", "results.npz")})
-        rows = study_rows(study, res, selection if study == "sif" else None)
+        if study == "particles":
+            from adaptfilt.experiments.particles_study import particle_rows
+
+            rows = particle_rows(res, floors.get(e))
+        else:
+            rows = study_rows(study, res, selection if study == "sif" else None)
         summary.setdefault(study, {})[e] = rows
         if study == "anchor":
             summary["anchor-eval-seed"] = ANCHOR_EVAL_SEED
@@ -543,6 +576,26 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
                       "|---|---|---|---|---|---|"]
             lines += [f"| {e} | | " + " | ".join(d(x[m]) for m in ("cost", "objective", "rmse", "anees")) + " |"
                       for e, x in paired]
+        parts.append("\n".join(lines) + "\n")
+    if "particles" in summary:
+        lines = ["**The particle count** (cost = squared error + price x particles, i.e. compared at equal price; "
+                 "learned: IQM over seeds [two-level 95 % CI], differences paired)", "",
+                 "| experiment | policy | cost | RMSE | particles per step | divergent runs | cost - best KLD | cost - best fixed |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for e, rows in summary["particles"].items():
+            for n in (rows["best kld"], rows["best fixed"], "greedy", "default"):
+                b = rows["baselines"].get(n)
+                if b is not None:
+                    lines.append(f"| {e} | {n} | {b['cost']:.4g} | {b['rmse']:.4g} | {b['particles']:.4g} | "
+                                 f"{b['divergent_frac']:.2%} | | |")
+            a = rows.get("adaptive")
+            if a is not None:
+                lines.append(f"| {e} | adaptive | {f(a['cost_charged'])} | {f(a['rmse'])} | "
+                             f"{min(a['particles']):.4g}-{max(a['particles']):.4g} | {max(a['divergent_frac']):.2%} (max) | "
+                             f"{d(a['minus_best kld']['cost_charged'])} ({a['seeds_below_kld']} of {len(a['particles'])} seeds "
+                             f"below alone) | {d(a['minus_best fixed']['cost_charged'])} |")
+            if rows.get("floor") and rows["floor"]["rmse"] is not None:
+                lines.append(f"| {e} | point-mass floor ({rows['floor']['runs']} runs) | | {rows['floor']['rmse']:.4g} | | | | |")
         parts.append("\n".join(lines) + "\n")
     if "look" in summary:
         from adaptfilt.experiments.look import look_md

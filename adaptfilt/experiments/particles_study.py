@@ -1,0 +1,81 @@
+"""The particle-count study of ``adaptfilt beyond --studies particles`` (issue 24's study, chapter 14).
+
+Learned particle counts (the fast mode, gamma 0.5, 8 seeds) on every experiment of
+:data:`~adaptfilt.experiment_registry.PARTICLE_EXPERIMENTS` (UNGM and the CTM, two prices per particle),
+evaluated on the same runs as every fixed count of the grid, KLD-sampling, the ESS targets and greedy;
+on UNGM also the point-mass filter's RMSE on the first runs, the accuracy floor. The verdict rows
+(:func:`particle_rows`) answer the study's question at the seed level: does a learned count beat
+the best KLD-sampling bins and the best fixed count on the cost (squared error plus the price of the particles,
+i.e. at equal price), and where does it sit on RMSE against mean particles per step?
+
+The jobs are those of :mod:`adaptfilt.experiments.beyond` (journaled, resumable); this module holds
+what is particular to the study: its scale, its jobs' arguments, the floor and the summary rows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "floor_job", "particle_rows"]
+
+
+@dataclass(frozen=True)
+class ParticleScale:
+    """Episodes per policy, horizon (None: the experiment's), evaluation runs and floor runs."""
+
+    episodes: int
+    n_steps: int | None
+    eval_runs: int
+    floor_runs: int
+
+
+#: Training budgets of the particle study: 500 episodes (5x10^4 transitions on UNGM's 100 steps), evaluation
+#: on 1000 runs (every fixed count of the grid is 15,225 particles a step together), the floor on 200.
+PARTICLE_FULL = ParticleScale(500, None, 1000, 200)
+PARTICLE_QUICK = ParticleScale(4, 10, 20, 5)
+
+
+def floor_job(experiment: str, scale: ParticleScale, seed: int = 0) -> dict:
+    """RMSE of the point-mass filter (the exact posterior up to its grid) on the first ``floor_runs`` of the
+    evaluation's runs of a one-dimensional model: the accuracy no particle count can beat. None for others."""
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.exact import PointMassFilter
+    from adaptfilt.experiment_registry import get_experiment
+
+    exp = get_experiment(experiment)
+    env = exp.make_env(seed=seed, n_steps=scale.n_steps)
+    if env.nx != 1:
+        return {"rmse": None, "runs": 0}
+    traj = env.truth.simulate(scale.eval_runs, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, seed]))
+    sub = traj[: scale.floor_runs]
+    run = PointMassFilter(env.model, grid=np.linspace(-45, 45, 1801)).run(sub.z)
+    se = ((run.mean - sub.x) ** 2).sum(axis=-1)
+    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "runs": int(scale.floor_runs)}
+
+
+def particle_rows(res, floor: dict | None = None) -> dict:
+    """The study's summary of one experiment's evaluation ``res``: for the learned group ``adaptive`` the
+    IQM over seeds (two-level intervals) of cost, RMSE and ANEES, mean particles per step per seed, and the
+    differences to KLD-sampling and to the cheapest fixed count (seed-level intervals, paired runs); for every
+    baseline its cost, RMSE, mean particles and divergent runs; the floor."""
+    from adaptfilt.seed_stats import aggregate, difference, seed_groups
+
+    fixed = [n for n in res.names if n.startswith("fixed-")]
+    best = min(fixed, key=lambda n: res[n].cost_charged)
+    # the best KLD bins in hindsight, on the evaluation runs themselves: a bar that favours KLD-sampling
+    kld = min((n for n in res.names if n.startswith("kld")), key=lambda n: res[n].cost_charged)
+    rows: dict = {"best fixed": best, "best kld": kld, "floor": floor}
+    rows["baselines"] = {n: {"cost": res[n].cost_charged, "rmse": res[n].rmse, "anees": res[n].anees,
+                             "particles": res[n].spent, "divergent_frac": res[n].divergent_frac}
+                         for n in res.names if not n.startswith("adaptive")}
+    members = seed_groups(res.names).get("adaptive", [])
+    if members:
+        g = {m: aggregate(res, members, m).to_dict() for m in ("cost_charged", "rmse", "objective")}
+        g["particles"] = [res[n].spent for n in members]
+        g["divergent_frac"] = [res[n].divergent_frac for n in members]
+        for label, ref in (("best kld", kld), ("best fixed", best)):
+            g[f"minus_{label}"] = {m: list(difference(res, members, [ref], m)["iqm"]) for m in ("cost_charged", "rmse")}
+        g["seeds_below_kld"] = int(sum(res.paired_difference(n, kld, "cost_charged")[2] < 0 for n in members))
+        rows["adaptive"] = g
+    return rows
