@@ -188,7 +188,9 @@ def _beyond(args: argparse.Namespace) -> int:
         summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
                       studies=tuple(args.studies.split(",")), progress=not args.no_progress, data=args.data)
     text = summary_md(summary)
-    (Path(args.out) / "beyond" / "summary.md").write_text(text)
+    from adaptfilt.files import atomic_write
+
+    atomic_write(Path(args.out) / "beyond" / "summary.md", text)
     print(text)
     return 0
 

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["atomic_path", "atomic_write", "sha256"]
+__all__ = ["atomic_path", "atomic_write", "atomic_savefig", "sha256"]
 
 
 def sha256(path: str | os.PathLike) -> str:
@@ -46,4 +46,11 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> Path:
     """Write ``data`` (text as UTF-8) to ``path`` atomically (module docstring)."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+    return Path(path)
+
+
+def atomic_savefig(fig, path: str | os.PathLike, **kw) -> Path:
+    """``fig.savefig(path, **kw)`` atomically (a matplotlib figure; the format is ``path``'s suffix)."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or None, **kw)
     return Path(path)

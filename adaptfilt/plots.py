@@ -36,6 +36,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from adaptfilt.files import atomic_savefig  # noqa: E402
 from adaptfilt.metrics import chi2_bounds  # noqa: E402
 from adaptfilt.style import colors as _colors, param_label, policy_label  # noqa: E402
 
@@ -408,7 +409,7 @@ def save_figures(results, out_dir: str | Path, floor: float | None = None, dpi: 
     for stem, fig in figs.items():
         safe = "".join(ch if ch.isalnum() or ch in "-_=." else "_" for ch in stem)
         path = out / f"{safe}.png"
-        fig.savefig(path, dpi=dpi)
+        atomic_savefig(fig, path, dpi=dpi)
         plt.close(fig)
         paths.append(path)
     return paths

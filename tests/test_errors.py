@@ -169,7 +169,7 @@ def test_nees_rejects_a_covariance_that_is_not_positive_definite(nx):
     nonfinite[2, 0, 0, 0] = np.nan
     with pytest.raises(ValueError, match=r"covariance P is not finite at run 2, step 0"):
         metrics.nees(x, mean, nonfinite)
-    with pytest.raises(ValueError, match="on_indefinite must be 'raise', 'nan' or 'solve'"):
+    with pytest.raises(ValueError, match="on_indefinite must be 'raise', 'nan', 'solve' or 'inf', got 'clip'"):
         metrics.nees(x, mean, cov, on_indefinite="clip")
 
 

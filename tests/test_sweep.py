@@ -77,3 +77,27 @@ def test_long_arguments_are_cut_short_in_the_error():
     with pytest.raises(JobFailed) as e:
         run_jobs(failing_job, [(2, "x" * 500)], workers=1, progress=False)
     assert len(str(e.value)) < 200 and str(e.value).endswith("failed: two is not allowed")
+
+
+def sleeping_job(x: int) -> int:
+    time.sleep(0.3)
+    return x
+
+
+def test_ctrl_c_cancels_the_jobs_on_a_shared_dask_cluster():
+    """A cluster the caller owns is left open, and no job of the interrupted run stays on it."""
+    distributed = pytest.importorskip("distributed")
+    from adaptfilt.experiments.sweep import Interrupted, run_jobs
+
+    def stop(i, value):
+        raise KeyboardInterrupt
+
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        with pytest.raises(Interrupted) as e:
+            run_jobs(sleeping_job, [(i,) for i in range(20)], cluster=client, progress=False, on_done=stop)
+        assert (e.value.done, e.value.total) == (1, 20)  # stopped as the first job finished
+        end = time.monotonic() + 10
+        while client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
+        assert client.status == "running" and run_jobs(sleeping_job, [(7,)], cluster=client, progress=False) == [7]

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.journal import Journal, load_results, save_results
-from adaptfilt.files import atomic_write, sha256
+from adaptfilt.files import atomic_savefig, atomic_write, sha256
 
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "CAND_ALGO", "PENALTY", "SELECTION_SEED", "select_safe_actions",
            "STUDIES", "GROUPS", "study_rows"]
@@ -458,7 +458,7 @@ def _look_figure(look: dict, fig_dir: Path) -> None:
 
     fig_dir.mkdir(parents=True, exist_ok=True)
     fig = plot_look_gain(look)
-    fig.savefig(fig_dir / "look-gain.png", dpi=100)
+    atomic_savefig(fig, fig_dir / "look-gain.png", dpi=100)
     plt.close(fig)
 
 
@@ -517,7 +517,7 @@ def _ood_figures(tables: dict, fig_dir: Path) -> None:
         fig, axes = plt.subplots(1, 4, figsize=(17, 3.8), layout="constrained")
         for ax, col in zip(axes, ("greedy", "best fixed", "learned", "retuned")):
             plot_gain(table, col, metric, ax=ax, title=f"{col}: {metric} gain over default")
-        fig.savefig(fig_dir / f"ood-gain-{metric}.png", dpi=100)
+        atomic_savefig(fig, fig_dir / f"ood-gain-{metric}.png", dpi=100)
         plt.close(fig)
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.claims import members
+from adaptfilt.files import atomic_savefig, atomic_write
 from adaptfilt.seed_stats import aggregate, seed_groups
 
 __all__ = ["summary_md", "table1_md", "table1_columns_md", "table1_compute_md", "claims_md", "claim_rows",
@@ -330,7 +331,7 @@ def figures(results: dict, floor: dict | None, fig_dir: Path) -> list[Path]:
     out = []
     for stem, fig in specs:
         p = fig_dir / f"{stem}.png"
-        fig.savefig(p, dpi=110)
+        atomic_savefig(fig, p, dpi=110)
         plt.close(fig)
         out.append(p)
     return out
@@ -346,4 +347,4 @@ def embed_report_tables(report_md: str | Path = "REPRODUCTION.md", tables_md: st
     tables = Path(tables_md) if tables_md is not None else data_dir() / "report-tables.md"
     text = report_md.read_text()
     i, j = text.index(BEGIN_MARK), text.index(END_MARK)
-    report_md.write_text(text[:i + len(BEGIN_MARK)] + "\n" + tables.read_text().rstrip() + "\n" + text[j:])
+    atomic_write(report_md, text[:i + len(BEGIN_MARK)] + "\n" + tables.read_text().rstrip() + "\n" + text[j:])
