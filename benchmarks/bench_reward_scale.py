@@ -35,7 +35,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2000)
     args = ap.parse_args()
     from adaptfilt.experiments import artefacts
-    from adaptfilt.course import learning as crl
+    from adaptfilt.course import seed_results
     from adaptfilt.evaluation import evaluate
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.seed_stats import difference
@@ -52,7 +52,7 @@ def main() -> None:
             pols += [load_policy(root / f"policies/{e}-{kind}-s{s}.npz", experiment=exp, name=f"{kind}-s{s}")
                      for s in seeds]
         res = evaluate(exp, pols, n_runs=args.runs, seed=0, progress=False)
-        print(f"\n{e}, M = {args.runs}\n" + crl.seed_lines(res, ["norm", "adaptive-raw", "adaptive"],
+        print(f"\n{e}, M = {args.runs}\n" + seed_results.seed_lines(res, ["norm", "adaptive-raw", "adaptive"],
                                                        ["greedy", "ml", "default"], ("cost", "objective", "rmse", "anees")))
         norm = [f"norm-s{s}" for s in seeds]
         for m in ("cost", "rmse", "anees"):

@@ -1,5 +1,6 @@
-"""The analyses behind chapters 8-10 (adaptfilt.course.paper_results), the claim and Table I renderers of
-adaptfilt.experiments.report, and the bootstrap particle filter, against independent references."""
+"""The analyses behind chapters 8-10 (adaptfilt.course.paper_common, .ungm_ukf, .ctm_ukf, .ctm_sif), the
+claim and Table I renderers of adaptfilt.experiments.report, and the bootstrap particle filter, against
+independent references."""
 from __future__ import annotations
 
 import copy
@@ -13,7 +14,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import adaptfilt as af  # noqa: E402
-from adaptfilt.course import paper_results as analysis  # noqa: E402
+from adaptfilt.course import ctm_sif, ctm_ukf, paper_common, ungm_ukf  # noqa: E402
 from adaptfilt.experiments import artefacts
 from adaptfilt.experiments import claims, report  # noqa: E402
 from adaptfilt.experiment_registry import get_experiment
@@ -130,27 +131,27 @@ def test_figure_policies_keep_one_line_of_fixed_values(ungm_res):
 
 
 def test_seed_table_lists_every_seed_and_the_iqm(ungm_res):
-    md = analysis.seed_table_md(ungm_res, ["adaptive", "no-such-group"], ["rmse"])
+    md = paper_common.seed_table_md(ungm_res, ["adaptive", "no-such-group"], ["rmse"])
     row = next(line for line in md.splitlines() if line.startswith("| adaptive | rmse"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     names = [f"adaptive-s{i}" for i in range(8)]
     assert [float(c) for c in cells[4:]] == pytest.approx([ungm_res[n].rmse for n in names], rel=2e-3)
     assert cells[2].startswith(f"{aggregate(ungm_res, names, 'rmse').iqm:.3g} [")
     with pytest.raises(ValueError, match="none of the groups"):
-        analysis.seed_table_md(ungm_res, ["no-such-group"])
+        paper_common.seed_table_md(ungm_res, ["no-such-group"])
 
 
 def test_differences_md_marks_the_interval(ungm_res):
-    md = analysis.differences_md(ungm_res, [("fixed-kappa=0", "fixed-kappa=200"), ("greedy", "ml")], ["rmse"])
+    md = paper_common.differences_md(ungm_res, [("fixed-kappa=0", "fixed-kappa=200"), ("greedy", "ml")], ["rmse"])
     assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| a > b |")
     d, lo, hi = ungm_res.paired_difference("greedy", "ml", "rmse")  # one policy each: the run-level paired CI
     assert f"{d:+.3g} [{lo:+.3g}, {hi:+.3g}]" in md
 
 
 def test_usage_shares_and_table(ungm_res):
-    shares = analysis.usage_shares(ungm_res, ["greedy", "adaptive"])
+    shares = paper_common.usage_shares(ungm_res, ["greedy", "adaptive"])
     assert len(shares) == 9 and all(s.sum() == pytest.approx(1.0) for s in shares.values())
-    md = analysis.usage_md(ungm_res, ["fixed-kappa=200", "fixed-kappa=5"])
+    md = paper_common.usage_md(ungm_res, ["fixed-kappa=200", "fixed-kappa=5"])
     assert md.splitlines()[0] == "| policy | κ = 5 | κ = 200 |" and "| fixed-kappa=200 | . | 100 % |" in md
 
 
@@ -163,11 +164,11 @@ def test_ungm_nis_is_the_ukfs_nis_for_every_kappa():
     for _ in range(5):  # a few steps in, away from the prior
         d, *_ = env.step(np.full(d.n_runs, env.default_index))
     want = d.candidates()["nis"]  # (G, M) from the filter's own unscented update
-    got = analysis.ungm_nis(env.grid[:, None], d.x_pred[:, 0], d.P_pred[:, 0, 0], d.z[:, 0],
+    got = ungm_ukf.ungm_nis(env.grid[:, None], d.x_pred[:, 0], d.P_pred[:, 0, 0], d.z[:, 0],
                             R=float(env.filt.model.R[0, 0]))
     np.testing.assert_allclose(got, want, rtol=1e-9)
     with pytest.raises(ValueError, match="P_pred must be positive"):
-        analysis.ungm_nis(0.0, 1.0, 0.0, 1.0)
+        ungm_ukf.ungm_nis(0.0, 1.0, 0.0, 1.0)
 
 
 def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
@@ -176,15 +177,15 @@ def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=60)
     traj = exp.make_model().simulate(n_runs=40, n_steps=61, rng=np.random.default_rng(5))
-    g = analysis.gate_anatomy(env, GreedyPolicy(grid=env.grid), traj)
+    g = ungm_ukf.gate_anatomy(env, GreedyPolicy(grid=env.grid), traj)
     s = g.summary()
     assert s["open_kappa"] == 0.0 and s["open_share"] == 1.0
     assert (g.kappa[g.nis0 >= 1] > 0).mean() > 0.95
-    f = analysis.gate_anatomy(env, FixedPolicy(200, "kappa", grid=env.grid), traj)
+    f = ungm_ukf.gate_anatomy(env, FixedPolicy(200, "kappa", grid=env.grid), traj)
     assert f.summary()["open_kappa"] == 200 and (f.kappa == 200).all()
-    assert "greedy" in analysis.gate_table([g, f]) and analysis.plot_gate([g, f]).axes
+    assert "greedy" in ungm_ukf.gate_table([g, f]) and ungm_ukf.plot_gate([g, f]).axes
     with pytest.raises(ValueError, match="UNGM UKF"):
-        analysis.gate_anatomy(get_experiment("ctm-ukf").make_env(), GreedyPolicy(), traj)
+        ungm_ukf.gate_anatomy(get_experiment("ctm-ukf").make_env(), GreedyPolicy(), traj)
 
 
 def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_ends():
@@ -193,7 +194,7 @@ def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_end
     grid = (0.0, 2.0, 5.0)  # the default kappa (2 for nx = 1) must be in the grid
     env = FilterEnv(af.UKF(lin), grid, Cost("nis"))
     traj = lin.simulate(n_runs=30, n_steps=21, rng=np.random.default_rng(1))
-    a = analysis.reach_anatomy(env, FixedPolicy(5.0, "kappa", grid=grid), traj)
+    a = ctm_ukf.reach_anatomy(env, FixedPolicy(5.0, "kappa", grid=grid), traj)
     np.testing.assert_allclose(a.pzz_hi / a.pzz_lo, 1.0, rtol=1e-9)
     assert a.choice.shape == (30, 20) and (a.choice == 5.0).all() and a.inside.mean() < 0.01
     # UNGM: Pzz grows with kappa, so greedy takes the smallest kappa whenever the default NIS is below 1
@@ -201,13 +202,13 @@ def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_end
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=40)
     traj = exp.make_model().simulate(n_runs=30, n_steps=41, rng=np.random.default_rng(2))
-    g = analysis.reach_anatomy(env, GreedyPolicy(grid=env.grid), traj)
+    g = ctm_ukf.reach_anatomy(env, GreedyPolicy(grid=env.grid), traj)
     assert (g.pzz_hi > g.pzz_lo).all()
     assert (g.choice[g.nu2 <= g.pzz_lo] == env.grid.min()).all() and (g.choice[g.nu2 >= g.pzz_hi] == env.grid.max()).all()
-    assert "reachable at" in analysis.reach_table([g])
+    assert "reachable at" in ctm_ukf.reach_table([g])
     with pytest.raises(ValueError, match="scalar measurement"):
         two = af.models.linear_gaussian(F=[[1.0]], H=[[1.0], [2.0]], Q=[[1.0]], R=np.eye(2), m0=[0.0], P0=[[1.0]])
-        analysis.reach_anatomy(FilterEnv(af.UKF(two), grid, Cost("nis"), n_steps=3), FixedPolicy(5.0, "kappa", grid=grid),
+        ctm_ukf.reach_anatomy(FilterEnv(af.UKF(two), grid, Cost("nis"), n_steps=3), FixedPolicy(5.0, "kappa", grid=grid),
                                two.simulate(2, 4, rng=0))
 
 
@@ -215,21 +216,21 @@ def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_end
 
 
 def test_fixed_conventions_and_cost_time_figures(ungm_res):
-    fig = analysis.plot_fixed_conventions(ungm_res, refs=("greedy", "adaptive"), unit="m")
+    fig = ungm_ukf.plot_fixed_conventions(ungm_res, refs=("greedy", "adaptive"), unit="m")
     ax = fig.axes[0]
     assert ax.get_ylabel() == "time-averaged RMSE (m)" and len(ax.containers) == 2  # two error-bar lines
     assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"greedy", "adaptive (IQM over seeds)"}
-    fig = analysis.plot_cost_time(ungm_res, ["greedy", "adaptive"], window=50)
+    fig = ctm_ukf.plot_cost_time(ungm_res, ["greedy", "adaptive"], window=50)
     assert len(fig.axes[0].lines) == 2 and fig.axes[0].lines[0].get_xdata().size == 10
     none = copy.copy(ungm_res)
     none.policies = {n: ungm_res[n] for n in ("greedy", "ml")}
     with pytest.raises(ValueError, match="no fixed-kappa"):
-        analysis.plot_fixed_conventions(none, refs=())
+        ungm_ukf.plot_fixed_conventions(none, refs=())
 
 
 def test_fixed_conventions_zoom_separates_the_reference_lines(ungm_res):
     refs = ("ml", "greedy", "adaptive", "myopic")
-    fig = analysis.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000))
+    fig = ungm_ukf.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000))
     full, zoom = fig.axes
     assert zoom.get_xlim()[0] == pytest.approx(100 / 1.3) and zoom.get_yscale() == "linear"
     lo, hi = zoom.get_ylim()
@@ -241,7 +242,7 @@ def test_fixed_conventions_zoom_separates_the_reference_lines(ungm_res):
     assert {t.get_text() for t in zoom.texts} == {"ml", "greedy", "adaptive", "myopic"}  # direct labels
     assert any(t.get_text().startswith("greedy: 2.82 [") for t in fig.legends[0].get_texts())
     with pytest.raises(ValueError, match="no ax"):
-        analysis.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000), ax=full)
+        ungm_ukf.plot_fixed_conventions(ungm_res, refs=refs, zoom=(100, 10000), ax=full)
 
 
 def _boxes(ax):
@@ -257,7 +258,7 @@ def test_place_labels_keeps_labels_apart_and_inside():
     pts = {f"policy {i}": (1.0 + 0.01 * i, 2.0) for i in range(6)}  # six points on top of each other
     ax.plot(*zip(*pts.values()), "o")
     ax.set(xlim=(0, 3), ylim=(0, 4))
-    anns = analysis.place_labels(ax, pts)
+    anns = paper_common.place_labels(ax, pts)
     assert set(anns) == set(pts)
     boxes = _boxes(ax)
     a = ax.get_window_extent()
@@ -272,7 +273,7 @@ def test_tradeoff_panels_zoom_on_the_named_policies_and_label_without_overlap(un
     col = collapse_seeds(ungm_res)
     names = report.figure_policies(col)
     zoom = ["ml", "greedy", "adaptive", "myopic", "fixed-kappa=200"]
-    fig = analysis.plot_tradeoff_panels(col, names, zoom)
+    fig = paper_common.plot_tradeoff_panels(col, names, zoom)
     left, right = fig.axes
     (x0, x1), (y0, y1) = right.get_xlim(), right.get_ylim()
     for n in zoom:
@@ -291,7 +292,7 @@ def test_rmse_steps_tell_the_fixed_conventions_apart_and_draw_a_floor_per_step(u
 
     col = collapse_seeds(ungm_res)
     floor = np.linspace(0.5, 1.0, 500)
-    fig = analysis.plot_rmse_steps(col, ["fixed-kappa=200", "fixed-both-kappa=500", "greedy", "adaptive"], floor_t=floor)
+    fig = ungm_ukf.plot_rmse_steps(col, ["fixed-kappa=200", "fixed-both-kappa=500", "greedy", "adaptive"], floor_t=floor)
     lines = {ln.get_label(): ln for ln in fig.axes[0].lines}
     assert lines["κ = 200"].get_color() != lines["both-κ = 500"].get_color()
     assert lines["greedy"].get_color() == af.plots.policy_style(ungm_res, "greedy")["color"]
@@ -304,7 +305,7 @@ def test_ungm_floor_steps_is_the_point_mass_filter_on_the_evaluation_runs():
     from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
 
-    f = analysis.ungm_floor_steps(n_runs=3, n_steps=20, eval_runs=5, chunk=2)
+    f = ungm_ukf.ungm_floor_steps(n_runs=3, n_steps=20, eval_runs=5, chunk=2)
     env = get_experiment("ungm-ukf").make_env(n_steps=20)
     traj = env.model.simulate(5, 20, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
     pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901)).run(traj.z[:3])
@@ -317,7 +318,7 @@ def test_position_and_velocity_are_split_and_seed_groups_summarised():
     traj = exp.make_model().simulate(n_runs=40, n_steps=16, rng=np.random.default_rng(1))
     pols = [FixedPolicy(0, "kappa", grid=env.grid), FixedPolicy(50, "kappa", grid=env.grid)]
     pols[1].name = "group-s0"
-    pv = analysis.position_velocity_rmse(env, pols, traj)
+    pv = ctm_ukf.position_velocity_rmse(env, pols, traj)
     run = af.UKF(exp.make_model()).run(traj.z[:, :15])
     e = traj.x[:, :15] - run.mean
     r = lambda i: np.sqrt((e[..., i] ** 2).sum(-1).mean(axis=0)).mean()
@@ -325,10 +326,10 @@ def test_position_and_velocity_are_split_and_seed_groups_summarised():
     assert pv["fixed-kappa=0"]["velocity"] == pytest.approx(r([1, 3]))
     p = pv["fixed-kappa=0"]  # Minkowski: sqrt(pos^2 + vel^2) <= full <= pos + vel
     assert np.hypot(p["position"], p["velocity"]) - 1e-9 <= p["full"] <= p["position"] + p["velocity"]
-    md = analysis.position_velocity_md(pv, ["fixed-kappa=0", "group"])
+    md = ctm_ukf.position_velocity_md(pv, ["fixed-kappa=0", "group"])
     assert "| group |" in md and "position (m)" in md
     with pytest.raises(KeyError, match="no policy"):
-        analysis.position_velocity_md(pv, ["nothing"])
+        ctm_ukf.position_velocity_md(pv, ["nothing"])
 
 
 class _Stored(dict):
@@ -343,10 +344,10 @@ def test_position_velocity_table_sets_the_stored_rmse_beside():
     pv = {"a": {"full": 3.0, "position": 2.0, "velocity": 1.0},
           **{f"g-s{i}": {"full": 4.0 + i, "position": 3.0, "velocity": 1.0} for i in range(3)}}
     stored = _Stored({"a": 9.0, "g-s0": 1.0, "g-s1": 2.0, "g-s2": 7.0})
-    md = analysis.position_velocity_md(pv, ["a", "g"], stored=stored)
+    md = ctm_ukf.position_velocity_md(pv, ["a", "g"], stored=stored)
     assert "RMSE full state, stored (M = 10000)" in md
     assert "| a | 3.0 | 2.0 | 1.0 | 9.0 |" in md and md.rstrip().endswith("| 2.0 (1.0-7.0) |")
-    assert "stored" not in analysis.position_velocity_md(pv, ["a"])
+    assert "stored" not in ctm_ukf.position_velocity_md(pv, ["a"])
 
 
 class _Loud:
@@ -363,18 +364,18 @@ class _Loud:
 
 def test_innovation_response_follows_the_innovation_a_policy_sees():
     env = lambda: get_experiment("ctm-sif-nis").make_env(0, n_steps=14)
-    fixed = analysis.innovation_response(env(), FixedPolicy(3, "n_iter", grid=env().grid), n_runs=20, early=4)
+    fixed = ctm_sif.innovation_response(env(), FixedPolicy(3, "n_iter", grid=env().grid), n_runs=20, early=4)
     assert fixed["early"] == fixed["late"] == 3 and np.all(fixed["quartiles"] == 3)
-    r = analysis.innovation_response(env(), _Loud(0.1), n_runs=20, early=4)
+    r = ctm_sif.innovation_response(env(), _Loud(0.1), n_runs=20, early=4)
     q, e = r["quartiles"], r["edges"]
     assert np.all(np.diff(q) >= 0) and q[0] < q[3] and np.all(np.diff(e) > 0)  # a step in |innov| rises by quartile
     assert 1 <= r["late"] <= 5 and r["early_steps"] == 4
     # the loop: every seed of every group on the same runs; the table summarises them over the seeds
     load = lambda e, g, seed: _Loud(0.05 * (seed + 1), name=f"{g}-s{seed}")
-    rs = analysis.innovation_responses(["ctm-sif-nis"], ("adaptive",), seeds=[0, 1, 2], n_runs=20, load=load, n_steps=14)
+    rs = ctm_sif.innovation_responses(["ctm-sif-nis"], ("adaptive",), seeds=[0, 1, 2], n_runs=20, load=load, n_steps=14)
     assert list(rs) == [("ctm-sif-nis", "adaptive")] and len(rs["ctm-sif-nis", "adaptive"]) == 3
     assert rs["ctm-sif-nis", "adaptive"][1]["quartiles"] == pytest.approx(r["quartiles"])  # seed 1 is _Loud(0.1)
-    md = analysis.innovation_response_md(rs)
+    md = ctm_sif.innovation_response_md(rs)
     q4 = np.array([x["quartiles"][3] for x in rs["ctm-sif-nis", "adaptive"]])
     iqm3 = stats.trim_mean(q4, 0.25)  # of three seeds: the middle one
     assert "N_it, steps 1-10" in md and f"| {iqm3:.1f} ({q4.min():.1f}-{q4.max():.1f}) |" in md
@@ -385,13 +386,13 @@ def test_innovation_response_follows_the_innovation_a_policy_sees():
 def test_plain_log_labels_plain_numbers():
     fig, ax = plt.subplots()
     ax.plot([1, 30], [2, 40])
-    analysis.plain_log(ax, "both")
+    paper_common.plain_log(ax, "both")
     fig.canvas.draw()
     assert ax.get_xscale() == ax.get_yscale() == "log"
     labels = {t.get_text() for t in ax.get_yticklabels()}
     assert {"3", "10", "20"} <= labels and not any("times" in t or "^" in t for t in labels)
     with pytest.raises(ValueError, match="axis must be"):
-        analysis.plain_log(ax, "z")
+        paper_common.plain_log(ax, "z")
 
 
 def test_rmse_axes_take_a_unit(ungm_res):
@@ -413,20 +414,20 @@ def test_line_of_sight_of_a_consistent_filter_is_chi_square():
     cov = A @ np.swapaxes(A, -1, -2) + 0.5 * np.eye(4)
     mean = x - (np.linalg.cholesky(cov) @ rng.standard_normal((M, T, 4, 1)))[..., 0]
     run = SimpleNamespace(mean=mean, cov=cov)
-    los = analysis.line_of_sight(x, run)
+    los = ctm_ukf.line_of_sight(x, run)
     p = x[..., [0, 2]]
     u = p / np.linalg.norm(p, axis=-1, keepdims=True)
     np.testing.assert_allclose(los.err_range, ((p - mean[..., [0, 2]]) * u).sum(-1))
     np.testing.assert_allclose(los.sd_range ** 2, np.einsum("...i,...ij,...j->...", u, cov[..., [0, 2], :][..., [0, 2]], u))
     for e, sd in ((los.err_range, los.sd_range), (los.err_cross, los.sd_cross)):
         assert np.median((e / sd) ** 2) == pytest.approx(stats.chi2.median(1), abs=0.04)
-    head, cols, line = analysis.line_of_sight_table(x, {"consistent": run}).splitlines()
+    head, cols, line = ctm_ukf.line_of_sight_table(x, {"consistent": run}).splitlines()
     assert "0.455 (chi2_1)" in head and "3.36 (chi2_4)" in head and "pos RMSE" in cols
     assert float(line.rsplit("|", 1)[1]) == pytest.approx(stats.chi2.median(4), abs=0.15)
     e = x - mean
     pos_rmse = np.sqrt((e[..., [0, 2]] ** 2).sum(-1).mean(axis=0)).mean()
     assert float(line.split("|")[0].split()[2]) == pytest.approx(pos_rmse, abs=0.06)
-    assert analysis.plot_line_of_sight(x, {"consistent": run}).axes[0].get_ylabel() == "position error (m)"
+    assert ctm_ukf.plot_line_of_sight(x, {"consistent": run}).axes[0].get_ylabel() == "position error (m)"
 
 
 # ---------------------------------------------------------------- SIF integration noise
@@ -435,9 +436,9 @@ def test_line_of_sight_of_a_consistent_filter_is_chi_square():
 def test_sif_spread_vanishes_for_a_deterministic_rule_and_shrinks_with_iterations():
     model = af.models.coordinated_turn(n_steps=4)
     traj = model.simulate(n_runs=1, rng=np.random.default_rng(1))
-    ukf = analysis.sif_spread(lambda n: af.UKF(model), [1, 5], traj, n_filters=50)
+    ukf = ctm_sif.sif_spread(lambda n: af.UKF(model), [1, 5], traj, n_filters=50)
     assert np.all(ukf["spread"] < 1e-9) and np.all(ukf["claimed"] > 0)
-    sif = analysis.sif_spread(lambda n: af.SIF(model, n_iter=n, seed=0, on_indefinite="clip"), [2, 32], traj,
+    sif = ctm_sif.sif_spread(lambda n: af.SIF(model, n_iter=n, seed=0, on_indefinite="clip"), [2, 32], traj,
                               n_filters=400)
     ratio = sif["spread"][0] / sif["spread"][1]  # 1/sqrt(N): about 4 for 16 times the iterations
     assert 2.5 < ratio < 6.5

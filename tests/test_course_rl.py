@@ -1,4 +1,5 @@
-"""The helpers of the learning chapters (adaptfilt.course.learning), against direct computations."""
+"""The helpers of the learning chapters (adaptfilt.course.training, .policy_reading, .seed_results,
+.beyond_studies: chapters 6-7 and 11-13), against direct computations."""
 import matplotlib
 
 matplotlib.use("Agg")
@@ -6,7 +7,7 @@ matplotlib.use("Agg")
 import numpy as np
 import pytest
 
-from adaptfilt.course import learning as crl
+from adaptfilt.course import beyond_studies, policy_reading, seed_results, training
 from adaptfilt.evaluation import evaluate
 from adaptfilt.experiment_registry import get_experiment
 from adaptfilt import seed_stats as sd
@@ -45,15 +46,15 @@ def test_ungm_state_is_the_environments_information_state():
         d, *_ = env.step(np.full(4, d.default_index))
     f = observe(d, exp.features)
     for i in range(4):
-        mine = crl.ungm_state(P_pred=f[i, 1], innov=f[i, 4], x_pred=f[i, 0], k=d.t + 1)
+        mine = policy_reading.ungm_state(P_pred=f[i, 1], innov=f[i, 4], x_pred=f[i, 0], k=d.t + 1)
         assert np.allclose(mine, f[i], rtol=1e-9, atol=1e-9)
     with pytest.raises(ValueError, match="P_pred"):
-        crl.ungm_state(0.0, 1.0)
+        policy_reading.ungm_state(0.0, 1.0)
 
 
 def test_candidate_cost_range_matches_a_direct_rollout():
     env = get_experiment("ungm-ukf").make_env(n_steps=15)
-    out = crl.candidate_cost_range(env, n_runs=7, seed=2)
+    out = training.candidate_cost_range(env, n_runs=7, seed=2)
     d, all_costs = env.reset(n_runs=7, rng=np.random.default_rng(2)), []
     while d is not None:
         all_costs.append(d.candidates()["cost"])
@@ -68,7 +69,7 @@ def test_candidate_cost_range_matches_a_direct_rollout():
 def test_scaler_saturation_counts_the_old_clip():
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=60)
-    sat = crl.scaler_saturation(env, "paper+time", seed=0, runs=32)
+    sat = training.scaler_saturation(env, "paper+time", seed=0, runs=32)
     names = FeatureSet.parse("paper+time").names(env.model, env.grid)
     assert list(sat) == names
     old = fit_scaler(env, "paper+time", runs=32, seed=0, visit="default", squash="clip")
@@ -81,10 +82,10 @@ def test_scaler_saturation_counts_the_old_clip():
 
 
 def test_usage_lines_and_share_over_time(ungm_results):
-    lines = crl.usage_lines(ungm_results, ["fixed-kappa=200", "a-s0"], split=50).splitlines()
+    lines = policy_reading.usage_lines(ungm_results, ["fixed-kappa=200", "a-s0"], split=50).splitlines()
     assert "50 or less:   0%" in lines[0] and "200: 100%" in lines[0]
     assert "50 or less: 100%" in lines[1] and "1: 100%" in lines[1]
-    fig = crl.plot_share_over_time(ungm_results, ["a", "fixed-kappa=200"], 100)
+    fig = policy_reading.plot_share_over_time(ungm_results, ["a", "fixed-kappa=200"], 100)
     y_group, y_fixed = (line.get_ydata() for line in fig.axes[0].get_lines()[:2])
     assert np.allclose(y_group, 0.25) and np.allclose(y_fixed, 1.0)   # one of four seeds at 1000
 
@@ -93,7 +94,7 @@ def test_switch_off_curves_follow_the_policy():
     rng = np.random.default_rng(0)
     states = rng.normal(size=(4000, 7)) * np.array([1, 1, 1, 1, 3, 1, 1])
     pols = [SigmoidPolicy(1.0, "early"), SigmoidPolicy(3.0, "late")]
-    fig = crl.plot_switch_off(pols, states, {"innovation": 4}, at_least=100, n_bins=8)
+    fig = policy_reading.plot_switch_off(pols, states, {"innovation": 4}, at_least=100, n_bins=8)
     early, late = (line.get_ydata() for line in fig.axes[0].get_lines())
     assert np.all(np.diff(early) > 0) and np.all(early > late)
     x = np.abs(states[:, 4])
@@ -103,8 +104,8 @@ def test_switch_off_curves_follow_the_policy():
 
 def test_policy_probs_heat_map():
     pols = [SigmoidPolicy(1.0, "a"), SigmoidPolicy(8.0, "b")]
-    s = crl.ungm_state(1.0, 4.0)
-    fig = crl.plot_policy_probs(pols, s)
+    s = policy_reading.ungm_state(1.0, 4.0)
+    fig = policy_reading.plot_policy_probs(pols, s)
     ax = fig.axes[0]
     img = ax.get_images()[0].get_array()
     assert np.allclose(img, np.concatenate([p.probs(s) for p in pols]))
@@ -112,11 +113,11 @@ def test_policy_probs_heat_map():
 
 
 def test_seed_lines_and_verdicts(ungm_results):
-    text = crl.seed_lines(ungm_results, ["a", "b"], ["default"], metrics=("rmse",))
+    text = seed_results.seed_lines(ungm_results, ["a", "b"], ["default"], metrics=("rmse",))
     agg = sd.aggregate(ungm_results, sd.seed_groups(ungm_results.names)["a"], "rmse")
     assert f"rmse {agg.iqm:.3g} [{agg.iqm_ci[0]:.3g}, {agg.iqm_ci[1]:.3g}]" in text.splitlines()[1]
     assert text.splitlines()[1].startswith("a (4 seeds)")
-    v = crl.seed_verdicts(ungm_results, "a", "fixed-kappa=200", "rmse")
+    v = seed_results.seed_verdicts(ungm_results, "a", "fixed-kappa=200", "rmse")
     assert sum(v["counts"].values()) == 4
     for n, (d, lo, hi, verdict) in v["per_seed"].items():
         assert (d, lo, hi) == ungm_results.paired_difference(n, "fixed-kappa=200", "rmse")
@@ -131,29 +132,29 @@ def test_claims_table_keeps_rows_with_per_seed_counts():
          "verdict": "not confirmed (n.s.)", "seeds_holding": None, "n_seeds": 8},
         {"experiment": "other", "claim": "adaptive lower than ml", "metric": "rmse", "diff": 0.5, "ci": [0.1, 0.9],
          "verdict": "contradicted", "seeds_holding": 3, "n_seeds": 8}]}
-    rows = crl.claims_table(claims, "e").strip().splitlines()[2:]
+    rows = seed_results.claims_table(claims, "e").strip().splitlines()[2:]
     assert len(rows) == 1 and "0/8" in rows[0] and "contradicted" in rows[0]
-    assert len(crl.claims_table(claims, "e", only_held=False).strip().splitlines()) == 4
+    assert len(seed_results.claims_table(claims, "e", only_held=False).strip().splitlines()) == 4
 
 
 def test_claims_table_shows_the_margin_of_an_equal_claim():
     claims = {"C2": [{"experiment": "e", "claim": "adaptive equal than fixed", "metric": "rmse", "diff": -0.2,
                       "ci": [-0.24, -0.15], "verdict": "contradicted (lower)", "seeds_holding": 2, "n_seeds": 8,
                       "margin": 0.154, "verdict_no_margin": "contradicted (lower)"}]}
-    row = crl.claims_table(claims, "e").strip().splitlines()[2]
+    row = seed_results.claims_table(claims, "e").strip().splitlines()[2]
     assert "adaptive equal to fixed" in row and "contradicted (lower) (margin 0.154)" in row and "2/8" in row
 
 
 def test_seed_spread_and_differences_figures(ungm_results):
-    fig = crl.plot_seed_spread(ungm_results, ["a", "b"], "rmse")
+    fig = seed_results.plot_seed_spread(ungm_results, ["a", "b"], "rmse")
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
     assert labels[:4] == ["a-s0", "a-s1", "a-s2", "a-s3"] and "a: IQM of 4" in labels and "b: mean of 3" in labels
-    fig = crl.plot_differences({"c1": {"x": (1.0, 0.5, 1.5)}, "c2": {"x": (-1.0, -2.0, 0.0), "y": (0.0, -1, 1)}})
+    fig = seed_results.plot_differences({"c1": {"x": (1.0, 0.5, 1.5)}, "c2": {"x": (-1.0, -2.0, 0.0), "y": (0.0, -1, 1)}})
     assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["c1", "c2"]
 
 
 def test_timed_returns_the_result():
-    out, cpu = crl.timed(sum, [1, 2, 3])
+    out, cpu = seed_results.timed(sum, [1, 2, 3])
     assert out == 6 and cpu >= 0.0
 
 
@@ -163,24 +164,24 @@ def test_sign_demo_and_training_figures():
 
     pol, curve = train(BanditEnv(n_steps=3), gamma=0.0, episodes=8, parallel=4, seed=0, cost_transform="none",
                        progress=False)
-    fig = crl.plot_sign_demo(np.linspace(-1, 1, 5), {"a": pol, "b": pol}, {"a": curve}, window=4)
+    fig = training.plot_sign_demo(np.linspace(-1, 1, 5), {"a": pol, "b": pol}, {"a": curve}, window=4)
     assert len(fig.axes) == 3
     env = get_experiment("ungm-ukf").make_env(n_steps=5)
     pol, curve = train(env, gamma=0.5, episodes=4, parallel=2, seed=0, progress=False)
-    fig = crl.plot_training(curve, env.grid, batch=2)
+    fig = training.plot_training(curve, env.grid, batch=2)
     assert len(fig.axes) == 3
 
 
 def test_chapter_11_helpers(ungm_results):
     res = ungm_results
-    text = crl.verdict_counts(res, "a", "greedy", ("cost", "rmse"))
+    text = beyond_studies.verdict_counts(res, "a", "greedy", ("cost", "rmse"))
     lines = text.splitlines()
     assert len(lines) == 2 and lines[0].startswith("a - greedy  cost")
     d = sd.difference(res, sd.seed_groups(res.names)["a"], ["greedy"], "rmse")["iqm"]
     assert f"{d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]" in lines[1]
-    counts = crl.seed_verdicts(res, "a", "greedy", "rmse")["counts"]
+    counts = seed_results.seed_verdicts(res, "a", "greedy", "rmse")["counts"]
     assert sum(counts.values()) == 4 and all(f"{n} {v}" in lines[1] for v, n in counts.items())
-    fig = crl.plot_cost_divergence(res, ["a", "b"], title="x")
+    fig = beyond_studies.plot_cost_divergence(res, ["a", "b"], title="x")
     ax = fig.axes[0]
     fixed = [n for n in res.names if n.startswith("fixed-")]
     line = next(ln for ln in ax.lines if ln.get_label() == "fixed $n_{it}$")
@@ -191,10 +192,10 @@ def test_chapter_11_helpers(ungm_results):
     assert texts >= {"greedy", "a (4 seeds)", "b (3 seeds)"} and any(t.startswith("default") for t in texts)
     # the legend sits off the axes, and every panel of several has the same x range
     assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1
-    fig = crl.plot_cost_divergence(res, ["a"], xlim=(-5.0, 5.0), legend=None)
+    fig = beyond_studies.plot_cost_divergence(res, ["a"], xlim=(-5.0, 5.0), legend=None)
     assert fig.axes[0].get_xlim() == (-5.0, 5.0) and fig.axes[0].get_legend() is None
     # crowded n_it labels are all drawn (none dropped) and no two of them overlap
-    fig = crl.plot_cost_divergence(res, ["a"], xlim=(-1e4, 1e4), legend=None)
+    fig = beyond_studies.plot_cost_divergence(res, ["a"], xlim=(-1e4, 1e4), legend=None)
     ax = fig.axes[0]
     fig.canvas.draw()
     labels = [t for t in ax.texts if t.get_text() in {n.split("=")[1] for n in fixed}]
@@ -203,7 +204,7 @@ def test_chapter_11_helpers(ungm_results):
     boxes = [t.get_window_extent() for t in labels]
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
     table = {"q1-r1": {"greedy": {"gain": 0.2}, "learned": {"gain": -0.1}}, "q4-r0.25": {"greedy": {"gain": 0.4}}}
-    fig = crl.plot_ood_gains(table, "objective", columns=("greedy", "learned"))
+    fig = beyond_studies.plot_ood_gains(table, "objective", columns=("greedy", "learned"))
     im = fig.axes[0].images[0]
     assert im.norm.vmax == pytest.approx(0.4) and fig.axes[1].images[0].norm.vmin == pytest.approx(-0.4)
     G = np.asarray(im.get_array())
@@ -214,7 +215,7 @@ def test_divergence_onsets_use_the_librarys_one_definition():
     from adaptfilt.metrics import DIVERGED_NEES, divergence_step, divergent
 
     env = get_experiment("ctm-sif-logmaxnis").make_env(seed=0, n_steps=40)
-    out = crl.divergence_onsets(env, 1.0, n_runs=400, seed=3)
+    out = beyond_studies.divergence_onsets(env, 1.0, n_runs=400, seed=3)
     N, onset, div = out["nees"], out["onset"], out["divergent"]
     assert N.shape == (40, 400) and onset.shape == div.shape == (400,)
     np.testing.assert_array_equal(div, divergent(N.T, env.model.nx))
@@ -226,10 +227,10 @@ def test_divergence_onsets_use_the_librarys_one_definition():
         assert (running[: onset[m], m] <= DIVERGED_NEES * env.model.nx).all()
     assert (onset[div] >= 0).all()
     # the same runs with ten iterations: no more divergent runs (the SIF with one iteration is the fragile one)
-    ten = crl.divergence_onsets(env, 10.0, n_runs=400, seed=3)
+    ten = beyond_studies.divergence_onsets(env, 10.0, n_runs=400, seed=3)
     assert ten["divergent"].sum() <= div.sum()
     with pytest.raises(ValueError, match="not on the grid"):
-        crl.divergence_onsets(env, 4.0, n_runs=2)
+        beyond_studies.divergence_onsets(env, 4.0, n_runs=2)
 
 
 # ------------------------------------------------- chapter 6: the implement-it-yourself actor update
@@ -272,7 +273,7 @@ def test_library_actor_loss_is_the_update_of_train():
             with torch.no_grad():
                 td_target = c + 0.5 * target(s_next)
         delta = td_target - critic(s)
-        loss = (delta ** 2).mean() + crl.library_actor_loss(logits, torch.from_numpy(a), delta, 1e-3)
+        loss = (delta ** 2).mean() + training.library_actor_loss(logits, torch.from_numpy(a), delta, 1e-3)
         opt_a.zero_grad(), opt_c.zero_grad()
         loss.backward()
         opt_c.step(), opt_a.step()
@@ -286,33 +287,33 @@ def test_library_actor_loss_is_the_update_of_train():
 def test_check_actor_update_accepts_the_library_and_diagnoses_mistakes(capsys):
     import torch
 
-    assert crl.check_actor_update(crl.library_actor_loss)
+    assert training.check_actor_update(training.library_actor_loss)
     assert "right: your update is the library's" in capsys.readouterr().out
-    assert not crl.check_actor_update(lambda l, a, d, beta: crl.library_actor_loss(l, a, d, beta, sign=-1))
+    assert not training.check_actor_update(lambda l, a, d, beta: training.library_actor_loss(l, a, d, beta, sign=-1))
     assert "printed sign" in capsys.readouterr().out
-    assert not crl.check_actor_update(lambda l, a, d, beta: crl.library_actor_loss(l, a, d, 0.0))
+    assert not training.check_actor_update(lambda l, a, d, beta: training.library_actor_loss(l, a, d, 0.0))
     assert "entropy bonus -beta H(pi) is missing" in capsys.readouterr().out
 
     def leaks(logits, a, delta, beta):
         logp = torch.log_softmax(logits, -1)
         return (delta * logp[torch.arange(len(a)), a] + beta * (logp.exp() * logp).sum(-1)).mean()
 
-    assert not crl.check_actor_update(leaks)
+    assert not training.check_actor_update(leaks)
     assert "detach the TD error" in capsys.readouterr().out
-    assert not crl.check_actor_update(lambda l, a, d, beta: 1 / 0)
+    assert not training.check_actor_update(lambda l, a, d, beta: 1 / 0)
     assert "raised ZeroDivisionError" in capsys.readouterr().out
 
 
 def test_kappa_bands_partition_the_grid():
     grid = [0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 3000, 10000]
-    bands = crl.kappa_bands(grid)
+    bands = training.kappa_bands(grid)
     assert list(bands) == ["0-2", "5-50", "100-500", "1000-10000"]
     assert (np.sum(list(bands.values()), axis=0) == 1).all()
 
 
 def test_seed_differences_show_every_seed_and_cut_at_the_edge(ungm_results):
     res = ungm_results
-    fig = crl.plot_seed_differences(res, ["a", "b"], "greedy", ("rmse", "cost"), xlim={"cost": (-0.1, 0.1)})
+    fig = beyond_studies.plot_seed_differences(res, ["a", "b"], "greedy", ("rmse", "cost"), xlim={"cost": (-0.1, 0.1)})
     ax_rmse, ax_cost = fig.axes
     labels = [t.get_text() for t in ax_rmse.get_yticklabels()]
     assert labels[:4] == ["a-s0", "a-s1", "a-s2", "a-s3"] and "a: IQM of 4" in labels and "b: mean of 3" in labels
