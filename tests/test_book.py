@@ -28,9 +28,10 @@ from pathlib import Path
 import pytest
 
 from adaptfilt.course.book import FRONT_PAGES, BookBuildError, build_book, collect_chapters, notebook_chapters
-from adaptfilt.course.notebook_markdown import (bibliography_markdown, escape_math, figure_titles,
-                                                notebook_references, notebook_title, notebook_to_markdown,
-                                                plain_text, rewrite_links, rewrite_math, split_reference)
+from adaptfilt.course.bibliography import bibliography_markdown, notebook_references, split_reference
+from adaptfilt.course.figure_text import figure_titles, plain_text
+from adaptfilt.course.notebook_markdown import (escape_math, notebook_title, notebook_to_markdown, rewrite_links,
+                                                rewrite_math)
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
 

@@ -37,9 +37,9 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from adaptfilt.course.reference import REFERENCE_DIR, library_modules, reference_chapter, write_reference
-from adaptfilt.course.notebook_markdown import (ANSI_ESCAPE, _localise_images, bibliography_markdown, escape_math,
-                                                notebook_references, notebook_title, notebook_to_markdown,
-                                                rewrite_links, rewrite_math)
+from adaptfilt.course.bibliography import bibliography_markdown, notebook_references
+from adaptfilt.course.notebook_markdown import (ANSI_ESCAPE, _localise_images, escape_math, notebook_title,
+                                                notebook_to_markdown, rewrite_links, rewrite_math)
 
 __all__ = [
     "BookBuildError",
@@ -291,7 +291,7 @@ def _chapter_label(stem: str) -> str:
 
 def bibliography_chapter(notebooks: Sequence[tuple[Path, Mapping[str, Any]]]) -> Chapter | None:
     """The "Bibliography" page: every notebook's ``## References`` entries, deduplicated, with the
-    chapters that cite each (:func:`~adaptfilt.course.notebook_markdown.bibliography_markdown`);
+    chapters that cite each (:func:`~adaptfilt.course.bibliography.bibliography_markdown`);
     ``None`` when no notebook has references."""
     cited = [(f"{p.stem}.md", _chapter_label(p.stem), notebook_references(nb)) for p, nb in notebooks]
     if not any(entries for _, _, entries in cited):

@@ -1,24 +1,21 @@
 r"""The notebook -> Markdown converter of the course book, pure functions on strings and notebook dicts:
 maths for MathJax 2.7 inside CommonMark (:func:`escape_math`, :func:`rewrite_math`), links between
-chapters and local images (:func:`rewrite_links`), a notebook with its committed outputs to mdBook
-Markdown (:func:`notebook_to_markdown`, :func:`notebook_title`), a figure's alt text from its titles
-(:func:`figure_titles`, :func:`plain_text`) and the book's bibliography from the chapters' ``## References``
-sections (:func:`notebook_references`, :func:`split_reference`, :func:`bibliography_markdown`).
+chapters and local images (:func:`rewrite_links`), and a notebook with its committed outputs to mdBook Markdown
+(:func:`notebook_to_markdown`, :func:`notebook_title`), each figure with its alt text
+(:mod:`adaptfilt.course.figure_text`). The bibliography is :mod:`adaptfilt.course.bibliography`.
 Unit-tested in ``tests/test_book.py``; :mod:`adaptfilt.course.book` builds the book with them.
 """
 from __future__ import annotations
 
-import ast
 import base64
 import re
 import string
-import unicodedata
-from collections import Counter
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-__all__ = ["escape_math", "rewrite_math", "rewrite_links", "notebook_to_markdown", "notebook_title", "figure_titles",
-           "plain_text", "notebook_references", "split_reference", "bibliography_markdown"]
+from adaptfilt.course.figure_text import figure_titles, first_sentence, plain_text
+
+__all__ = ["escape_math", "rewrite_math", "rewrite_links", "notebook_to_markdown", "notebook_title"]
 
 _REPR = re.compile(r"^<.*>$", flags=re.S)  # an object's default repr, e.g. matplotlib's "<Figure size ...>"
 NBVAL_MARKER = re.compile(r"^[ \t]*#[ \t]*NBVAL_[A-Z_]+[ \t]*$")
@@ -385,95 +382,6 @@ def notebook_title(nb: Mapping[str, Any], fallback: str) -> str:
 
 # ---------------------------------------------------------------- figure alt text
 
-# TeX a figure title may hold, as the plain text an alt attribute can carry.
-_GREEK = {name: chr(code) for name, code in (
-    ("alpha", 0x3B1), ("beta", 0x3B2), ("gamma", 0x3B3), ("delta", 0x3B4), ("epsilon", 0x3B5), ("zeta", 0x3B6),
-    ("eta", 0x3B7), ("theta", 0x3B8), ("kappa", 0x3BA), ("lambda", 0x3BB), ("mu", 0x3BC), ("nu", 0x3BD),
-    ("xi", 0x3BE), ("pi", 0x3C0), ("rho", 0x3C1), ("sigma", 0x3C3), ("tau", 0x3C4), ("phi", 0x3C6),
-    ("chi", 0x3C7), ("psi", 0x3C8), ("omega", 0x3C9), ("Gamma", 0x393), ("Delta", 0x394), ("Theta", 0x398),
-    ("Lambda", 0x39B), ("Pi", 0x3A0), ("Sigma", 0x3A3), ("Phi", 0x3A6), ("Psi", 0x3A8), ("Omega", 0x3A9))}
-_SYMBOLS = {"times": "\u00d7", "cdot": "\u00b7", "le": "\u2264", "leq": "\u2264", "ge": "\u2265", "geq": "\u2265",
-            "approx": "\u2248", "pm": "\u00b1", "infty": "\u221e", "to": "\u2192", "ne": "\u2260", "neq": "\u2260",
-            "sim": "~", "in": "\u2208", ",": " ", ";": " ", "!": "", " ": " ", "%": "%", "$": "$", "_": "_",
-            "{": "{", "}": "}", "&": "&", "#": "#"}
-_TITLE_CALLS = frozenset({"set_title", "suptitle", "title"})
-
-
-def plain_text(text: str, markdown: bool = True) -> str:
-    r"""Markdown (or, with ``markdown=False``, a matplotlib title) with ``$..$`` maths as plain text for
-    an alt attribute: maths loses its markup, Greek letters become Unicode; Markdown also loses its
-    links, HTML tags, emphasis and code marks (in a title they are literal text).
-
-    >>> plain_text(r"RMSE$_k$ for $\kappa = 2$ and $\bar L_\mathrm{NIS}$, `code` and **bold**")
-    'RMSE_k for κ = 2 and L_NIS, code and bold'
-    """
-    if markdown:
-        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", text)  # a link: its text
-        text = re.sub(r"<[^>]+>", "", text)  # HTML tags
-
-    def maths(m: re.Match[str]) -> str:
-        tex = m.group(1) or m.group(2) or ""
-        tex = re.sub(r"\\(?:mathrm|text|mathbf|boldsymbol|operatorname|mathcal|mathsf|textrm|mathit)\s*\{([^{}]*)\}",
-                     r"{\1}", tex)  # braces keep "\sim\mathcal{N}" two words; they go below
-        tex = re.sub(r"\\(?:bar|hat|tilde|overline|widetilde|widehat|left|right|big|Big|bigg|Bigg)\b\s*", "", tex)
-        tex = re.sub(r"\\([A-Za-z]+)", lambda c: _GREEK.get(c.group(1), _SYMBOLS.get(c.group(1), c.group(1))), tex)
-        tex = re.sub(r"\\(.)", lambda c: _SYMBOLS.get(c.group(1), c.group(1)), tex)
-        return tex.replace("{", "").replace("}", "")
-
-    text = re.sub(r"\$\$(.+?)\$\$|\$([^$]+)\$", maths, text, flags=re.S)
-    if markdown:
-        text = re.sub(r"(\*\*|__|\*|`)", "", text)  # emphasis and code spans: their text
-    return " ".join(text.split())
-
-
-def _string_value(node: ast.AST) -> str | None:
-    """A string literal's text; an f-string's with each ``{..}`` replaced by ``…`` (its value is not known)."""
-    if isinstance(node, ast.Constant) and isinstance(node.value, str):
-        return node.value
-    if isinstance(node, ast.JoinedStr):
-        return "".join(v.value if isinstance(v, ast.Constant) else "\u2026" for v in node.values)
-    return None
-
-
-def figure_titles(source: str) -> list[str]:
-    """The titles a code cell gives its figures, in source order, as plain text.
-
-    A title is the string given to ``set_title``, ``suptitle`` or ``title`` (``plt.title``, or a helper
-    of the course) or as the keyword ``title=`` of any call (``ax.set(title=...)``,
-    ``style.figure(..., title=...)``). What a helper sets inside itself is not seen. IPython magics and
-    shell lines are skipped; a cell that does not parse has no titles.
-    """
-    code = "\n".join("" if ln.lstrip().startswith(("%", "!")) else ln for ln in source.splitlines())
-    try:
-        tree = ast.parse(code)
-    except SyntaxError:
-        return []
-    found: list[tuple[int, int, str]] = []
-    for node in ast.walk(tree):
-        if not isinstance(node, ast.Call):
-            continue
-        func = node.func
-        name = func.attr if isinstance(func, ast.Attribute) else func.id if isinstance(func, ast.Name) else ""
-        values = [node.args[0]] if name in _TITLE_CALLS and node.args else []
-        values += [k.value for k in node.keywords if k.arg == "title"]
-        for value in values:
-            text = _string_value(value)
-            if text and text.strip():
-                found.append((value.lineno, value.col_offset, plain_text(text, markdown=False)))
-    return [t for _, _, t in sorted(found)]
-
-
-def _first_sentence(markdown: str, limit: int = 250) -> str:
-    """The first sentence of the last paragraph of prose in ``markdown`` (no heading, code, list marker)."""
-    prose = [p for p in re.split(r"\n\s*\n", markdown)
-             if p.strip() and not re.match(r"\s*(#|```|~~~|<|\$\$|\|)", p)]
-    if not prose:
-        return ""
-    text = plain_text(re.sub(r"^\s*(?:[*+-]|\d+\.)\s+", "", prose[-1], flags=re.M))
-    m = re.match(r"(.+?[.!?])(?=\s+[A-Z(\"]|$)", text)  # not at "e.g. the" or "i.e. one"
-    sentence = m.group(1) if m else text
-    return sentence if len(sentence) <= limit else sentence[: limit - 1].rsplit(" ", 1)[0] + "\u2026"
-
 
 def _figure_alts(source: str, outputs: Sequence[Mapping[str, Any]], before: str) -> dict[int, str]:
     """Alt text for each figure output of a code cell (output index -> text).
@@ -491,108 +399,5 @@ def _figure_alts(source: str, outputs: Sequence[Mapping[str, Any]], before: str)
         return {j: f"Figure: {t}" for j, t in zip(figures, titles)}
     if titles:
         return {j: "Figure: " + "; ".join(titles) for j in figures}
-    caption = _first_sentence(before)
+    caption = first_sentence(before)
     return {j: f"Figure after the text: {caption}" for j in figures} if caption else {}
-
-
-# ---------------------------------------------------------------- bibliography
-
-
-def notebook_references(nb: Mapping[str, Any]) -> list[str]:
-    """The entries of a notebook's ``## References`` section(s), each as one line of Markdown.
-
-    The section runs from its heading to the next heading of level 1 or 2 (or the notebook's end), over
-    Markdown cells; an entry is a list item (``*``, ``-`` or ``+``) with its continuation lines.
-    """
-    entries: list[str] = []
-    inside = False
-    for cell in nb.get("cells", []):
-        if cell.get("cell_type") != "markdown":
-            continue
-        for line in _text(cell.get("source", "")).splitlines():
-            heading = re.match(r"^(#{1,6})\s+(.*?)\s*#*\s*$", line)
-            if heading and len(heading.group(1)) <= 2:
-                inside = heading.group(2).strip().lower() in ("references", "reference", "bibliography")
-                continue
-            if not inside:
-                continue
-            item = re.match(r"^[*+-]\s+(.*)$", line)
-            if item:
-                entries.append(item.group(1).strip())
-            elif line.strip() and entries and line[:1].isspace():
-                entries[-1] += " " + line.strip()
-    return [" ".join(e.split()) for e in entries]
-
-
-def split_reference(entry: str) -> tuple[str, str]:
-    """``(citation, note)``: a reference entry without and with its trailing remark.
-
-    The remark is a final parenthesis that holds no year (``(the ML choice of $\\kappa$)``) or the text
-    after a colon that follows the citation's year. ``(2nd ed. 2018)`` is part of the citation.
-
-    >>> split_reference('R. Bellman, *Dynamic Programming*, Princeton University Press, 1957 (the recursion).')
-    ('R. Bellman, *Dynamic Programming*, Princeton University Press, 1957', 'the recursion')
-    >>> split_reference('A. B, "T", MIT Press, 1998 (2nd ed. 2018): value functions.')
-    ('A. B, "T", MIT Press, 1998 (2nd ed. 2018)', 'value functions')
-    """
-    text = entry.strip().rstrip(".").strip()
-    if text.endswith(")"):
-        depth, i = 0, len(text) - 1
-        while i >= 0:
-            depth += {")": 1, "(": -1}.get(text[i], 0)
-            if depth == 0:
-                break
-            i -= 1
-        inner = text[i + 1 : -1]
-        if i > 0 and not re.search(r"\b(1[89]|20)\d\d\b", inner):
-            return text[:i].rstrip(" ,"), inner.strip()
-    m = re.search(r"\b(1[89]|20)\d\d\b(\s*\([^()]*\))?:\s+(.+)$", text)
-    if m:
-        return text[: m.start(3)].rstrip(": "), m.group(3).strip()
-    return text, ""
-
-
-def _fold(text: str) -> str:
-    """Lower case ASCII letters and digits only (Å -> a), for keys and sorting."""
-    ascii_ = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
-    return re.sub(r"[^a-z0-9]+", " ", ascii_.lower()).strip()
-
-
-def _reference_key(citation: str) -> tuple[str, str]:
-    """(first author's surname, title): the same work cited with other details, ``et al.`` or a
-    different year format is one entry."""
-    m = re.search(r'"([^"]+)"|\*([^*]+)\*', citation)
-    if not m:
-        return ("", _fold(citation))
-    authors = citation[: m.start()]
-    first = re.split(r",| and ", authors.replace(" et al.", ""))[0].strip()
-    surname = first.split()[-1] if first.split() else ""
-    return (_fold(surname), _fold(m.group(1) or m.group(2)))
-
-
-def bibliography_markdown(chapters: Sequence[tuple[str, str, Sequence[str]]], title: str = "Bibliography") -> str:
-    """The book's bibliography: every chapter's references, deduplicated, sorted by first author.
-
-    ``chapters`` holds ``(chapter file, chapter label, entries)`` (entries as :func:`notebook_references`
-    returns them). A work cited in several chapters appears once, in its most frequent form (the longest
-    of equally frequent ones), followed by the chapters that cite it, each linked, with that chapter's
-    remark (:func:`split_reference`). The result is Markdown in the notebooks' syntax (``$..$`` maths).
-    """
-    works: dict[tuple[str, str], dict[str, Any]] = {}
-    for filename, label, entries in chapters:
-        for entry in entries:
-            citation, note = split_reference(entry)
-            work = works.setdefault(_reference_key(citation), {"forms": Counter(), "cited": []})
-            work["forms"][citation] += 1
-            cited = f"[{label}]({filename})" + (f" ({note})" if note else "")
-            if cited not in work["cited"]:
-                work["cited"].append(cited)
-    lines = [f"# {title}", "",
-             f"Every work the chapters cite in their References sections, {len(works)} in all, once each and sorted",
-             "by first author, with the chapters that cite it and what for. This page is generated from the",
-             "notebooks when the book is built.", ""]
-    for key in sorted(works, key=lambda k: (k[0] or k[1], k[1])):
-        forms = works[key]["forms"]
-        citation = max(forms, key=lambda c: (forms[c], len(c)))
-        lines.append(f"* {citation}. Cited in " + "; ".join(works[key]["cited"]) + ".")
-    return "\n".join(lines) + "\n"
