@@ -578,25 +578,9 @@ def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:
                       for e, x in paired]
         parts.append("\n".join(lines) + "\n")
     if "particles" in summary:
-        lines = ["**The particle count** (cost = squared error + price x particles, i.e. compared at equal price; "
-                 "learned: IQM over seeds [two-level 95 % CI], differences paired)", "",
-                 "| experiment | policy | cost | RMSE | particles per step | divergent runs | cost - best KLD | cost - best fixed |",
-                 "|---|---|---|---|---|---|---|---|"]
-        for e, rows in summary["particles"].items():
-            for n in (rows["best kld"], rows["best fixed"], "greedy", "default"):
-                b = rows["baselines"].get(n)
-                if b is not None:
-                    lines.append(f"| {e} | {n} | {b['cost']:.4g} | {b['rmse']:.4g} | {b['particles']:.4g} | "
-                                 f"{b['divergent_frac']:.2%} | | |")
-            a = rows.get("adaptive")
-            if a is not None:
-                lines.append(f"| {e} | adaptive | {f(a['cost_charged'])} | {f(a['rmse'])} | "
-                             f"{min(a['particles']):.4g}-{max(a['particles']):.4g} | {max(a['divergent_frac']):.2%} (max) | "
-                             f"{d(a['minus_best kld']['cost_charged'])} ({a['seeds_below_kld']} of {len(a['particles'])} seeds "
-                             f"below alone) | {d(a['minus_best fixed']['cost_charged'])} |")
-            if rows.get("floor") and rows["floor"]["rmse"] is not None:
-                lines.append(f"| {e} | point-mass floor ({rows['floor']['runs']} runs) | | {rows['floor']['rmse']:.4g} | | | | |")
-        parts.append("\n".join(lines) + "\n")
+        from adaptfilt.experiments.particles_study import particles_md
+
+        parts.append(particles_md(summary["particles"]))
     if "look" in summary:
         from adaptfilt.experiments.look import look_md
 
