@@ -35,7 +35,7 @@ from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol,
 from adaptfilt.models import Trajectory
 
 __all__ = ["Cost", "FeatureScaler", "FeatureSet", "Decision", "FilterEnv", "feature_names", "fit_scaler",
-           "rollout", "run_policy"]
+           "grid_actions", "rollout", "run_policy"]
 
 _PREDICT, _UPDATE = 0, 1
 
@@ -83,6 +83,22 @@ class Cost:
         """Cost per run of update ``u`` made with parameter(s) ``theta``."""
         c = self.estimation_cost(u.nis, u.K, u.innovation, nz)
         return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
+
+
+def grid_actions(actions, n_runs: int, grid_size: int) -> np.ndarray:
+    """``actions`` as grid indices, an int array ``(n_runs,)``; ValueError naming what is wrong (shape,
+    a non-integer, an index off the grid). Every environment's ``step`` checks its actions with it."""
+    a = np.asarray(actions)
+    if a.shape != (n_runs,):
+        raise ValueError(f"actions must be one grid index per run, shape ({n_runs},); got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.integer):
+        if not (np.isfinite(a).all() and (a == np.round(a)).all()):
+            raise ValueError("actions must be integer grid indices")
+        a = a.astype(np.int64)
+    if (a < 0).any() or (a >= grid_size).any():
+        bad = a[(a < 0) | (a >= grid_size)]
+        raise ValueError(f"action index {int(bad[0])} out of range: the grid has {grid_size} values (0..{grid_size - 1})")
+    return a
 
 
 # ------------------------------------------------------------------ decision
@@ -343,18 +359,7 @@ class FilterEnv:
 
     def check_actions(self, actions) -> np.ndarray:
         """Grid indices as an int array ``(M,)``; ValueError naming what is wrong."""
-        a = np.asarray(actions)
-        M = self._m.shape[1]
-        if a.shape != (M,):
-            raise ValueError(f"actions must be one grid index per run, shape ({M},); got shape {a.shape}")
-        if not np.issubdtype(a.dtype, np.integer):
-            if not (np.isfinite(a).all() and (a == np.round(a)).all()):
-                raise ValueError("actions must be integer grid indices")
-            a = a.astype(np.int64)
-        if (a < 0).any() or (a >= self.grid.size).any():
-            bad = a[(a < 0) | (a >= self.grid.size)]
-            raise ValueError(f"action index {int(bad[0])} out of range: the grid has {self.grid.size} values (0..{self.grid.size - 1})")
-        return a
+        return grid_actions(actions, self._m.shape[1], self.grid.size)
 
     def step(self, actions, predict_param: float | None = None) -> tuple[Decision | None, np.ndarray | None, bool, dict]:
         """Update with ``grid[actions]``, pay the cost, predict to the next step.

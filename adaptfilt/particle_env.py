@@ -45,6 +45,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
 from adaptfilt.particles import ParticleCountFilter, kld_counts
 
@@ -342,19 +343,8 @@ class ParticleCountEnv:
         return self._new_decision()
 
     def check_actions(self, actions) -> np.ndarray:
-        a = np.asarray(actions)
-        M = self._zs.shape[1]
-        if a.shape != (M,):
-            raise ValueError(f"actions must be one grid index per run, shape ({M},); got shape {a.shape}")
-        if not np.issubdtype(a.dtype, np.integer):
-            if not (np.isfinite(a).all() and (a == np.round(a)).all()):
-                raise ValueError("actions must be integer grid indices")
-            a = a.astype(np.int64)
-        if (a < 0).any() or (a >= self.grid.size).any():
-            bad = a[(a < 0) | (a >= self.grid.size)]
-            raise ValueError(f"action index {int(bad[0])} out of range: the grid has {self.grid.size} values "
-                             f"(0..{self.grid.size - 1})")
-        return a
+        """Grid indices as an int array ``(M,)``; ValueError naming what is wrong."""
+        return grid_actions(actions, self._zs.shape[1], self.grid.size)
 
     def step(self, actions, predict_param=None) -> tuple[ParticleDecision | None, np.ndarray | None, bool, dict]:
         """Resample, propagate and weigh ``grid[actions]`` particles per run; pay the cost.
