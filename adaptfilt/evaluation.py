@@ -275,10 +275,12 @@ def evaluate_costs(
 
 def _cost_blind(pol) -> bool:
     """Whether ``pol``'s choices cannot depend on the environment's cost: constants, maximum likelihood,
-    random choice, and learned policies whose information state has no candidate costs."""
+    random choice, KLD-sampling and ESS targets, and learned policies whose information state has no
+    candidate costs."""
+    from adaptfilt.particle_env import ESSTargetPolicy, KLDSamplingPolicy
     from adaptfilt.policies import FixedPolicy, MaxLikelihoodPolicy, RandomPolicy
 
-    if isinstance(pol, (FixedPolicy, MaxLikelihoodPolicy, RandomPolicy)):
+    if isinstance(pol, (FixedPolicy, MaxLikelihoodPolicy, RandomPolicy, KLDSamplingPolicy, ESSTargetPolicy)):
         return True
     fs = getattr(pol, "feature_set", None)
     return fs is not None and not fs.candidates

@@ -210,3 +210,20 @@ def test_the_study_summary_compares_the_learned_group_with_the_best_kld_and_fixe
     assert lo <= a["minus_best kld"]["cost_charged"][0] <= hi
     md = summary_md({"particles": {"ungm-test": rows}}, ("particles",))
     assert "point-mass floor (3 runs)" in md and f"| ungm-test | {best} |" in md
+
+
+def test_one_models_prices_share_the_baselines_that_cannot_see_the_price():
+    from adaptfilt.experiments.particles_study import ParticleScale, evaluate_model_job
+
+    scale = ParticleScale(episodes=1, n_steps=4, eval_runs=6, floor_runs=2)
+    exps = ["ungm-pf-1e-4", "ungm-pf-1e-3"]
+    shared = evaluate_model_job(exps, [[], []], scale)
+    for e, res in zip(exps, shared):
+        alone = evaluate(e, n_runs=6, progress=False, n_steps=4)  # every baseline, one evaluation per price
+        assert res.names == alone.names and res.config["cost"] == alone.config["cost"]
+        for n in alone.names:
+            for m in ("rmse", "cost", "cost_charged", "spent"):
+                assert getattr(res[n], m) == getattr(alone[n], m), (e, n, m)
+            np.testing.assert_array_equal(res[n].boot_cost, alone[n].boot_cost)
+    assert shared[0]["kld-x1"].rmse == shared[1]["kld-x1"].rmse  # the same rollout, charged two prices
+    assert shared[0]["kld-x1"].cost != shared[1]["kld-x1"].cost

@@ -299,13 +299,22 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             ejobs.append((e, files, scale, ("default", "ml", "greedy"), ANCHOR_EVAL_SEED))
             names.append(("anchor", e))
     floors: dict = {}
-    if "particles" in studies:
-        from adaptfilt.experiments.particles_study import floor_job
+    particle_results: dict = {}
+    if "particles" in studies:  # one job per model: the baselines blind to the price are shared by its prices
+        from adaptfilt.experiments.particles_study import evaluate_model_job, floor_job
 
+        models: dict[str, list[str]] = {}
         for e in PARTICLE_EXPERIMENTS:
-            files = [str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")]
-            ejobs.append((e, files, pscale, None))
-            names.append(("particles", e))
+            models.setdefault(e.split("-pf-")[0], []).append(e)
+        pjobs = [(es, [[str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")] for e in es], ps)
+                 for es in models.values()]
+        pres = journal.run(evaluate_model_job, pjobs, [(_job_key("particles", j[0], *j[1], j[2]), 0) for j in pjobs],
+                           save=lambda folder, rs: (save_results(folder, rs), len(rs)), load=load_results,
+                           workers=workers, cluster=cluster, progress=progress, desc="beyond: particle counts")
+        for (es, _, _), rs in zip(pjobs, pres):
+            for e, res in zip(es, rs):
+                res.config.update(experiment=e)
+                particle_results[e] = res
         fjobs = [(e, ps) for e in PARTICLE_EXPERIMENTS]
         floors = dict(zip(PARTICLE_EXPERIMENTS, journal.run(
             floor_job, fjobs, [(f"beyond floor {e} runs={ps.eval_runs} floor={ps.floor_runs} steps={ps.n_steps}", 0)
@@ -314,7 +323,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
                                                   for (study, e), (_, files, _, keep, *rest) in zip(names, ejobs)],
                           save=_save_one, load=_load_one, workers=workers, cluster=cluster, progress=progress,
                           desc="beyond: evaluate")
-    for (study, e), res in zip(names, results):
+    for (study, e), res in [*zip(names, results), *((("particles", e), r) for e, r in particle_results.items())]:
         d = out / "results" / f"{study}-{e}"
         wall = _take_times(res)
         res.save(d, drop=COMPACT)

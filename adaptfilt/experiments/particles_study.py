@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "floor_job", "particle_rows", "particles_md"]
+__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "evaluate_model_job", "floor_job", "particle_rows",
+           "particles_md"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,29 @@ class ParticleScale:
 #: on 1000 runs (every fixed count of the grid is 15,225 particles a step together), the floor on 200.
 PARTICLE_FULL = ParticleScale(500, None, 1000, 200)
 PARTICLE_QUICK = ParticleScale(4, 10, 20, 5)
+
+
+def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: ParticleScale, seed: int = 0) -> list:
+    """The evaluations of one model's experiments (the same filter and runs at different prices), one
+    :class:`~adaptfilt.results.Results` each: the baselines that cannot see the price (fixed counts, KLD,
+    ESS) are rolled out once and charged every price (:func:`~adaptfilt.evaluation.evaluate_costs`), greedy
+    and each experiment's learned ``files`` per experiment; the parts are merged, bit for bit what one
+    :func:`~adaptfilt.evaluation.evaluate` per experiment gives (but for wall times)."""
+    from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiments.look import merge_parts
+    from adaptfilt.learned import load_policy
+
+    exps = [get_experiment(e) for e in experiments]
+    blind = [p for p in exps[0].baselines() if p.name != "greedy"]
+    shared = evaluate_costs(exps, blind, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
+    out = []
+    for exp, fs in zip(exps, files):
+        pols = [p for p in exp.baselines() if p.name == "greedy"]
+        pols += [load_policy(f, experiment=exp, name=learned_name(f, exp.name)) for f in fs]
+        own = evaluate(exp, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
+        out.append(merge_parts([shared[exp.name], own]))
+    return out
 
 
 def floor_job(experiment: str, scale: ParticleScale, seed: int = 0) -> dict:
