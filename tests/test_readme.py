@@ -66,3 +66,12 @@ def test_readme_links_only_to_files_of_the_repository():
     local = [t for t in targets if "://" not in t]
     assert "docs/ARCHITECTURE.md" in local and "../shared" not in README
     assert all((ROOT / t).exists() for t in local), [t for t in local if not (ROOT / t).exists()]
+
+
+def test_particle_count_example_runs_and_kld_uses_fewer_particles_than_the_default():
+    block = next(b for b in _python_blocks() if "ungm-pf-1e-4" in b)
+    ns: dict = {}
+    exec(compile(block.replace("print(", "(lambda *a: None)("), "README-example-particles", "exec"), ns)
+    res = ns["res"]
+    assert res["default"].spent == 1000
+    assert res["kld-x1"].spent < res["default"].spent  # what the example is there to show: KLD adapts the count
