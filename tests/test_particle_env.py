@@ -227,3 +227,25 @@ def test_one_models_prices_share_the_baselines_that_cannot_see_the_price():
             np.testing.assert_array_equal(res[n].boot_cost, alone[n].boot_cost)
     assert shared[0]["kld-x1"].rmse == shared[1]["kld-x1"].rmse  # the same rollout, charged two prices
     assert shared[0]["kld-x1"].cost != shared[1]["kld-x1"].cost
+
+
+def test_the_tradeoff_figure_draws_every_family_the_learned_group_and_the_floor():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from adaptfilt.experiments.particles_study import particle_rows, plot_particle_tradeoff
+
+    env = ParticleCountEnv(af.models.ungm(), ParticleCost("sqerr", 1e-4), n_steps=6)
+    pols = [FixedPolicy(n, "n_particles") for n in (50, 500)] + [KLDSamplingPolicy(1.0, name="kld-x1"),
+                                                                  ESSTargetPolicy(50), GreedyPolicy()]
+    pols += [FixedPolicy(100, "n_particles", name="adaptive-s0"), FixedPolicy(200, "n_particles", name="adaptive-s1")]
+    res = evaluate(env, pols, n_runs=12, progress=False, n_boot=50)
+    fig = plot_particle_tradeoff({"ungm-test": particle_rows(res, {"rmse": 0.6, "runs": 3})})
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    for want in ("fixed N", "KLD-sampling", "ESS target", "greedy", "learned seeds", "point-mass floor (3 runs)"):
+        assert want in labels, labels
+    seeds = next(line for line in ax.get_lines() if line.get_label() == "learned seeds")
+    np.testing.assert_array_equal(seeds.get_xdata(), [100, 200])
+    np.testing.assert_allclose(seeds.get_ydata(), [res["adaptive-s0"].rmse, res["adaptive-s1"].rmse])
+    assert ax.get_xscale() == "log"

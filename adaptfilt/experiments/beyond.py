@@ -339,6 +339,17 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
         if study == "anchor":
             summary["anchor-eval-seed"] = ANCHOR_EVAL_SEED
 
+    if "particles" in summary:
+        import matplotlib.pyplot as plt
+
+        from adaptfilt.experiments.particles_study import plot_particle_tradeoff
+
+        (out / "figures").mkdir(parents=True, exist_ok=True)
+        fig = plot_particle_tradeoff(summary["particles"])
+        atomic_savefig(fig, out / "figures" / "particles-tradeoff.png", dpi=100)
+        plt.close(fig)
+        entries["figures/particles-tradeoff.png"] = {"command": cmd}
+
     if "look" in studies:  # after the anchored policies: they are shown beside the references
         from adaptfilt.experiments.look import LOOK, LOOK_QUICK, look_files, look_job, look_specs, look_summary, merge_parts
 

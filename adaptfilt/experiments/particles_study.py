@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "evaluate_model_job", "floor_job", "particle_rows",
-           "particles_md"]
+           "particles_md", "plot_particle_tradeoff"]
 
 
 @dataclass(frozen=True)
@@ -129,3 +129,50 @@ def particles_md(particles: dict) -> str:
         if rows.get("floor") and rows["floor"]["rmse"] is not None:
             lines.append(f"| {e} | point-mass floor ({rows['floor']['runs']} runs) | | {rows['floor']['rmse']:.4g} | | | | |")
     return "\n".join(lines) + "\n"
+
+
+def plot_particle_tradeoff(particles: dict, axes=None):
+    """RMSE against mean particles per step (log axis), one panel per experiment of the study's summary
+    (:func:`particle_rows` by experiment): the fixed counts as a line, the KLD-sampling bins and the ESS
+    targets as their own lines, greedy and the default as points, each learned seed as a dot and the
+    group's IQM with its seed-level 95 % interval at the seeds' mean count, and the point-mass floor (where
+    there is one) as a dashed line. Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    exps = list(particles)
+    if axes is None:
+        fig, axes = plt.subplots(1, len(exps), figsize=(4.6 * len(exps), 3.9), layout="constrained", squeeze=False)
+        axes = axes[0]
+    fig = axes[0].figure
+    for ax, e in zip(axes, exps):
+        rows = particles[e]
+        base = rows["baselines"]
+        for prefix, label, style in (("fixed-", "fixed N", "o-"), ("kld", "KLD-sampling", "s--"), ("ess-", "ESS target", "^:")):
+            pts = sorted((b["particles"], b["rmse"]) for n, b in base.items() if n.startswith(prefix))
+            if pts:
+                ax.plot(*zip(*pts), style, ms=4, lw=1, label=label)
+        for n, marker in (("greedy", "D"), ("default", "x")):
+            if n in base:
+                ax.plot(base[n]["particles"], base[n]["rmse"], marker, ms=6, color="k" if n == "greedy" else "0.4",
+                        label=n)
+        a = rows.get("adaptive")
+        if a is not None:
+            n_mean = float(np.mean(a["particles"]))
+            ax.plot(a["particles"], a["rmse"]["values"], ".", color="C3", alpha=0.6, label="learned seeds")
+            lo, hi = a["rmse"]["iqm_ci"]
+            ax.errorbar([n_mean], [a["rmse"]["iqm"]], yerr=[[a["rmse"]["iqm"] - lo], [hi - a["rmse"]["iqm"]]],
+                        fmt="*", ms=10, color="C3", capsize=3, label="learned (IQM, seed-level CI)")
+        floor = rows.get("floor")
+        if floor and floor.get("rmse") is not None:
+            ax.axhline(floor["rmse"], ls="--", color="0.5", lw=1, label=f"point-mass floor ({floor['runs']} runs)")
+        ax.set_xscale("log")
+        ax.set_xlabel("mean particles per step")
+        ax.set_ylabel("RMSE")
+        ax.set_title(e)
+    # one legend for all panels, below them: every family once, the floor too (not every panel has one)
+    seen: dict = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lab, h)
+    fig.legend(list(seen.values()), list(seen), loc="outside lower center", ncol=min(len(seen), 5), fontsize="small")
+    return fig
