@@ -283,20 +283,25 @@ class ParticleCountEnv:
             blocks.append(np.repeat(tf[:, None], d.n_runs, axis=1))
         return np.concatenate(blocks, axis=0).T
 
-    def _update(self, x: np.ndarray, n: np.ndarray, z: np.ndarray, t: int) -> tuple[dict, ParticleUpdate]:
-        """Weigh the first ``n`` of ``x``; the posterior and what a cost reads."""
-        post = self.filt.pf.weigh(x, n, z, t, self._ids)
+    def _update(self, x: np.ndarray, n: np.ndarray, z: np.ndarray, t: int, logl: np.ndarray | None = None,
+                r: np.ndarray | None = None) -> tuple[dict, ParticleUpdate]:
+        """Weigh the first ``n`` of ``x``; the posterior and what a cost reads. ``logl``, ``r``: the particles'
+        log-likelihoods and measurement residuals, when the caller has them already (greedy's candidates)."""
+        post = self.filt.pf.weigh(x, n, z, t, self._ids, logl=logl)
         valid = np.arange(x.shape[1])[None, :] < n[:, None]
         x_pred = (x * valid[..., None]).sum(axis=1) / n[:, None]
         dp = (x - x_pred[:, None, :]) * valid[..., None]
         post["x_pred"], post["P_pred"] = x_pred, np.einsum("mni,mnj->mij", dp, dp) / n[:, None, None]
-        post["nis"] = self._nis(x, valid, n, z, t)
+        post["nis"] = self._nis(x, valid, n, z, t, r)
         truth = self.traj.x[:, t] if self.traj is not None and self.traj.x.shape[1] > t else np.nan
         return post, ParticleUpdate(nis=post["nis"], dx=post["mean"] - x_pred, err=post["mean"] - truth)
 
-    def _nis(self, x: np.ndarray, valid: np.ndarray, n: np.ndarray, z: np.ndarray, t: int) -> np.ndarray:
+    def _nis(self, x: np.ndarray, valid: np.ndarray, n: np.ndarray, z: np.ndarray, t: int,
+             r: np.ndarray | None = None) -> np.ndarray:
         """NIS of ``z`` under the Gaussian fit of the predicted measurement of the first ``n`` particles."""
-        r = self.model.diff_z(z[:, None, :], self.model.h(x, t + 1)) * valid[..., None]  # (M, cap, nz)
+        if r is None:
+            r = self.model.diff_z(z[:, None, :], self.model.h(x, t + 1))
+        r = r * valid[..., None]  # (M, cap, nz)
         innov = r.sum(axis=1) / n[:, None]
         d = (r - innov[:, None, :]) * valid[..., None]
         S = np.einsum("mni,mnj->mij", d, d) / np.maximum(n - 1, 1)[:, None, None] + self.model.R
@@ -305,10 +310,13 @@ class ParticleCountEnv:
     def _candidates(self, d: ParticleDecision) -> dict:
         G, M, cap = self.grid.size, d.n_runs, int(self.grid.max())
         x = d.predicted(cap)
+        # every count's particles are a prefix of these: their likelihoods and residuals once, sliced per count
+        logl = self.filt.pf.loglik_particles(x, d.z, d.t)
+        r = self.model.diff_z(d.z[:, None, :], self.model.h(x, d.t + 1))
         nis, cost = np.empty((G, M)), np.empty((G, M))
         for g, n in enumerate(self.grid.astype(np.int64)):
             nn = np.full(M, n)
-            _, u = self._update(x[:, :n], nn, d.z, d.t)
+            _, u = self._update(x[:, :n], nn, d.z, d.t, logl[:, :n], r[:, :n])
             nis[g] = u.nis
             cost[g] = self.cost(u, nn, self.nz) if self.cost is not None else np.nan
         return {"cost": cost if self.cost is not None else None, "nis": nis}

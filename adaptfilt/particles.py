@@ -213,12 +213,14 @@ class ParticleCountFilter:
         r = model.diff_z(z_t[:, None, :], model.h(x, t + 1))
         return -0.5 * (np.einsum("mni,ij,mnj->mn", r, self._Rinv, r) + self._logdetR + model.nz * np.log(2 * np.pi))
 
-    def weigh(self, x: np.ndarray, n: np.ndarray, z_t: np.ndarray, t: int, ids: np.ndarray) -> dict:
+    def weigh(self, x: np.ndarray, n: np.ndarray, z_t: np.ndarray, t: int, ids: np.ndarray,
+              logl: np.ndarray | None = None) -> dict:
         """Weight the first ``n[i]`` particles of ``x (M, cap, nx)`` by ``z_t (M, nz)``: a dict of ``w (M, cap)``
         (zero beyond ``n``), ``mean (M, nx)``, ``cov (M, nx, nx)``, ``loglik (M,)`` (log p-hat(z_t | z^{t-1}))
-        and ``ess (M,)``. FloatingPointError naming the step and runs where no particle explains ``z_t``."""
+        and ``ess (M,)``. FloatingPointError naming the step and runs where no particle explains ``z_t``.
+        ``logl``: :meth:`loglik_particles` of these particles, when the caller has it already."""
         valid = np.arange(x.shape[1])[None, :] < n[:, None]
-        logl = np.where(valid, self.loglik_particles(x, z_t, t), -np.inf)
+        logl = np.where(valid, self.loglik_particles(x, z_t, t) if logl is None else logl, -np.inf)
         amax = logl.max(axis=1, keepdims=True)
         if not np.isfinite(amax).all():
             bad = np.flatnonzero(~np.isfinite(amax[:, 0]))
