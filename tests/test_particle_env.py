@@ -7,8 +7,9 @@ import pytest
 
 import adaptfilt as af
 from adaptfilt.evaluation import evaluate
+from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import rollout
-from adaptfilt.particle_env import (ESSTargetPolicy, KLDSamplingPolicy, ParticleCost, ParticleCountEnv,
+from adaptfilt.particle_env import (PARTICLE_GRID, ESSTargetPolicy, KLDSamplingPolicy, ParticleCost, ParticleCountEnv,
                                     particle_feature_names)
 from adaptfilt.particles import ParticleCountFilter, kld_count
 from adaptfilt.policies import FixedPolicy, GreedyPolicy
@@ -220,7 +221,8 @@ def test_one_models_prices_share_the_baselines_that_cannot_see_the_price():
     shared = evaluate_model_job(exps, [[], []], scale)
     for e, res in zip(exps, shared):
         alone = evaluate(e, n_runs=6, progress=False, n_steps=4)  # every baseline, one evaluation per price
-        assert res.names == alone.names and res.config["cost"] == alone.config["cost"]
+        assert [n for n in res.names if not n.startswith("bpf-")] == alone.names
+        assert res.config["cost"] == alone.config["cost"]
         for n in alone.names:
             for m in ("rmse", "cost", "cost_charged", "spent"):
                 assert getattr(res[n], m) == getattr(alone[n], m), (e, n, m)
@@ -249,3 +251,33 @@ def test_the_tradeoff_figure_draws_every_family_the_learned_group_and_the_floor(
     np.testing.assert_array_equal(seeds.get_xdata(), [100, 200])
     np.testing.assert_allclose(seeds.get_ydata(), [res["adaptive-s0"].rmse, res["adaptive-s1"].rmse])
     assert ax.get_xscale() == "log"
+
+
+def test_the_reference_filter_rows_are_the_bootstrap_filter_on_the_same_runs_charged_the_price():
+    """``bpf-N``: exact.BootstrapParticleFilter (systematic resampling at ESS < N/2) with N particles on the
+    evaluation's own runs, its squared error plus price x N, with the evaluation's bootstrap resamples."""
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.exact import BootstrapParticleFilter
+    from adaptfilt.experiments.particles_study import ParticleScale, evaluate_model_job, particle_rows
+
+    scale = ParticleScale(episodes=1, n_steps=5, eval_runs=8, floor_runs=2)
+    exps = ["ungm-pf-1e-4", "ungm-pf-1e-3"]
+    res = evaluate_model_job(exps, [[], []], scale, seed=3)
+    env = get_experiment(exps[0]).make_env(seed=3, n_steps=5)
+    traj = env.truth.simulate(8, 5, rng=np.random.default_rng([TRAJ_SEED_KEY, 3]))
+    assert sorted(n for n in res[0].names if n.startswith("bpf-")) == sorted(f"bpf-{n}" for n in PARTICLE_GRID)
+    for N in (50, 1000):
+        run = BootstrapParticleFilter(env.model, n_particles=N, seed=np.random.default_rng([24, 3, N])).run(traj.z)
+        se = ((run.mean - traj.x[:, :5]) ** 2).sum(axis=-1)
+        for r, price in zip(res, (1e-4, 1e-3)):
+            p = r[f"bpf-{N}"]
+            assert p.rmse == pytest.approx(np.sqrt(se.mean(axis=0)).mean(), rel=1e-12)
+            assert p.cost_charged == pytest.approx(se.mean() + price * N, rel=1e-12)
+            assert p.spent == N and p.extra_spent == 0
+    # paired against the study filter's fixed count on the same runs and resamples
+    d, lo, hi = res[0].paired_difference("bpf-1000", "fixed-n_particles=1000", "rmse")
+    assert lo <= d <= hi and d == pytest.approx(res[0]["bpf-1000"].rmse - res[0]["fixed-n_particles=1000"].rmse)
+    rows = particle_rows(res[1])
+    assert rows["best reference"] == min((n for n in res[1].names if n.startswith("bpf-")),
+                                         key=lambda n: res[1][n].cost_charged)
+    assert rows["reference_failed"] == []

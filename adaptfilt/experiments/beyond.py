@@ -308,7 +308,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             models.setdefault(e.split("-pf-")[0], []).append(e)
         pjobs = [(es, [[str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")] for e in es], ps)
                  for es in models.values()]
-        pres = journal.run(evaluate_model_job, pjobs, [(_job_key("particles", j[0], *j[1], j[2]), 0) for j in pjobs],
+        pres = journal.run(evaluate_model_job, pjobs, [(_job_key("particles+bpf", j[0], *j[1], j[2]), 0) for j in pjobs],
                            save=lambda folder, rs: (save_results(folder, rs), len(rs)), load=load_results,
                            workers=workers, cluster=cluster, progress=progress, desc="beyond: particle counts")
         for (es, _, _), rs in zip(pjobs, pres):

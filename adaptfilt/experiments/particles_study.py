@@ -13,12 +13,19 @@ what is particular to the study: its scale, its jobs' arguments, the floor and t
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "evaluate_model_job", "floor_job", "particle_rows",
-           "particles_md", "plot_particle_tradeoff"]
+__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "evaluate_model_job",
+           "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
+
+#: Names of the reference filter's fixed counts: ``bpf-1000`` is the library's bootstrap particle filter
+#: (systematic resampling when ESS < N/2) with 1000 particles.
+REFERENCE_PREFIX = "bpf-"
+#: Keys the reference filters' random streams, apart from the trajectories' and the study filter's.
+_REFERENCE_KEY = 24
 
 
 @dataclass(frozen=True)
@@ -51,13 +58,65 @@ def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: Pa
     exps = [get_experiment(e) for e in experiments]
     blind = [p for p in exps[0].baselines() if p.name != "greedy"]
     shared = evaluate_costs(exps, blind, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
+    reference, failed = reference_parts(exps, blind[:1], scale, seed)
     out = []
     for exp, fs in zip(exps, files):
         pols = [p for p in exp.baselines() if p.name == "greedy"]
         pols += [load_policy(f, experiment=exp, name=learned_name(f, exp.name)) for f in fs]
         own = evaluate(exp, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
-        out.append(merge_parts([shared[exp.name], own]))
+        res = merge_parts([shared[exp.name], reference[exp.name], own])
+        res.config["reference_failed"] = failed
+        out.append(res)
     return out
+
+
+def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0) -> tuple[dict, dict]:
+    """The fixed counts in their best-known form: the library's
+    :class:`~adaptfilt.exact.BootstrapParticleFilter` (systematic resampling, only when ESS < N/2; the
+    weights carried otherwise) with every count ``N`` of the grid, named ``bpf-N``, on the evaluation's runs
+    and bootstrap resamples, charged each experiment's cost (``||x_filt - x||^2 + price N``). The study's
+    own filter resamples multinomially at every step, which is what KLD-sampling and a count that changes
+    per step need, and what makes particle ``j`` the same for every count; a fixed count needs neither,
+    so this is the bar a learned count has to clear. Returns ``({experiment: Results}, {N: reason})``: a
+    count whose filter fails (no particle explains a measurement) has no row and its reason.
+    ``probe``: one cost-blind policy, to set the evaluation up (:func:`~adaptfilt.evaluation._setup`) exactly
+    as :func:`~adaptfilt.evaluation.evaluate` does."""
+    from adaptfilt.evaluation import _setup, _summarise
+    from adaptfilt.exact import BootstrapParticleFilter
+    from adaptfilt.gaf import FilterRun
+    from adaptfilt.particle_env import ParticleUpdate
+    from adaptfilt.results import PolicyResult, Results
+
+    for e in exps:
+        if getattr(e.cost, "kind", None) != "sqerr":
+            raise ValueError(f"{e.name}: the reference filter is charged the squared error only (its NIS and update "
+                             f"step are not the study filter's), got the cost {e.cost.name!r}")
+    setups = [_setup(e, probe, scale.eval_runs, seed, 1000, None, 0.95, None, scale.n_steps) for e in exps]
+    env, _, traj, counts, _ = setups[0]
+    M, T = traj.n_runs, env.n_steps
+    x = traj.x[:, :T]
+    out = {e.name: Results(config=dict(c)) for e, (*_, c) in zip(exps, setups)}
+    failed: dict = {}
+    for N in env.grid.astype(int):
+        pf = BootstrapParticleFilter(env.model, n_particles=int(N), seed=np.random.default_rng([_REFERENCE_KEY, seed, int(N)]))
+        t0 = time.perf_counter()
+        try:
+            run = pf.run(traj.z[:, :T])
+        except ValueError as err:  # no particle explains a measurement: not a usable filter at this count
+            failed[int(N)] = str(err)
+            continue
+        run = FilterRun(mean=run.mean, cov=run.cov, nis=run.nis, loglik=run.loglik, params=np.full((M, T), float(N)),
+                        info={**run.info, "spent": np.full(M, float(N)), "on_indefinite": "inf"})
+        err = (run.mean - x).reshape(M * T, -1)
+        u = ParticleUpdate(nis=np.full(M * T, np.nan), dx=np.full_like(err, np.nan), err=err)
+        for e in exps:
+            cost = e.cost(u, np.full(M * T, float(N)), env.nz).reshape(M, T)
+            summ = _summarise(f"{REFERENCE_PREFIX}{N}", x, run, cost, env.grid, counts, 0, 0.95, e.cost.compute_weight)
+            out[e.name].policies[f"{REFERENCE_PREFIX}{N}"] = PolicyResult(name=f"{REFERENCE_PREFIX}{N}", **summ,
+                                                                         wall_time_s=time.perf_counter() - t0)
+    for r in out.values():
+        r.config["policies"] = list(r.policies)
+    return out, failed
 
 
 def floor_job(experiment: str, scale: ParticleScale, seed: int = 0) -> dict:
@@ -80,16 +139,21 @@ def floor_job(experiment: str, scale: ParticleScale, seed: int = 0) -> dict:
 
 def particle_rows(res, floor: dict | None = None) -> dict:
     """The study's summary of one experiment's evaluation ``res``: for the learned group ``adaptive`` the
-    IQM over seeds (two-level intervals) of cost, RMSE and ANEES, mean particles per step per seed, and the
-    differences to KLD-sampling and to the cheapest fixed count (seed-level intervals, paired runs); for every
-    baseline its cost, RMSE, mean particles and divergent runs; the floor."""
+    IQM over seeds (two-level intervals) of cost, RMSE and the objective, mean particles per step per seed,
+    and the differences to the cheapest KLD-sampling bins, the cheapest fixed count of the study's filter and
+    of the reference filter (``bpf-N``, :func:`reference_parts`) (seed-level intervals, paired runs) with how
+    many seeds lie below each alone; for every baseline its cost, RMSE, mean particles and divergent runs;
+    the floor and the counts at which the reference filter failed."""
     from adaptfilt.seed_stats import aggregate, difference, seed_groups
 
     fixed = [n for n in res.names if n.startswith("fixed-")]
     best = min(fixed, key=lambda n: res[n].cost_charged)
+    ref = [n for n in res.names if n.startswith(REFERENCE_PREFIX)]
+    best_ref = min(ref, key=lambda n: res[n].cost_charged) if ref else None
     # the best KLD bins in hindsight, on the evaluation runs themselves: a bar that favours KLD-sampling
     kld = min((n for n in res.names if n.startswith("kld")), key=lambda n: res[n].cost_charged)
-    rows: dict = {"best fixed": best, "best kld": kld, "floor": floor}
+    rows: dict = {"best fixed": best, "best kld": kld, "best reference": best_ref, "floor": floor,
+                  "reference_failed": sorted(int(n) for n in res.config.get("reference_failed", {}))}
     rows["baselines"] = {n: {"cost": res[n].cost_charged, "rmse": res[n].rmse, "anees": res[n].anees,
                              "particles": res[n].spent, "divergent_frac": res[n].divergent_frac}
                          for n in res.names if not n.startswith("adaptive")}
@@ -98,42 +162,57 @@ def particle_rows(res, floor: dict | None = None) -> dict:
         g = {m: aggregate(res, members, m).to_dict() for m in ("cost_charged", "rmse", "objective")}
         g["particles"] = [res[n].spent for n in members]
         g["divergent_frac"] = [res[n].divergent_frac for n in members]
-        for label, ref in (("best kld", kld), ("best fixed", best)):
-            g[f"minus_{label}"] = {m: list(difference(res, members, [ref], m)["iqm"]) for m in ("cost_charged", "rmse")}
-        g["seeds_below_kld"] = int(sum(res.paired_difference(n, kld, "cost_charged")[2] < 0 for n in members))
+        for label, other in (("best kld", kld), ("best fixed", best), ("best reference", best_ref)):
+            if other is not None:
+                g[f"minus_{label}"] = {m: list(difference(res, members, [other], m)["iqm"]) for m in ("cost_charged", "rmse")}
+        # a seed is below a baseline alone when its own paired run-level interval lies below zero
+        for label, other in (("kld", kld), ("fixed", best), ("reference", best_ref)):
+            if other is not None:
+                g[f"seeds_below_{label}"] = int(sum(res.paired_difference(n, other, "cost_charged")[2] < 0 for n in members))
         rows["adaptive"] = g
     return rows
 
 
 def particles_md(particles: dict) -> str:
-    """The study's table for REPRODUCTION.md: per experiment the best KLD bins, the best fixed count, greedy,
-    the default and the learned group (IQM [seed-level CI], differences paired), and the floor."""
+    """The study's table for REPRODUCTION.md: per experiment the best KLD bins, the best fixed count of the
+    study's filter and of the reference filter, greedy, the default and the learned group (IQM [seed-level
+    CI], differences paired), and the floor."""
     f = lambda a: f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"  # noqa: E731
     d = lambda x: f"{x[0]:+.4g} [{x[1]:+.4g}, {x[2]:+.4g}]"  # noqa: E731
     lines = ["**The particle count** (cost = squared error + price x particles, i.e. compared at equal price; "
-             "learned: IQM over seeds [two-level 95 % CI], differences paired)", "",
-             "| experiment | policy | cost | RMSE | particles per step | divergent runs | cost - best KLD | cost - best fixed |",
-             "|---|---|---|---|---|---|---|---|"]
+             "learned: IQM over seeds [two-level 95 % CI], differences paired; `bpf-N`: the reference filter, "
+             "systematic resampling when ESS < N/2)", "",
+             "| experiment | policy | cost | RMSE | particles per step | divergent runs | cost - best KLD "
+             "| cost - best fixed | cost - best bpf |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for e, rows in particles.items():
-        for n in (rows["best kld"], rows["best fixed"], "greedy", "default"):
-            b = rows["baselines"].get(n)
+        for n in (rows["best kld"], rows["best fixed"], rows.get("best reference"), "greedy", "default"):
+            b = rows["baselines"].get(n) if n else None
             if b is not None:
                 lines.append(f"| {e} | {n} | {b['cost']:.4g} | {b['rmse']:.4g} | {b['particles']:.4g} | "
-                             f"{b['divergent_frac']:.2%} | | |")
+                             f"{b['divergent_frac']:.2%} | | | |")
         a = rows.get("adaptive")
         if a is not None:
+            k = len(a["particles"])
+            cols = [f"{d(a[f'minus_best {lab}']['cost_charged'])} ({a[f'seeds_below_{key}']} of {k} seeds below alone)"
+                    if f"minus_best {lab}" in a else "" for lab, key in (("kld", "kld"), ("fixed", "fixed"),
+                                                                       ("reference", "reference"))]
             lines.append(f"| {e} | adaptive | {f(a['cost_charged'])} | {f(a['rmse'])} | "
                          f"{min(a['particles']):.4g}-{max(a['particles']):.4g} | {max(a['divergent_frac']):.2%} (max) | "
-                         f"{d(a['minus_best kld']['cost_charged'])} ({a['seeds_below_kld']} of {len(a['particles'])} seeds "
-                         f"below alone) | {d(a['minus_best fixed']['cost_charged'])} |")
+                         + " | ".join(cols) + " |")
         if rows.get("floor") and rows["floor"]["rmse"] is not None:
-            lines.append(f"| {e} | point-mass floor ({rows['floor']['runs']} runs) | | {rows['floor']['rmse']:.4g} | | | | |")
+            lines.append(f"| {e} | point-mass floor ({rows['floor']['runs']} runs) | | {rows['floor']['rmse']:.4g} "
+                         "| | | | | |")
+        if rows.get("reference_failed"):
+            lines.append(f"| {e} | bpf failed at N = {', '.join(map(str, rows['reference_failed']))} "
+                         "(no particle explained a measurement) | | | | | | | |")
     return "\n".join(lines) + "\n"
 
 
 def plot_particle_tradeoff(particles: dict, axes=None):
     """RMSE against mean particles per step (log axis), one panel per experiment of the study's summary
-    (:func:`particle_rows` by experiment): the fixed counts as a line, the KLD-sampling bins and the ESS
+    (:func:`particle_rows` by experiment): the fixed counts of the study's filter and of the reference filter
+    as lines, the KLD-sampling bins and the ESS
     targets as their own lines, greedy and the default as points, each learned seed as a dot and the
     group's IQM with its seed-level 95 % interval at the seeds' mean count, and the point-mass floor (where
     there is one) as a dashed line. Returns the figure."""
@@ -147,7 +226,8 @@ def plot_particle_tradeoff(particles: dict, axes=None):
     for ax, e in zip(axes, exps):
         rows = particles[e]
         base = rows["baselines"]
-        for prefix, label, style in (("fixed-", "fixed N", "o-"), ("kld", "KLD-sampling", "s--"), ("ess-", "ESS target", "^:")):
+        for prefix, label, style in (("fixed-", "fixed N", "o-"), (REFERENCE_PREFIX, "fixed N, reference PF", "o-."),
+                                     ("kld", "KLD-sampling", "s--"), ("ess-", "ESS target", "^:")):
             pts = sorted((b["particles"], b["rmse"]) for n, b in base.items() if n.startswith(prefix))
             if pts:
                 ax.plot(*zip(*pts), style, ms=4, lw=1, label=label)
