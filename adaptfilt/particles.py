@@ -160,14 +160,16 @@ class ParticleCountFilter:
     def _rngs(self, run_id: int, t: int) -> tuple[np.random.Generator, np.random.Generator]:
         # two streams, so that particle j's ancestor uniform and its noise are the j-th draws of
         # their own stream whatever the count (one stream would shift the noise by N uniforms).
-        # Philox is counter-based: key (seed, run), counter (t, stream) address a stream directly.
+        # Philox is counter-based: key (seed, run), counter (0, t, stream, 0) address a stream directly.
+        # A draw advances the counter's lowest word, so t and the stream sit above it: with t in the lowest
+        # word, step t + 1's stream would be step t's shifted by one block of four draws.
         # Two generators are kept and re-pointed by assigning their state, 5x cheaper than opening
         # new ones (one pair per run and step); the draws are the same as from fresh generators.
         if not hasattr(self, "_streams"):
             self._streams = [np.random.Generator(np.random.Philox(key=[0, 0])) for _ in range(2)]
         for stream, g in enumerate(self._streams):
             st = g.bit_generator.state
-            st["state"]["counter"][:] = (t, stream, 0, 0)
+            st["state"]["counter"][:] = (0, t, stream, 0)
             st["state"]["key"][:] = (self.seed, int(run_id))
             st["buffer_pos"], st["has_uint32"], st["uinteger"] = 4, 0, 0  # an empty buffer: a fresh stream
             g.bit_generator.state = st

@@ -165,6 +165,38 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
         assert row["learned"]["gain"] == pytest.approx(want, rel=1e-12, abs=1e-15)
 
 
+def test_committed_particle_study_is_what_its_stored_evaluations_give():
+    """data/beyond's particle study (``adaptfilt beyond --out data --studies particles``): per experiment,
+    8 learned seeds evaluated on 1000 runs beside every fixed count in both forms (the study's filter and
+    the reference ``bpf-N``), the KLD bins, the ESS targets and greedy; the summary's rows are what
+    particle_rows computes from the stored evaluation; the policies' recorded commands train them with the
+    fast mode; the point-mass floor is computed where it can be (UNGM, on the first 200 runs)."""
+    import shlex
+
+    from adaptfilt.experiment_registry import PARTICLE_EXPERIMENTS
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.experiments.particles_study import particle_rows
+    from adaptfilt.seed_stats import seed_groups
+
+    root = artefacts.data_dir() / "beyond"
+    man = {f["path"]: f for f in json.loads((root / "manifest.json").read_text())["files"]}
+    summary = artefacts.load_beyond()["particles"]
+    assert set(summary) == set(PARTICLE_EXPERIMENTS)
+    assert "figures/particles-tradeoff.png" in man
+    for e, rows in summary.items():
+        res = artefacts.load_beyond_results(f"particles-{e}")
+        assert res.config["n_runs"] == 1000
+        assert seed_groups(res.names)["adaptive"] == [f"adaptive-s{s}" for s in range(8)]
+        grid = [int(n) for n in res.config["grid"]]
+        for n in grid:
+            assert f"fixed-n_particles={n}" in res.names and f"bpf-{n}" in res.names
+        assert {"kld-x1", "kld-x64", "ess-50", "greedy"} <= set(res.names)
+        assert json.loads(json.dumps(particle_rows(res, rows["floor"]))) == rows
+        assert rows["floor"]["runs"] == (200 if e.startswith("ungm") else 0)  # the point-mass floor: 1-D models only
+        argv = shlex.split(man[f"policies/{e}-adaptive-s3.npz"]["command"])
+        assert argv[:3] == ["adaptfilt", "train", e] and argv[argv.index("--algo") + 1] == "fast"
+
+
 def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     """The SIF study at toy scale: both families per seed, the safe ones never choose an iteration count
     outside the set chosen on the selection runs (usage in the evaluation), the cheapest fixed value of

@@ -39,6 +39,7 @@ CHAPTERS = [
     "11-your-own-model",
     "12-rl-in-practice",
     "13-beyond-the-paper",
+    "14-adaptive-particle-count",
 ]
 #: Chapters that must have at least this many widgets (with static stand-ins).
 MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "06-actor-critic": 1}

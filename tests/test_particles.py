@@ -115,6 +115,19 @@ def test_the_streams_are_those_of_fresh_philox_generators():
     for run_id, t in ((7, 11), (0, 0), (2**40 + 5, 499)):
         gu, gw = pf._rngs(run_id, t)
         u, w = gu.random(9), gw.standard_normal(9)
-        fresh = [np.random.Generator(np.random.Philox(key=[3, run_id], counter=[t, s, 0, 0])) for s in (0, 1)]
+        fresh = [np.random.Generator(np.random.Philox(key=[3, run_id], counter=[0, t, s, 0])) for s in (0, 1)]
         np.testing.assert_array_equal(u, fresh[0].random(9))
         np.testing.assert_array_equal(w, fresh[1].standard_normal(9))
+
+
+def test_no_stream_overlaps_another_steps_or_runs():
+    """Each (run, step, stream) gets its own draws: a draw advances Philox's lowest counter word, so a
+    step counter there would make step t + 1's stream step t's shifted by four draws (the regression)."""
+    pf = ParticleCountFilter(af.models.ungm(), seed=0)
+    draws = {}
+    for run_id in (0, 1):
+        for t in (3, 4, 5):
+            gu, gw = pf._rngs(run_id, t)
+            draws[run_id, t, 0], draws[run_id, t, 1] = gu.random(5000), gw.random(5000)
+    values = np.concatenate(list(draws.values()))
+    assert np.unique(values).size == values.size  # 60,000 doubles, no value twice
