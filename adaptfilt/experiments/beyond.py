@@ -301,20 +301,26 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     floors: dict = {}
     particle_results: dict = {}
     if "particles" in studies:  # one job per model: the baselines blind to the price are shared by its prices
-        from adaptfilt.experiments.particles_study import evaluate_model_job, floor_job
+        from adaptfilt.experiments.particles_study import EVAL_PARTS, evaluate_model_job, floor_job, merge_model_parts
 
         models: dict[str, list[str]] = {}
         for e in PARTICLE_EXPERIMENTS:
             models.setdefault(e.split("-pf-")[0], []).append(e)
-        pjobs = [(es, [[str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")] for e in es], ps)
-                 for es in models.values()]
-        pres = journal.run(evaluate_model_job, pjobs, [(_job_key("particles+bpf", j[0], *j[1], j[2]), 0) for j in pjobs],
+        # each model's evaluation in parts (EVAL_PARTS), one job each, so that the parts run side by side
+        pjobs = [(es, [[str(out / m) for m in metas if m.startswith(f"policies/{e}-adaptive-s")] for e in es], ps, 0,
+                  (part,)) for es in models.values() for part in EVAL_PARTS]
+        pres = journal.run(evaluate_model_job, pjobs,
+                           [(_job_key("particles", j[4][0], j[0], *j[1], j[2]), 0) for j in pjobs],
                            save=lambda folder, rs: (save_results(folder, rs), len(rs)), load=load_results,
                            workers=workers, cluster=cluster, progress=progress, desc="beyond: particle counts")
-        for (es, _, _), rs in zip(pjobs, pres):
+        by_model: dict = {}
+        for (es, *_), rs in zip(pjobs, pres):
             for e, res in zip(es, rs):
-                res.config.update(experiment=e)
-                particle_results[e] = res
+                by_model.setdefault(e, []).append(res)
+        for e, parts in by_model.items():
+            res = merge_model_parts(parts)
+            res.config.update(experiment=e)
+            particle_results[e] = res
         fjobs = [(e, ps) for e in PARTICLE_EXPERIMENTS]
         floors = dict(zip(PARTICLE_EXPERIMENTS, journal.run(
             floor_job, fjobs, [(f"beyond floor {e} runs={ps.eval_runs} floor={ps.floor_runs} steps={ps.n_steps}", 0)

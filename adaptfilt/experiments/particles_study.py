@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "evaluate_model_job",
-           "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
+__all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "EVAL_PARTS", "evaluate_model_job",
+           "merge_model_parts", "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
 
 #: Names of the reference filter's fixed counts: ``bpf-1000`` is the library's bootstrap particle filter
 #: (systematic resampling when ESS < N/2) with 1000 particles.
@@ -38,36 +38,72 @@ class ParticleScale:
     floor_runs: int
 
 
-#: Training budgets of the particle study: 500 episodes (5x10^4 transitions on UNGM's 100 steps), evaluation
-#: on 1000 runs (every fixed count of the grid is 15,225 particles a step together), the floor on 200.
-PARTICLE_FULL = ParticleScale(500, None, 1000, 200)
+#: Budgets of the particle study: 500 training episodes (5x10^4 transitions on UNGM's 100 steps), evaluation
+#: on 500 runs (every fixed count of the grid is 15,225 particles a step together, in each of the two forms;
+#: about 50 CPU-minutes on the CTM), the floor on 200.
+PARTICLE_FULL = ParticleScale(500, None, 500, 200)
 PARTICLE_QUICK = ParticleScale(4, 10, 20, 5)
 
 
-def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: ParticleScale, seed: int = 0) -> list:
+#: The parts of one model's evaluation, each its own job (so that a model's parts run side by side):
+#: the fixed counts and the default, the rules (KLD-sampling, ESS targets), the reference filter's fixed
+#: counts, and greedy with the learned policies (per price).
+EVAL_PARTS = ("fixed", "rules", "reference", "own")
+
+
+def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: ParticleScale, seed: int = 0,
+                       parts: tuple[str, ...] = EVAL_PARTS) -> list:
     """The evaluations of one model's experiments (the same filter and runs at different prices), one
-    :class:`~adaptfilt.results.Results` each: the baselines that cannot see the price (fixed counts, KLD,
-    ESS) are rolled out once and charged every price (:func:`~adaptfilt.evaluation.evaluate_costs`), greedy
-    and each experiment's learned ``files`` per experiment; the parts are merged, bit for bit what one
-    :func:`~adaptfilt.evaluation.evaluate` per experiment gives (but for wall times)."""
+    :class:`~adaptfilt.results.Results` each, holding the policies of ``parts`` (:data:`EVAL_PARTS`; a part
+    alone is one job of ``adaptfilt beyond``, :func:`merge_model_parts` joins them). The baselines that
+    cannot see the price (fixed counts, KLD, ESS, the reference filter) are rolled out once and charged
+    every price (:func:`~adaptfilt.evaluation.evaluate_costs`), greedy and each experiment's learned
+    ``files`` per experiment: bit for bit what one :func:`~adaptfilt.evaluation.evaluate` per experiment
+    gives (but for wall times)."""
     from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.experiments.look import merge_parts
     from adaptfilt.learned import load_policy
+    from adaptfilt.particle_env import ESSTargetPolicy, KLDSamplingPolicy
 
+    unknown = set(parts) - set(EVAL_PARTS)
+    if unknown:
+        raise ValueError(f"unknown parts {sorted(unknown)}; known: {', '.join(EVAL_PARTS)}")
     exps = [get_experiment(e) for e in experiments]
     blind = [p for p in exps[0].baselines() if p.name != "greedy"]
-    shared = evaluate_costs(exps, blind, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
-    reference, failed = reference_parts(exps, blind[:1], scale, seed)
-    out = []
-    for exp, fs in zip(exps, files):
-        pols = [p for p in exp.baselines() if p.name == "greedy"]
-        pols += [load_policy(f, experiment=exp, name=learned_name(f, exp.name)) for f in fs]
-        own = evaluate(exp, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
-        res = merge_parts([shared[exp.name], reference[exp.name], own])
-        res.config["reference_failed"] = failed
-        out.append(res)
-    return out
+    rules = [p for p in blind if isinstance(p, (KLDSamplingPolicy, ESSTargetPolicy))]
+    out: list[list] = [[] for _ in exps]
+    for part in parts:
+        if part in ("fixed", "rules"):
+            pols = rules if part == "rules" else [p for p in blind if p not in rules]
+            shared = evaluate_costs(exps, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
+            got = [shared[e.name] for e in exps]
+        elif part == "reference":
+            ref, failed = reference_parts(exps, blind[:1], scale, seed)
+            got = [ref[e.name] for e in exps]
+            for r in got:
+                r.config["reference_failed"] = failed
+        else:
+            got = []
+            for exp, fs in zip(exps, files):
+                pols = [p for p in exp.baselines() if p.name == "greedy"]
+                pols += [load_policy(f, experiment=exp, name=learned_name(f, exp.name)) for f in fs]
+                got.append(evaluate(exp, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps))
+        for o, r in zip(out, got):
+            o.append(r)
+    return [merge_model_parts(o) for o in out]
+
+
+def merge_model_parts(parts: list):
+    """One experiment's :class:`~adaptfilt.results.Results` from its parts (same runs), in the order given;
+    the reference filter's failures (``config["reference_failed"]``) carried over."""
+    from adaptfilt.experiments.look import merge_parts
+
+    failed: dict = {}
+    for p in parts:
+        failed.update(p.config.pop("reference_failed", {}))
+    res = merge_parts(parts)
+    res.config["reference_failed"] = failed
+    return res
 
 
 def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0) -> tuple[dict, dict]:
