@@ -409,3 +409,17 @@ def test_choice_bands_group_the_grid():
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     k = param_label("kappa")
     assert labels == [f"{k} ≥ 1000", f"10 ≤ {k} ≤ 500", f"1 ≤ {k} ≤ 5", f"{k} = 0"]  # in stack order, top first
+
+
+def test_separated_modes_is_the_smaller_mass_of_two_modes_beyond_the_gap():
+    from scipy import stats
+
+    from adaptfilt.course.particle_count import separated_modes
+
+    grid = np.linspace(-45, 45, 1801)
+    one = stats.norm.pdf(grid, 0, 1)                                     # one mode on zero: not two
+    two = 0.5 * stats.norm.pdf(grid, -10, 1) + 0.5 * stats.norm.pdf(grid, 10, 1)
+    skew = 0.2 * stats.norm.pdf(grid, -10, 1) + 0.8 * stats.norm.pdf(grid, 10, 1)
+    m = separated_modes({0: np.stack([one, two]), 1: np.stack([skew, one])}, grid)
+    tail = stats.norm.sf(3)                                               # one mode's own mass beyond +-3
+    np.testing.assert_allclose(m, [[tail, 0.2], [0.5, tail]], atol=2e-4)
