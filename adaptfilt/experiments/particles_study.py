@@ -38,10 +38,10 @@ class ParticleScale:
     floor_runs: int
 
 
-#: Budgets of the particle study: 500 training episodes (5x10^4 transitions on UNGM's 100 steps), evaluation
-#: on 500 runs (every fixed count of the grid is 15,225 particles a step together, in each of the two forms;
-#: about 50 CPU-minutes on the CTM), the floor on 200.
-PARTICLE_FULL = ParticleScale(500, None, 500, 200)
+#: Budgets of the particle study: 500 training episodes (5x10^4 transitions on UNGM's 100 steps; about 6
+#: CPU-minutes a policy on the CTM), evaluation on 250 runs (every fixed count of the grid is 15,225 particles
+#: a step together, in each of the two forms: about 25 CPU-minutes on the CTM), the floor on 200.
+PARTICLE_FULL = ParticleScale(500, None, 250, 200)
 PARTICLE_QUICK = ParticleScale(4, 10, 20, 5)
 
 
