@@ -43,6 +43,10 @@ class NotPositiveDefinite(np.linalg.LinAlgError):
         more = "" if self.runs.size <= 10 else f" (+{self.runs.size - 10} more)"
         super().__init__(f"{what} is not positive definite in run(s) {shown}{more}")
 
+    def __reduce__(self):
+        # rebuilt from its own arguments: a worker process that raises it must be able to send it back
+        return (type(self), (self.runs, self.what))
+
 
 def sym(P: np.ndarray) -> np.ndarray:
     """Symmetric part ``(P + P^T) / 2`` over the two leading axes."""

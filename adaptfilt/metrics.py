@@ -153,8 +153,13 @@ def nees(x: np.ndarray, mean: np.ndarray, cov: np.ndarray,
         if on_indefinite == "raise":
             raise _indefinite_error(bad, lead, cov) from None
         P = P.copy()
-        P[:, :, bad] = np.eye(nx)[:, :, None]
-        L = chol(P)
+        while True:  # chol names the members that fail at its first failing column: repeat until none is left
+            P[:, :, bad] = np.eye(nx)[:, :, None]
+            try:
+                L = chol(P)
+                break
+            except NotPositiveDefinite as again:
+                bad = np.union1d(bad, again.runs)
     out = (er * solve_spd(L, er[:, None, :])[:, 0, :]).sum(axis=0)
     if bad.size:
         if on_indefinite in ("nan", "inf"):

@@ -115,3 +115,14 @@ def test_wrap_angle_range_and_congruence():
     np.testing.assert_allclose(la.wrap_angle(inside), inside, atol=1e-15)
     # shape preserved on batched input
     assert la.wrap_angle(rng.uniform(-9, 9, (3, 5, 2))).shape == (3, 5, 2)
+
+
+def test_not_positive_definite_survives_pickling():
+    """A worker process that raises it sends it back to the pool (an exception that cannot be rebuilt
+    breaks the whole pool, which then reports a dead worker instead of the error)."""
+    import pickle
+
+    from adaptfilt.linalg import NotPositiveDefinite
+
+    err = pickle.loads(pickle.dumps(NotPositiveDefinite(np.array([3, 5]), "P_pred")))
+    assert err.runs.tolist() == [3, 5] and str(err) == "P_pred is not positive definite in run(s) 3, 5"

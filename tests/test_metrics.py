@@ -141,3 +141,16 @@ def test_divergent_and_its_step_are_one_definition():
         assert not (running[i, k] <= DIVERGED_NEES * 2) and np.all(running[i, :k] <= DIVERGED_NEES * 2)
     with pytest.raises(ValueError, match="must be \\(M, T\\)"):
         divergent(np.ones(5), nx=2)
+
+
+def test_nees_marks_every_indefinite_covariance_whatever_column_it_fails_at():
+    """The batched Cholesky names the members that fail at its first failing column; one that fails at a
+    later column (here a singular P whose third pivot is zero) must be marked too, not raised."""
+    P = np.tile(np.eye(3), (3, 1, 1))
+    P[0, 0, 0] = -1.0                                        # fails at the first column
+    P[1] = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 1.0]])   # fails at the third
+    x = np.ones((3, 1, 3))
+    for mode, mark in (("inf", np.inf), ("nan", np.nan)):
+        out = metrics.nees(x, np.zeros_like(x), P[:, None], on_indefinite=mode)
+        np.testing.assert_array_equal(out[:2, 0], [mark, mark])
+        assert out[2, 0] == pytest.approx(3.0)
