@@ -167,7 +167,7 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
 
 def test_committed_particle_study_is_what_its_stored_evaluations_give():
     """data/beyond's particle study (``adaptfilt beyond --out data --studies particles``): per experiment,
-    8 learned seeds evaluated on 1000 runs beside every fixed count in both forms (the study's filter and
+    8 learned seeds evaluated on 250 runs (PARTICLE_FULL) beside every fixed count in both forms (the study's filter and
     the reference ``bpf-N``), the KLD bins, the ESS targets and greedy; the summary's rows are what
     particle_rows computes from the stored evaluation; the policies' recorded commands train them with the
     fast mode; the point-mass floor is computed where it can be (UNGM, on the first 200 runs)."""
@@ -175,7 +175,7 @@ def test_committed_particle_study_is_what_its_stored_evaluations_give():
 
     from adaptfilt.experiment_registry import PARTICLE_EXPERIMENTS
     from adaptfilt.experiments import artefacts
-    from adaptfilt.experiments.particles_study import particle_rows
+    from adaptfilt.experiments.particles_study import PARTICLE_FULL, particle_rows
     from adaptfilt.seed_stats import seed_groups
 
     root = artefacts.data_dir() / "beyond"
@@ -185,7 +185,7 @@ def test_committed_particle_study_is_what_its_stored_evaluations_give():
     assert "figures/particles-tradeoff.png" in man
     for e, rows in summary.items():
         res = artefacts.load_beyond_results(f"particles-{e}")
-        assert res.config["n_runs"] == 1000
+        assert res.config["n_runs"] == PARTICLE_FULL.eval_runs == 250
         assert seed_groups(res.names)["adaptive"] == [f"adaptive-s{s}" for s in range(8)]
         grid = [int(n) for n in res.config["grid"]]
         for n in grid:

@@ -182,9 +182,9 @@ def load_archive(name: str, what: str, root: str | Path | None = None) -> dict:
 
 
 def _experiments() -> list[str]:
-    from adaptfilt.experiment_registry import EXPERIMENTS
+    from adaptfilt.experiment_registry import EXPERIMENTS, PARTICLE_EXPERIMENTS, VARIANTS
 
-    return list(EXPERIMENTS)
+    return [*EXPERIMENTS, *VARIANTS, *PARTICLE_EXPERIMENTS]
 
 
 def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
