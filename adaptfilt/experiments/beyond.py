@@ -27,7 +27,8 @@ into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json
    greedy, ML and the default, on the same runs.
 
 7. **The particle count** (``particles``, :mod:`adaptfilt.experiments.particles_study`): learned counts
-   against fixed counts, KLD-sampling, ESS targets, greedy and (UNGM) the point-mass floor.
+   against fixed counts (in the study's filter and in the reference ``exact.BootstrapParticleFilter``),
+   KLD-sampling, ESS targets, greedy and (UNGM) the point-mass floor.
 
 (Studies 5 and 6, ``anchor`` and ``look``: :mod:`adaptfilt.anchor`, :mod:`adaptfilt.experiments.look`.)
 
@@ -300,7 +301,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
             names.append(("anchor", e))
     floors: dict = {}
     particle_results: dict = {}
-    if "particles" in studies:  # one job per model: the baselines blind to the price are shared by its prices
+    if "particles" in studies:  # per model, four jobs; the baselines blind to the price are shared by its prices
         from adaptfilt.experiments.particles_study import EVAL_PARTS, evaluate_model_job, floor_job, merge_model_parts
 
         models: dict[str, list[str]] = {}
