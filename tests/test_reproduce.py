@@ -64,12 +64,12 @@ def test_data_manifest_files_exist_match_and_load():
 
 
 def test_data_is_small():
-    """The reproduction (about 31 MB: 96 policies, five evaluations at M = 10^4) and the six studies beyond
-    the paper (about 26 MB, stored without per-run arrays; the anchored and look-ahead studies added 12 MB)
-    stay small enough to clone."""
+    """The reproduction (about 31 MB: 96 policies, five evaluations at M = 10^4) and the seven studies beyond
+    the paper (about 34 MB, stored without per-run arrays; the anchored and look-ahead studies added 12 MB,
+    the particle study 8 MB: 32 policies and four evaluations of 51 policies each) stay small enough to clone."""
     total = sum(p.stat().st_size for p in DATA.rglob("*") if p.is_file())
     beyond = sum(p.stat().st_size for p in (DATA / "beyond").rglob("*") if p.is_file())
-    assert total < 64e6 and beyond < 30e6
+    assert total < 72e6 and beyond < 38e6
 
 
 def _digest(root) -> dict:
