@@ -53,10 +53,16 @@ from typing import Sequence
 import numpy as np
 from scipy import stats
 
+from adaptfilt import particle_kernels
 from adaptfilt.gaf import FilterRun
 from adaptfilt.models import StateSpaceModel
 
-__all__ = ["ParticleCountFilter", "kld_bound", "kld_count", "kld_counts"]
+__all__ = ["ParticleCountFilter", "kld_bound", "kld_count", "kld_counts", "BACKENDS"]
+
+#: how :class:`ParticleCountFilter` computes: numpy (the reference, a Python loop over runs) or
+#: numba's compiled kernels (:mod:`adaptfilt.particle_kernels`, the optional extra ``fast``), bit for bit
+#: the same numbers; "auto" takes numba where it is installed.
+BACKENDS = ("auto", "numpy", "numba")
 
 
 def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -> np.ndarray:
@@ -126,6 +132,17 @@ def kld_counts(x: np.ndarray, bin_size: float | np.ndarray, epsilon: float = 0.0
     return np.where(ok.any(axis=1), ok.argmax(axis=1) + 1, n)
 
 
+def _buffer(work: dict | None, key: str, shape: tuple) -> np.ndarray:
+    """An uninitialised array of ``shape``: a fresh one, or with ``work`` the front of ``work[key]``
+    (grown when too small)."""
+    if work is None:
+        return np.empty(shape)
+    size = int(np.prod(shape))
+    if key not in work or work[key].size < size:
+        work[key] = np.empty(size)
+    return work[key][:size].reshape(shape)
+
+
 def _sum(a: np.ndarray) -> np.ndarray:
     """Sum over particles (axis 1) in order: unlike numpy's pairwise ``sum``, the result does not
     depend on how many zero-weight padding particles follow, so a run gives the same bits in a
@@ -149,10 +166,18 @@ class ParticleCountFilter:
     same numbers. Compute grows with the total number of particles, ``params.sum()``.
     """
 
-    def __init__(self, model: StateSpaceModel, seed: int = 0):
+    def __init__(self, model: StateSpaceModel, seed: int = 0, backend: str = "auto"):
         if int(seed) != seed or seed < 0:
             raise ValueError(f"seed must be a non-negative integer (it keys the random streams), got {seed!r}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if backend == "numba" and not particle_kernels.AVAILABLE:
+            raise ImportError("backend='numba' needs numba: pip install 'adaptfilt[fast]'")
         self.model, self.seed = model, int(seed)
+        #: particles (times nx) per block of runs that :meth:`run` filters at once
+        self.block_particles = 1 << 16
+        #: "numba" (compiled kernels) where numba is installed, else "numpy": the same numbers either way
+        self.backend = ("numba" if particle_kernels.AVAILABLE else "numpy") if backend == "auto" else backend
         self._Lq, self._L0 = np.linalg.cholesky(model.Q), np.linalg.cholesky(model.P0)
         self._Rinv = np.linalg.inv(model.R)
         self._logdetR = float(np.linalg.slogdet(model.R)[1])
@@ -188,12 +213,22 @@ class ParticleCountFilter:
         return n.astype(np.int64)
 
     def predict(self, x_old: np.ndarray | None, w_old: np.ndarray | None, n_old: np.ndarray | None, t: int,
-                n: np.ndarray, ids: np.ndarray) -> np.ndarray:
+                n: np.ndarray, ids: np.ndarray, work: dict | None = None) -> np.ndarray:
         """The ``n[i]`` predicted particles of run ``i`` at step ``t``, ``(M, max n, nx)`` (zeros beyond
         ``n[i]``): drawn from the prior at ``t = 0``, else resampled from the weighted ``x_old (M, ., nx)``
-        (``w_old``, ``n_old`` particles each) and propagated. Particle ``j`` is the same whatever ``n[i] > j``."""
+        (``w_old``, ``n_old`` particles each) and propagated. Particle ``j`` is the same whatever ``n[i] > j``.
+        ``work``: buffers the compiled backend reuses from step to step (:meth:`run`'s); the result is then
+        one of them, overwritten by the next call."""
         model, nx, M = self.model, self.model.nx, len(n)
         cap = int(n.max())
+        if self.backend == "numba":
+            noise = _buffer(work, "noise", (M, cap, nx))
+            x_anc = _buffer(work, "x_anc", (M, cap, nx)) if t else noise
+            particle_kernels.predict_particles(self.seed, ids, t, n, nx, x_old if t else noise,
+                                               w_old if t else np.zeros((M, 1)), n_old if t else n, x_anc, noise)
+            scaled = self._scale(noise, self._L0 if t == 0 else self._Lq, inplace=True)
+            # x_old was read above: the new particles may take its place
+            return np.add(model.m0 if t == 0 else model.f(x_anc, t), scaled, out=_buffer(work, "x", (M, cap, nx)))
         noise = np.zeros((M, cap, nx))
         anc = np.zeros((M, cap), dtype=np.int64)
         if t:
@@ -206,28 +241,54 @@ class ParticleCountFilter:
                 c = cdf[i, :n_old[i]]
                 anc[i, :n[i]] = np.minimum(np.searchsorted(c, u * c[-1], side="right"), n_old[i] - 1)
         if t == 0:
-            return model.m0 + noise @ self._L0.T
-        return model.f(np.take_along_axis(x_old, anc[..., None], axis=1), t) + noise @ self._Lq.T
+            return model.m0 + self._scale(noise, self._L0)
+        return model.f(np.take_along_axis(x_old, anc[..., None], axis=1), t) + self._scale(noise, self._Lq)
 
-    def loglik_particles(self, x: np.ndarray, z_t: np.ndarray, t: int) -> np.ndarray:
-        """``log N(z_t - h(x_j); 0, R)`` of every particle ``x (M, N, nx)``, ``z_t (M, nz)``: ``(M, N)``."""
+    @staticmethod
+    def _scale(noise: np.ndarray, L: np.ndarray, inplace: bool = False) -> np.ndarray:
+        """``noise @ L.T``; in 1-D the same single product without matmul's per-row overhead."""
+        if L.shape == (1, 1):
+            return np.multiply(noise, L[0, 0], out=noise if inplace else None)
+        return noise @ L.T
+
+    def loglik_particles(self, x: np.ndarray, z_t: np.ndarray, t: int, work: dict | None = None) -> np.ndarray:
+        """``log N(z_t - h(x_j); 0, R)`` of every particle ``x (M, N, nx)``, ``z_t (M, nz)``: ``(M, N)``
+        (``work``: as in :meth:`predict`)."""
         model = self.model
         r = model.diff_z(z_t[:, None, :], model.h(x, t + 1))
-        return -0.5 * (np.einsum("mni,ij,mnj->mn", r, self._Rinv, r) + self._logdetR + model.nz * np.log(2 * np.pi))
+        const = model.nz * np.log(2 * np.pi)
+        if self.backend == "numba":
+            out = _buffer(work, "logl", x.shape[:2])
+            particle_kernels.gaussian_loglik(r, self._Rinv, self._logdetR, const, out)
+            return out
+        quad = 0.0  # r' R^-1 r term by term, in the order the kernel sums it (einsum's, in 1-D)
+        for i in range(model.nz):
+            for j in range(model.nz):
+                term = (r[..., i] * self._Rinv[i, j]) * r[..., j]
+                quad = term if i == j == 0 else quad + term
+        return -0.5 * ((quad + self._logdetR) + const)
 
     def weigh(self, x: np.ndarray, n: np.ndarray, z_t: np.ndarray, t: int, ids: np.ndarray,
-              logl: np.ndarray | None = None) -> dict:
+              logl: np.ndarray | None = None, work: dict | None = None) -> dict:
         """Weight the first ``n[i]`` particles of ``x (M, cap, nx)`` by ``z_t (M, nz)``: a dict of ``w (M, cap)``
         (zero beyond ``n``), ``mean (M, nx)``, ``cov (M, nx, nx)``, ``loglik (M,)`` (log p-hat(z_t | z^{t-1}))
         and ``ess (M,)``. FloatingPointError naming the step and runs where no particle explains ``z_t``.
-        ``logl``: :meth:`loglik_particles` of these particles, when the caller has it already."""
+        ``logl``: :meth:`loglik_particles` of these particles, when the caller has it already; ``work``: as in
+        :meth:`predict` (``w`` is then a buffer, overwritten by the next call)."""
+        if self.backend == "numba":
+            logl = self.loglik_particles(x, z_t, t, work) if logl is None else logl
+            M, cap, nx = x.shape
+            out = {"w": _buffer(work, "w", (M, cap)), "mean": np.empty((M, nx)), "cov": np.empty((M, nx, nx)),
+                   "loglik": np.empty(M), "ess": np.empty(M)}
+            amax = np.empty(M)
+            particle_kernels.weigh_particles(logl, n, x, out["w"], out["mean"], out["cov"], out["loglik"], out["ess"],
+                                             amax)
+            self._check_explained(amax, t, ids)
+            return out
         valid = np.arange(x.shape[1])[None, :] < n[:, None]
         logl = np.where(valid, self.loglik_particles(x, z_t, t) if logl is None else logl, -np.inf)
         amax = logl.max(axis=1, keepdims=True)
-        if not np.isfinite(amax).all():
-            bad = np.flatnonzero(~np.isfinite(amax[:, 0]))
-            raise FloatingPointError(f"particle filter: no particle explains the measurement at step t={t} in runs "
-                                     f"{ids[bad[:10]].tolist()}: use more particles")
+        self._check_explained(amax[:, 0], t, ids)
         e = np.exp(logl - amax)
         s = _sum(e)
         w = e / s[:, None]
@@ -236,6 +297,13 @@ class ParticleCountFilter:
         cov = _sum(w[..., None, None] * d[..., :, None] * d[..., None, :])
         return {"w": w, "mean": mean, "cov": cov, "loglik": np.log(s) + amax[:, 0] - np.log(n),
                 "ess": 1.0 / _sum(w * w)}
+
+    @staticmethod
+    def _check_explained(amax: np.ndarray, t: int, ids: np.ndarray) -> None:
+        if not np.isfinite(amax).all():
+            bad = np.flatnonzero(~np.isfinite(amax))
+            raise FloatingPointError(f"particle filter: no particle explains the measurement at step t={t} in runs "
+                                     f"{ids[bad[:10]].tolist()}: use more particles")
 
     def check_z(self, z) -> np.ndarray:
         """``z`` as ``(M, T, nz)`` floats; ValueError naming a wrong shape or a non-finite value."""
@@ -258,12 +326,20 @@ class ParticleCountFilter:
         nx = self.model.nx
         mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
         ll, ess = np.empty((M, T)), np.empty((M, T))
-        x_old = w_old = None
-        for t in range(T):
-            x = self.predict(x_old, w_old, counts[:, t - 1] if t else None, t, counts[:, t], ids)
-            post = self.weigh(x, counts[:, t], z[:, t], t, ids)
-            mean[:, t], cov[:, t], ll[:, t], ess[:, t] = post["mean"], post["cov"], post["loglik"], post["ess"]
-            x_old, w_old = x, post["w"]
+        # Runs are independent (each draws from its own streams), so they are filtered a block at a time:
+        # a block's particle arrays stay in cache and its buffers are reused, where fresh whole-batch
+        # temporaries would cost a page fault per 4 KiB. The numbers are those of one batch, bit for bit.
+        block = max(1, self.block_particles // max(1, int(counts.max()) * nx))
+        for lo in range(0, M, block):
+            b = slice(lo, min(lo + block, M))
+            x_old = w_old = None
+            work = {}  # the compiled backend's buffers, reused from step to step
+            for t in range(T):
+                n = counts[b, t]
+                x = self.predict(x_old, w_old, counts[b, t - 1] if t else None, t, n, ids[b], work)
+                post = self.weigh(x, n, z[b, t], t, ids[b], work=work)
+                mean[b, t], cov[b, t], ll[b, t], ess[b, t] = post["mean"], post["cov"], post["loglik"], post["ess"]
+                x_old, w_old = x, post["w"]
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
                          params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum()),
                                                                 "on_indefinite": "inf"})

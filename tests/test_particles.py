@@ -131,3 +131,78 @@ def test_no_stream_overlaps_another_steps_or_runs():
             draws[run_id, t, 0], draws[run_id, t, 1] = gu.random(5000), gw.random(5000)
     values = np.concatenate(list(draws.values()))
     assert np.unique(values).size == values.size  # 60,000 doubles, no value twice
+
+
+# --- the compiled backend (adaptfilt.particle_kernels): the same numbers as the numpy reference --------------
+
+kernels = pytest.importorskip("adaptfilt.particle_kernels")
+needs_numba = pytest.mark.skipif(not kernels.AVAILABLE, reason="the optional extra 'fast' (numba) is not installed")
+
+
+@needs_numba
+@pytest.mark.parametrize("seed, run_id, t, stream", [(3, 7, 11, 0), (0, 0, 0, 1), (5, 2**40 + 5, 499, 1),
+                                                     (2**31 - 1, 999, 10**6, 0)])
+def test_the_kernel_streams_are_numpys_philox_draws(seed, run_id, t, stream):
+    """Uniforms and ziggurat normals bit for bit (300,000 normals reach the ziggurat's wedges and its tail
+    beyond 3.654), with a word buffer small enough to be refilled mid-normal."""
+    fresh = lambda: np.random.Generator(np.random.Philox(key=[seed, run_id], counter=[0, t, stream, 0]))  # noqa: E731
+    np.testing.assert_array_equal(kernels.philox_uniforms(seed, run_id, t, stream, 4099), fresh().random(4099))
+    want = fresh().standard_normal(300_000)
+    assert np.abs(want).max() > 3.66  # the tail branch ran
+    for scratch in (4, 64, 400_000):
+        np.testing.assert_array_equal(kernels.philox_normals(seed, run_id, t, stream, 300_000, scratch), want)
+
+
+@needs_numba
+def test_the_kernel_resampling_is_the_reference_searchsorted():
+    """Every ancestor, for flat, peaked, degenerate and zero-padded weights and any two counts."""
+    rng = np.random.default_rng(0)
+    cases = [rng.random(500), np.exp(-0.5 * (rng.standard_normal(500) * 6) ** 2), np.eye(1, 500, 123)[0],
+             np.r_[rng.random(300), np.zeros(200)], np.r_[np.zeros(250), np.ones(250)]]
+    for w in cases:
+        w = w / w.sum()
+        for n_old, n in ((500, 700), (500, 37), (1, 5)):
+            if w[:n_old].sum() == 0:
+                continue
+            cdf = np.cumsum(w)
+            u = rng.random(n)
+            u[:3] = [0.0, 1 - 2**-53, 0.5]
+            x_old = np.arange(float(len(w)))[:, None]
+            x_new = np.full((n + 5, 1), -1.0)
+            kernels._resample(cdf, n_old, u, n, x_old, x_new, np.empty(4 * len(w) + 1, np.int64),
+                              np.empty(n, np.int64))
+            c = cdf[:n_old]
+            want = np.minimum(np.searchsorted(c, u * c[-1], side="right"), n_old - 1)
+            np.testing.assert_array_equal(x_new[:n, 0], want)
+            np.testing.assert_array_equal(x_new[n:, 0], 0.0)  # the padding is particle 0, as the reference's
+
+
+@needs_numba
+@pytest.mark.parametrize("model_name", ["ungm", "ctm"])
+def test_both_backends_and_any_block_size_give_the_same_bits(model_name):
+    """Whole runs with counts per run and step (padding included), UNGM and the bearing-only CTM (4-D state,
+    a wrapped bearing), under the compiled and the numpy backend and blocks of 1, 3 and all runs."""
+    model = af.models.ungm() if model_name == "ungm" else af.models.coordinated_turn()
+    traj = model.simulate(n_runs=7, n_steps=25, rng=3)
+    counts = np.random.default_rng(1).integers(5, 600, size=(7, 25))
+    runs = []
+    for backend, block in (("numpy", 1 << 16), ("numba", 1 << 16), ("numba", 1), ("numba", 3 * 600 * model.nx)):
+        pf = ParticleCountFilter(model, seed=4, backend=backend)
+        pf.block_particles = block
+        runs.append(pf.run(traj.z, counts))
+    for r in runs[1:]:
+        for key in ("mean", "cov", "loglik"):
+            np.testing.assert_array_equal(getattr(r, key), getattr(runs[0], key))
+        np.testing.assert_array_equal(r.info["ess"], runs[0].info["ess"])
+    assert runs[1].info["ess"].min() < runs[1].params.min()  # the weights were uneven: resampling mattered
+
+
+def test_the_backend_is_named_and_checked(monkeypatch):
+    model = af.models.ungm()
+    assert ParticleCountFilter(model, backend="numpy").backend == "numpy"
+    with pytest.raises(ValueError, match="backend must be one of"):
+        ParticleCountFilter(model, backend="cuda")
+    monkeypatch.setattr(kernels, "AVAILABLE", False)  # as without the extra: auto falls back, numba says why
+    assert ParticleCountFilter(model).backend == "numpy"
+    with pytest.raises(ImportError, match=r"adaptfilt\[fast\]"):
+        ParticleCountFilter(model, backend="numba")
