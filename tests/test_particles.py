@@ -187,9 +187,7 @@ def test_both_backends_and_any_block_size_give_the_same_bits(model_name):
     counts = np.random.default_rng(1).integers(5, 600, size=(7, 25))
     runs = []
     for backend, block in (("numpy", 1 << 16), ("numba", 1 << 16), ("numba", 1), ("numba", 3 * 600 * model.nx)):
-        pf = ParticleCountFilter(model, seed=4, backend=backend)
-        pf.block_particles = block
-        runs.append(pf.run(traj.z, counts))
+        runs.append(ParticleCountFilter(model, seed=4, backend=backend, block_particles=block).run(traj.z, counts))
     for r in runs[1:]:
         for key in ("mean", "cov", "loglik"):
             np.testing.assert_array_equal(getattr(r, key), getattr(runs[0], key))
@@ -202,6 +200,8 @@ def test_the_backend_is_named_and_checked(monkeypatch):
     assert ParticleCountFilter(model, backend="numpy").backend == "numpy"
     with pytest.raises(ValueError, match="backend must be one of"):
         ParticleCountFilter(model, backend="cuda")
+    with pytest.raises(ValueError, match="block_particles must be a positive integer"):
+        ParticleCountFilter(model, block_particles=0)
     monkeypatch.setattr(kernels, "AVAILABLE", False)  # as without the extra: auto falls back, numba says why
     assert ParticleCountFilter(model).backend == "numpy"
     with pytest.raises(ImportError, match=r"adaptfilt\[fast\]"):
