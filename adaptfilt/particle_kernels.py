@@ -4,7 +4,7 @@ The particle filter's reference form is numpy (``backend="numpy"``), whose per-r
 two Philox streams, drawing, a ``searchsorted`` for the ancestors) is a Python loop over runs. These
 kernels do that loop, and the weighting, in compiled code, and give the same bits:
 
-* :func:`philox4x64` is numpy's ``Philox`` bit generator (Philox4x64-10, Salmon et al. 2011, the
+* ``_philox_block`` is numpy's ``Philox`` bit generator (Philox4x64-10, Salmon et al. 2011, the
   Random123 form numpy wraps): a stream keyed ``(seed, run)`` with counter ``(0, t, stream, 0)`` draws
   blocks at counters ``(1, t, stream, 0), (2, t, stream, 0), ...``, four 64-bit words each;
   ``random()`` is ``(word >> 11) * 2**-53`` and ``standard_normal()`` numpy's 256-layer ziggurat
@@ -32,8 +32,8 @@ try:
 except ImportError:  # the optional extra "fast" is not installed: the numpy backend is used
     numba = None
 
-__all__ = ["AVAILABLE", "predict_particles", "weigh_particles", "gaussian_loglik", "philox_uniforms",
-           "philox_normals"]
+__all__ = ["AVAILABLE"] + (["predict_particles", "weigh_particles", "gaussian_loglik", "philox_uniforms",
+                          "philox_normals"] if numba is not None else [])
 
 AVAILABLE = numba is not None
 
@@ -68,11 +68,6 @@ if AVAILABLE:
             hi1, lo1 = _mulhilo64(_M1, c2)
             c0, c1, c2, c3 = hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
         return c0, c1, c2, c3
-
-    @_jit
-    def philox4x64(ctr, key, out):
-        """Philox4x64-10 of the counter ``ctr (4,)`` under ``key (2,)`` into ``out (4,)`` (uint64)."""
-        out[0], out[1], out[2], out[3] = _philox_block(ctr[0], ctr[1], ctr[2], ctr[3], key[0], key[1])
 
     @_jit(inline="always")
     def _fill(st, buf):
