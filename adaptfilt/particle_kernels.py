@@ -10,7 +10,7 @@ kernels do that loop, and the weighting, in compiled code, and give the same bit
   ``random()`` is ``(word >> 11) * 2**-53`` and ``standard_normal()`` numpy's 256-layer ziggurat
   (its tables are numba's copy of numpy's, ``numba.np.random._constants``).
 * The ancestors are ``searchsorted(cdf, u * cdf[-1], side="right")`` (capped at ``n_old - 1``), found
-  with a guide table instead of a binary search: the ``n_old`` cdf values are counted into ``n_old``
+  with a guide table instead of a binary search: the ``n_old`` cdf values are counted into ``4 n_old``
   equal buckets of ``[0, cdf[-1]]`` and a query scans from the first value of its bucket, an expected
   O(1) per particle. The bucket of a value is a monotone function of it, so the count of values
   ``<= q`` is exactly the binary search's.
