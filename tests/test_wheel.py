@@ -2,7 +2,8 @@
 
 The wheel is built from a copy of the sources with setuptools' PEP 517 backend (what ``pip wheel`` and
 ``python -m build`` call), installed without dependencies into a fresh virtual environment that sees
-the system's packages (numpy, torch, ... : nothing is downloaded), and run from a folder of its own
+the packages of the interpreter running the tests (numpy, torch, ... : nothing is downloaded; a
+system interpreter or a virtual environment alike), and run from a folder of its own
 with no PYTHONPATH, so that neither the checkout nor an editable install of it can be imported. There:
 the README's library example runs, every module imports, and the commands that need the checkout or
 its stored artefacts say so in one line (``reproduce`` and ``beyond`` without ``--data``, ``book``),
@@ -40,9 +41,20 @@ def venv(tmp_path_factory) -> dict:
     assert build.returncode == 0, build.stderr[-3000:]
     wheel = tmp / "dist" / build.stdout.split()[-1]
     assert wheel.name.startswith("adaptfilt-") and wheel.suffix == ".whl"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(tmp / "venv")],
-                   check=True, env=env, timeout=120)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(tmp / "venv")], check=True, env=env, timeout=120)
     python = tmp / "venv" / "bin" / "python"
+    # The new environment sees the packages of the interpreter that runs pytest, as plain path entries.
+    # Not `venv --system-site-packages`: inside a virtual environment that gives the *base* interpreter's
+    # site-packages, which lack what the running environment installed (torch, ...). Plain entries also
+    # keep the running environment's .pth files unread, so an editable install of the checkout stays out.
+    site_dirs = json.loads(subprocess.run(
+        [sys.executable, "-c", "import json, site; print(json.dumps(site.getsitepackages()"
+                               " + ([site.getusersitepackages()] if site.ENABLE_USER_SITE else [])))"],
+        cwd=tmp, env=env, capture_output=True, text=True, check=True, timeout=60).stdout)
+    own = json.loads(subprocess.run([str(python), "-c", "import json, site; print(json.dumps(site.getsitepackages()))"],
+                                    cwd=tmp, env=env, capture_output=True, text=True, check=True, timeout=60).stdout)[0]
+    outer = [d for d in site_dirs if Path(d).is_dir() and ROOT not in Path(d).resolve().parents]
+    (Path(own) / "outer-site.pth").write_text("".join(f"{d}\n" for d in outer))
     install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps",
                               "--no-build-isolation", "--no-index", str(wheel)],
                              env=env, capture_output=True, text=True, timeout=300)
