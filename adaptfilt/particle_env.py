@@ -40,6 +40,7 @@ Example
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
@@ -47,7 +48,7 @@ import numpy as np
 
 from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
-from adaptfilt.particles import ParticleCountFilter, kld_counts
+from adaptfilt.particles import ParticleCountFilter, kld_bound, kld_counts
 
 __all__ = ["PARTICLE_GRID", "ParticleCost", "ParticleUpdate", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
@@ -339,6 +340,13 @@ class ParticleCountEnv:
             raise ValueError(f"traj.z must have shape (M, >= {self.n_steps}, {self.nz}), got {traj.z.shape}")
         self.filt.pf.check_z(traj.z)
         M = traj.z.shape[0]
+        # run i's key is stream * 2**32 + i, an int64: a stream beyond 2**31 (or negative) would not fit
+        if stream is not None and (isinstance(stream, (bool, np.bool_)) or not isinstance(stream, numbers.Integral)
+                                   or not 0 <= stream < 2**31):
+            raise ValueError(f"stream must be an integer in [0, 2**31) (run i of the episode draws from the "
+                             f"particle streams of run id stream * 2**32 + i), got {stream!r}")
+        # every run's max(grid) predicted particles are held at once (greedy's candidates weigh them all)
+        self.filt.pf.check_memory(int(self.grid.max()), M, label=f"the grid's n_particles = {int(self.grid.max())}")
         self.traj, self.stream = traj, stream
         self._ids = np.arange(M, dtype=np.int64) + (0 if stream is None else int(stream) << 32)
         self._zs = np.ascontiguousarray(np.moveaxis(traj.z, 1, 0))  # (T, M, nz)
@@ -406,8 +414,13 @@ class KLDSamplingPolicy:
                  n_min: int = 50, grid=None, name: str = "kld"):
         self.name = name
         self.bin_size = np.asarray(bin_size, dtype=float)
+        if self.bin_size.ndim > 1:
+            raise ValueError(f"bin_size must be a scalar or one per state dimension, got shape {self.bin_size.shape}")
         if not (np.isfinite(self.bin_size).all() and (self.bin_size > 0).all()):
-            raise ValueError(f"bin_size must be positive, got {self.bin_size.tolist()}")
+            raise ValueError(f"bin_size must be finite and > 0, got {self.bin_size.tolist()}")
+        kld_bound(1, epsilon, delta)  # names a bad epsilon or delta now, not at the first step
+        if isinstance(n_min, (bool, np.bool_)) or not isinstance(n_min, numbers.Integral) or n_min < 1:
+            raise ValueError(f"n_min must be an integer >= 1, got {n_min!r}")
         self.epsilon, self.delta, self.n_min = float(epsilon), float(delta), int(n_min)
         self.grid = None if grid is None else np.asarray(grid, dtype=float)
 

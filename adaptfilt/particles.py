@@ -56,6 +56,8 @@ True
 """
 from __future__ import annotations
 
+import numbers
+import os
 from typing import Sequence
 
 import numpy as np
@@ -65,12 +67,88 @@ from adaptfilt import particle_kernels
 from adaptfilt.gaf import FilterRun
 from adaptfilt.models import StateSpaceModel
 
-__all__ = ["ParticleCountFilter", "kld_bound", "kld_count", "kld_counts", "BACKENDS"]
+__all__ = ["ParticleCountFilter", "ParticleMemoryError", "kld_bound", "kld_count", "kld_counts", "BACKENDS"]
 
 #: how :class:`ParticleCountFilter` computes: numpy (the reference, a Python loop over runs) or
 #: numba's compiled kernels (:mod:`adaptfilt.particle_kernels`, the optional extra ``fast``), bit for bit
 #: the same numbers; "auto" takes numba where it is installed.
 BACKENDS = ("auto", "numpy", "numba")
+
+
+class ParticleMemoryError(MemoryError, ValueError):
+    """A particle count whose arrays cannot fit in this machine's memory, refused before anything is allocated.
+
+    A ``MemoryError``, as numpy's own refusal (later, after the smaller arrays, naming a shape, not the
+    count) would have been, and a ``ValueError``: the input is what is wrong, and the command line reports
+    it as one. ``count`` is the largest count asked for, ``needed`` and ``available`` are bytes."""
+
+    def __init__(self, message: str, count: int, needed: int, available: int):
+        super().__init__(message)
+        self.count, self.needed, self.available = int(count), int(needed), int(available)
+
+
+def _memory_bytes() -> tuple[int, str]:
+    """The memory a request is held against and its name in an error: the machine's physical memory, or,
+    where the system does not say, the 256 TiB a 64-bit process can address (only the absurd is refused)."""
+    try:
+        pages, size = os.sysconf("SC_PHYS_PAGES"), os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):  # no sysconf (Windows), or no such name
+        pages = size = -1
+    if pages > 0 and size > 0:
+        return pages * size, "this machine's {} of memory"
+    return 2**48, "the {} a 64-bit process can address"
+
+
+def _size(n_bytes: float) -> str:
+    """``n_bytes`` in binary units, three figures: ``7.28 TiB``."""
+    if n_bytes < 1024:
+        return f"{n_bytes:.0f} B"
+    for unit in ("KiB", "MiB", "GiB", "TiB"):
+        n_bytes /= 1024
+        if n_bytes < 1024:
+            return f"{n_bytes:.3g} {unit}"
+    return f"{n_bytes / 1024:.3g} PiB"
+
+
+def _check_kld_params(epsilon: float, delta: float) -> None:
+    if not (np.isfinite(epsilon) and epsilon > 0):
+        raise ValueError(f"epsilon must be finite and > 0, got {epsilon}")
+    if not 0 < delta < 1:  # NaN fails this too
+        raise ValueError(f"delta must be in (0, 1), got {delta}")
+
+
+def _check_count_arg(name: str, value) -> int:
+    try:
+        ok = not isinstance(value, (bool, np.bool_)) and int(value) == value and value >= 1
+    except (TypeError, ValueError, OverflowError):  # NaN, inf, a string
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def _cells(x: np.ndarray, bin_size, axes: tuple[str, ...]) -> np.ndarray:
+    """The bin of every particle of ``x (..., n, nx)``, int64 ``x``'s shape; ValueError naming a bad ``x``
+    (``axes`` names its axes but the last) or ``bin_size`` (a scalar or one per dimension, finite and > 0)."""
+    nx = x.shape[-1]
+    if x.shape[-2] < 1 or nx < 1:
+        raise ValueError(f"x must hold at least one particle of at least one dimension, got shape {x.shape}")
+    b = np.asarray(bin_size, dtype=float)
+    if b.shape not in ((), (nx,)):
+        raise ValueError(f"bin_size must be a scalar or one per state dimension ({nx},), got shape {b.shape}")
+    if not (np.isfinite(b).all() and (b > 0).all()):
+        raise ValueError(f"bin_size must be finite and > 0, got {b.tolist()}")
+    finite = np.isfinite(x)
+    if not finite.all():
+        bad = np.argwhere(~finite)[0]
+        where = ", ".join(f"{name} {int(i)}" for name, i in zip(axes, bad))
+        raise ValueError(f"x has non-finite values (first at {where})")
+    q = np.floor(x / b)
+    # a bin index beyond int64 would wrap: far-apart particles would share a bin
+    if np.abs(q).max() >= 2.0**63:
+        raise ValueError(f"bin_size {b.tolist()} is too small for x: x / bin_size reaches {np.abs(q).max():.3g}, "
+                         f"beyond the 2**63 bins that can be told apart")
+    return q.astype(np.int64)
 
 
 def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -> np.ndarray:
@@ -87,8 +165,7 @@ def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -
     >>> round(float(kld_bound(10)), 1), round(float(stats.chi2.ppf(0.99, 9) / 0.1), 1)
     (217.0, 216.7)
     """
-    if epsilon <= 0 or not 0 < delta < 1:
-        raise ValueError(f"epsilon must be positive and delta in (0, 1), got {epsilon}, {delta}")
+    _check_kld_params(epsilon, delta)
     k = np.asarray(k, dtype=float)
     km1 = np.maximum(k - 1.0, 1.0)
     a = 2.0 / (9.0 * km1)
@@ -100,12 +177,16 @@ def kld_count(x: np.ndarray, bin_size: float | np.ndarray, epsilon: float = 0.05
               n_min: int = 1, n_max: int | None = None) -> int:
     """KLD-sampling's stopping rule on particles ``x (n, nx)`` in the order they were drawn: the
     smallest ``n >= n_min`` with ``n >= kld_bound(k(n))``, ``k(n)`` the bins of width ``bin_size``
-    (per dimension) that the first ``n`` occupy; ``n_max`` (default ``len(x)``) if never met."""
+    (a scalar or one per dimension) that the first ``n`` occupy; ``n_max`` (default ``len(x)``) if never met.
+    ValueError naming a bad ``x`` (its shape, a non-finite particle), ``bin_size`` (not finite and > 0, or
+    not one per dimension), ``epsilon``, ``delta``, ``n_min`` or ``n_max`` (integers >= 1)."""
+    _check_kld_params(epsilon, delta)
+    n_min = _check_count_arg("n_min", n_min)
     x = np.atleast_2d(np.asarray(x, dtype=float))
     if x.ndim != 2:
         raise ValueError(f"x must be (n, nx), got shape {x.shape}")
-    n_max = len(x) if n_max is None else min(int(n_max), len(x))
-    cells = np.floor(x[:n_max] / np.asarray(bin_size, dtype=float)).astype(np.int64)
+    n_max = len(x) if n_max is None else min(_check_count_arg("n_max", n_max), len(x))
+    cells = _cells(x[:n_max], bin_size, ("particle",))
     _, first = np.unique(cells, axis=0, return_index=True)
     new = np.zeros(n_max, dtype=int)
     new[first] = 1
@@ -118,12 +199,15 @@ def kld_count(x: np.ndarray, bin_size: float | np.ndarray, epsilon: float = 0.05
 def kld_counts(x: np.ndarray, bin_size: float | np.ndarray, epsilon: float = 0.05, delta: float = 0.01,
                n_min: int = 1) -> np.ndarray:
     """:func:`kld_count` of every run of ``x (M, n, nx)`` at once, ``(M,)`` (``n_max = n``): the bins of
-    each run are told apart by sorting its cells, not by a set, so that a batch costs one sort."""
+    each run are told apart by sorting its cells, not by a set, so that a batch costs one sort. ValueError
+    as :func:`kld_count`'s."""
+    _check_kld_params(epsilon, delta)
+    n_min = _check_count_arg("n_min", n_min)
     x = np.asarray(x, dtype=float)
     if x.ndim != 3:
         raise ValueError(f"x must be (M, n, nx), got shape {x.shape}")
     M, n, nx = x.shape
-    cells = np.floor(x / np.asarray(bin_size, dtype=float)).astype(np.int64)
+    cells = _cells(x, bin_size, ("run", "particle"))
     # one key per cell (mixing the dimensions; a collision of two cells in one run is ~n^2 / 2^64)
     key = cells[..., 0].astype(np.uint64)
     for i in range(1, nx):
@@ -213,7 +297,9 @@ class ParticleCountFilter:
         return self._streams[0], self._streams[1]
 
     def _counts(self, n_particles, M: int, T: int) -> np.ndarray:
-        n = np.asarray(n_particles)
+        """``n_particles`` as ``(M, T)`` floats, checked to be integers >= 1 (float: a count too large for
+        int64 must reach the memory check, not wrap)."""
+        n = np.array(n_particles, dtype=float)  # a copy: it becomes the result's params
         if n.ndim == 0:
             n = np.full((M, T), n)
         elif n.shape == (M,):
@@ -221,8 +307,51 @@ class ParticleCountFilter:
         elif n.shape != (M, T):
             raise ValueError(f"n_particles must be a scalar, (M,) = ({M},) or (M, T) = ({M}, {T}), got shape {n.shape}")
         if not np.all(np.isfinite(n)) or np.any(n < 1) or np.any(n != np.round(n)):
-            raise ValueError(f"n_particles must be integers >= 1, got values in [{n.min()}, {n.max()}]")
-        return n.astype(np.int64)
+            raise ValueError(f"n_particles must be integers >= 1, got values in [{n.min():g}, {n.max():g}]")
+        return n
+
+    @staticmethod
+    def _run_ids(run_ids, M: int) -> np.ndarray:
+        """``run_ids`` checked: one non-negative integer below 2**64 per run (a Philox key word); int64,
+        or uint64 where an id needs it."""
+        if run_ids is None:
+            return np.arange(M, dtype=np.int64)
+        a = np.asarray(run_ids, dtype=object)  # the ids as given: no float rounds an integer near 2**64
+        if a.shape != (M,):
+            raise ValueError(f"run_ids must name one id per run ({M}), got shape {a.shape}")
+        values = a.tolist()
+        for i, v in enumerate(values):
+            # a bool is refused: a mask passed as ids would silently key every run 0 or 1
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 <= v < 2**64 or v != int(v):
+                raise ValueError(f"run_ids must be integers in [0, 2**64) (they key the random streams), "
+                                 f"got {v!r} for run {i}")
+        return np.array([int(v) for v in values], dtype=np.int64 if max(values, default=0) < 2**63 else np.uint64)
+
+    def particle_bytes(self, n_particles: int, n_runs: int = 1) -> int:
+        """About the peak bytes of one step's arrays for ``n_runs`` runs of ``n_particles`` each, filtered at
+        once: per particle, measured (peak resident memory) on UNGM and the CTM, the state copies (predicted,
+        ancestors, noise, ``f``'s output), ``h``'s output and the residual, weights and log-likelihoods, the
+        resampling's work arrays, and in the numpy backend the ``(nx, nx)`` outer products of the covariance."""
+        nx, nz = self.model.nx, self.model.nz
+        words = 4 * nx + 2 * nz + 7 if self.backend == "numba" else 9 * nx + 2 * nx * nx + 2 * nz + 2
+        return 8 * words * int(n_particles) * int(n_runs)
+
+    def check_memory(self, n_particles: int, n_runs: int = 1, result_bytes: int = 0, label: str | None = None) -> None:
+        """Refuse, with a :class:`ParticleMemoryError` naming the count and the bytes, ``n_runs`` runs of
+        ``n_particles`` particles filtered at once (:meth:`particle_bytes`) plus ``result_bytes`` of results
+        beyond this machine's memory; nothing is allocated."""
+        particles = self.particle_bytes(n_particles, n_runs)
+        need = particles + int(result_bytes)
+        available, where = _memory_bytes()
+        if need <= available:
+            return
+        arrays = "one run's particle arrays" if n_runs == 1 else f"the particle arrays of {n_runs} runs at once"
+        if result_bytes:
+            arrays = f"{_size(need)} ({_size(particles)} for {arrays}, {_size(result_bytes)} for the results)"
+        else:
+            arrays = f"{_size(need)} for {arrays}"
+        raise ParticleMemoryError(f"{label or f'n_particles = {int(n_particles)}'} needs about {arrays}, "
+                                  f"more than {where.format(_size(available))}", n_particles, need, available)
 
     def predict(self, x_old: np.ndarray | None, w_old: np.ndarray | None, n_old: np.ndarray | None, t: int,
                 n: np.ndarray, ids: np.ndarray, work: dict | None = None) -> np.ndarray:
@@ -329,19 +458,31 @@ class ParticleCountFilter:
         return z
 
     def run(self, z, n_particles, run_ids: Sequence[int] | None = None) -> FilterRun:
+        """Filter ``z (M, T, nz)`` (or ``(M, T)`` when ``nz = 1``) with ``n_particles`` (a scalar, ``(M,)`` or
+        ``(M, T)`` integers >= 1); run ``i`` draws from the streams of ``run_ids[i]`` (default ``i``; integers
+        in ``[0, 2**64)``).
+
+        ValueError naming a bad ``z``, ``n_particles`` or ``run_ids``; :class:`ParticleMemoryError` (a
+        ``MemoryError`` and a ``ValueError``) naming the count and the bytes when the particle arrays of a
+        block of runs and the results would not fit in this machine's memory, before they are allocated."""
         z = self.check_z(z)
         M, T, _ = z.shape
+        if M < 1 or T < 1:
+            raise ValueError(f"z must hold at least one run and one step, got shape {z.shape}")
         counts = self._counts(n_particles, M, T)
-        ids = np.arange(M) if run_ids is None else np.asarray(run_ids, dtype=int)
-        if ids.shape != (M,):
-            raise ValueError(f"run_ids must name one id per run ({M}), got shape {ids.shape}")
+        ids = self._run_ids(run_ids, M)
         nx = self.model.nx
+        cap = int(counts.max())
+        block = min(M, max(1, self.block_particles // (cap * nx)))
+        label = f"n_particles = {cap}" if counts.min() == cap else f"n_particles up to {cap}"
+        # mean, cov, loglik, ess, nis, params: (M, T) floats each, times nx and nx * nx for mean and cov
+        self.check_memory(cap, block, 8 * M * T * (nx + nx * nx + 4), label)
+        params, counts = counts, counts.astype(np.int64)
         mean, cov = np.empty((M, T, nx)), np.empty((M, T, nx, nx))
         ll, ess = np.empty((M, T)), np.empty((M, T))
         # Runs are independent (each draws from its own streams), so they are filtered a block at a time:
         # a block's particle arrays stay in cache and its buffers are reused, where fresh whole-batch
         # temporaries would cost a page fault per 4 KiB. The numbers are those of one batch, bit for bit.
-        block = max(1, self.block_particles // max(1, int(counts.max()) * nx))
         for lo in range(0, M, block):
             b = slice(lo, min(lo + block, M))
             x_old = w_old = None
@@ -353,5 +494,5 @@ class ParticleCountFilter:
                 mean[b, t], cov[b, t], ll[b, t], ess[b, t] = post["mean"], post["cov"], post["loglik"], post["ess"]
                 x_old, w_old = x, post["w"]
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
-                         params=counts.astype(float), info={"ess": ess, "particles": int(counts.sum()),
+                         params=params, info={"ess": ess, "particles": int(counts.sum()),
                                                                 "on_indefinite": "inf"})

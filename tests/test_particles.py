@@ -4,6 +4,8 @@ References: the point-mass filter (the exact posterior of UNGM up to its grid), 
 alone (common random numbers), the chi-square quantile and Fox's formula written out."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -98,6 +100,135 @@ def test_bad_input_is_named(ungm_runs):
     with pytest.raises(ValueError, match="run_ids"):
         pf.run(traj.z, 10, run_ids=[0, 1])
 
+
+
+@pytest.mark.parametrize("fn", ["kld_count", "kld_counts"])
+def test_the_kld_counts_name_a_bad_bin_size_x_or_bound(fn):
+    """Before, a bin size of 0 or NaN gave a count (after a RuntimeWarning), a non-finite particle a
+    count, a wrong number of bin sizes numpy's broadcasting error, n_min = 0 a count."""
+    from adaptfilt.particles import kld_counts
+
+    count = (lambda x, *a, **k: kld_count(x[0], *a, **k)) if fn == "kld_count" else kld_counts  # noqa: E731
+    x = np.random.default_rng(0).normal(size=(2, 50, 2))
+    for bad in (0.0, -1.0, np.nan, np.inf, [0.5, 0.0], [0.5, np.nan]):
+        want = f"bin_size must be finite and > 0, got {np.asarray(bad).tolist()}"
+        with pytest.raises(ValueError, match=re.escape(want)):
+            count(x, bad)
+    with pytest.raises(ValueError, match=r"bin_size must be a scalar or one per state dimension \(2,\), got "
+                                         r"shape \(3,\)"):
+        count(x, [0.5, 0.5, 0.5])
+    with pytest.raises(ValueError, match="bin_size .* is too small for x"):
+        count(x, 1e-300)  # x / bin_size beyond int64: the bins would wrap
+    y = x.copy()
+    y[0, 7, 1] = np.nan
+    where = "particle 7" if fn == "kld_count" else "run 0, particle 7"
+    with pytest.raises(ValueError, match=re.escape(f"x has non-finite values (first at {where})")):
+        count(y, 0.5)
+    for name, value in (("n_min", 0), ("n_min", 2.5), ("n_min", np.nan)):
+        with pytest.raises(ValueError, match=f"{name} must be an integer >= 1, got"):
+            count(x, 0.5, n_min=value)
+    with pytest.raises(ValueError, match="epsilon must be finite and > 0, got nan"):
+        count(x, 0.5, epsilon=np.nan)
+    with pytest.raises(ValueError, match=r"delta must be in \(0, 1\), got nan"):
+        count(x, 0.5, delta=np.nan)
+    with pytest.raises(ValueError, match="at least one particle"):
+        count(x[:, :0], 0.5)
+    np.testing.assert_array_equal(count(x, [0.5, 0.5]), count(x, 0.5))  # one per dimension or a scalar: the same
+    if fn == "kld_count":
+        with pytest.raises(ValueError, match="n_max must be an integer >= 1, got 0"):
+            kld_count(x[0], 0.5, n_max=0)
+
+
+def test_kld_bound_names_a_non_finite_epsilon():
+    for eps in (np.nan, np.inf):  # before: NaN gave NaN counts, inf a bound of 0 particles
+        with pytest.raises(ValueError, match="epsilon must be finite and > 0"):
+            kld_bound(5, epsilon=eps)
+    with pytest.raises(ValueError, match=r"delta must be in \(0, 1\)"):
+        kld_bound(5, delta=1.0)
+
+
+@pytest.mark.parametrize("ids, shown", [([0, -1], "-1 for run 1"), ([1.5, 0], "1.5 for run 0"),
+                                        (np.array([True, False]), "True for run 0"), ([0, 2**64], f"{2**64} for run 1"),
+                                        ([0, np.nan], "nan for run 1"), (["a", 1], "'a' for run 0")])
+def test_run_ids_must_be_integers_that_fit_a_philox_key(ungm_runs, ids, shown):
+    """Before, -1 was accepted (a key numpy cannot set, or a wrapped one), 1.5 truncated to 1 (run 0 and 1
+    drew the same numbers), a mask read as ids 1 and 0, 2**64 an OverflowError."""
+    model, traj = ungm_runs
+    with pytest.raises(ValueError, match=r"run_ids must be integers in \[0, 2\*\*64\) \(they key the random "
+                                         r"streams\), got " + shown.replace("(", r"\(")):
+        ParticleCountFilter(model).run(traj.z[:2, :3], 10, run_ids=ids)
+
+
+def test_run_ids_take_the_whole_uint64_key_range(ungm_runs):
+    model, traj = ungm_runs
+    pf = ParticleCountFilter(model, seed=2, backend="numpy")
+    batch = pf.run(traj.z[:2, :5], 30, run_ids=[2**64 - 1, 3.0])  # an integral float is an integer
+    alone = pf.run(traj.z[:1, :5], 30, run_ids=[2**64 - 1])
+    np.testing.assert_array_equal(batch.mean[0], alone.mean[0])
+    np.testing.assert_array_equal(batch.mean[1], pf.run(traj.z[1:2, :5], 30, run_ids=[3]).mean[0])
+
+
+@pytest.mark.parametrize("backend", ["numpy", "auto"])
+@pytest.mark.parametrize("count", [10**12, 10**13, 2**70])
+def test_a_count_beyond_memory_is_refused_before_allocating(ungm_runs, backend, count):
+    """Before, 10**12 particles ended in numpy's MemoryError for a (1, 10**12, 1) array (7.3 TiB), after the
+    smaller arrays; 2**70 overflowed int64. The refusal names the count and the bytes, and allocates nothing
+    (it returns at once)."""
+    import time
+
+    from adaptfilt.particles import ParticleMemoryError
+
+    model, traj = ungm_runs
+    pf = ParticleCountFilter(model, backend=backend)
+    start = time.perf_counter()
+    with pytest.raises(ParticleMemoryError) as err:
+        pf.run(traj.z[:3, :5], [20, count, 20])
+    assert time.perf_counter() - start < 0.5
+    msg = str(err.value)
+    assert re.fullmatch(rf"n_particles up to {count} needs about \S+ [TP]iB \(\S+ [TP]iB for one run's particle "
+                        rf"arrays, \d+ B for the results\), more than (this machine's|the) \S+ [KMGTP]iB .*", msg), msg
+    assert err.value.count == count and err.value.needed >= 8 * count > err.value.available
+    assert isinstance(err.value, MemoryError) and isinstance(err.value, ValueError)  # the CLI's user error
+
+
+def test_the_results_count_towards_the_memory_too(ungm_runs, monkeypatch):
+    """(M, T, nx, nx) covariances for many runs and steps: refused as the particle arrays are."""
+    from adaptfilt import particles
+
+    model, traj = ungm_runs
+    pf = ParticleCountFilter(model, backend="numpy")
+    monkeypatch.setattr(particles, "_memory_bytes", lambda: (40_000, "this machine's {} of memory"))
+    # 30 runs x 40 steps x (nx + nx^2 + 4 = 6) x 8 B = 56.2 KiB of results; 30 x 10 particles at once x 120 B
+    with pytest.raises(particles.ParticleMemoryError, match=re.escape(
+            "n_particles = 10 needs about 91.4 KiB (35.2 KiB for the particle arrays of 30 runs at once, "
+            "56.2 KiB for the results), more than this machine's 39.1 KiB of memory")):
+        pf.run(traj.z, 10)
+    monkeypatch.setattr(particles, "_memory_bytes", lambda: (1 << 20, "this machine's {} of memory"))
+    assert pf.run(traj.z, 10).mean.shape == (30, 40, 1)
+
+
+def test_the_environment_and_kld_policy_name_their_bad_input():
+    from adaptfilt.particle_env import KLDSamplingPolicy, ParticleCountEnv
+    from adaptfilt.particles import ParticleMemoryError
+
+    model = af.models.ungm()
+    for bad, match in ((np.nan, "bin_size must be finite and > 0, got nan"), ([[1.0]], "bin_size must be a scalar")):
+        with pytest.raises(ValueError, match=match):
+            KLDSamplingPolicy(bin_size=bad)
+    with pytest.raises(ValueError, match="epsilon must be finite and > 0, got nan"):  # before: at the first step
+        KLDSamplingPolicy(bin_size=1.0, epsilon=np.nan)
+    with pytest.raises(ValueError, match="n_min must be an integer >= 1, got 0"):
+        KLDSamplingPolicy(bin_size=1.0, n_min=0)
+    env = ParticleCountEnv(model, n_steps=3)
+    for stream in (-1, 2**31, 1.5):  # before: -1 failed in numpy's Philox, 2**31 overflowed int64 ids
+        with pytest.raises(ValueError, match=r"stream must be an integer in \[0, 2\*\*31\)"):
+            env.reset(n_runs=2, rng=0, stream=stream)
+    d = env.reset(n_runs=2, rng=0, stream=2**31 - 1)
+    with pytest.raises(ValueError, match=r"bin_size must be a scalar or one per state dimension \(1,\)"):
+        KLDSamplingPolicy(bin_size=[1.0, 1.0]).act(d)
+    big = ParticleCountEnv(model, grid=(10, 10**13), default=10, n_steps=3)
+    with pytest.raises(ParticleMemoryError, match=f"the grid's n_particles = {10**13} needs about"):
+        big.reset(n_runs=2, rng=0)
 
 def test_the_batched_kld_count_is_the_stopping_rule_run_by_run():
     from adaptfilt.particles import kld_counts
