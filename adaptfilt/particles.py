@@ -33,7 +33,9 @@ measurements, not the particles.
 re-points two Philox generators per run and step and finds the ancestors with ``searchsorted``.
 ``backend="numba"`` (the default where the optional extra ``fast`` is installed) runs that loop and the
 weighting as compiled kernels (:mod:`adaptfilt.particle_kernels`: numpy's Philox and ziggurat
-re-implemented, the same sums in the same order) and gives the same bits, about 4x faster. Either way
+re-implemented, the same sums in the same order) and gives the same numbers, about 4x faster: bit for bit
+where numpy's ``exp`` and ``log`` are the C library's, to rounding where numpy has SIMD code of its own
+(AVX-512; relative 1e-12 is tested, :func:`adaptfilt.particle_kernels.exp_log_agree` says which). Either way
 :meth:`ParticleCountFilter.run` filters the runs in blocks of about ``block_particles`` particles, so that
 the arrays of a step stay in cache; a run's numbers do not depend on its block.
 
@@ -70,8 +72,8 @@ from adaptfilt.models import StateSpaceModel
 __all__ = ["ParticleCountFilter", "ParticleMemoryError", "kld_bound", "kld_count", "kld_counts", "BACKENDS"]
 
 #: how :class:`ParticleCountFilter` computes: numpy (the reference, a Python loop over runs) or
-#: numba's compiled kernels (:mod:`adaptfilt.particle_kernels`, the optional extra ``fast``), bit for bit
-#: the same numbers; "auto" takes numba where it is installed.
+#: numba's compiled kernels (:mod:`adaptfilt.particle_kernels`, the optional extra ``fast``), the same
+#: numbers (to rounding on a CPU where numpy's exp has code of its own); "auto" takes numba where installed.
 BACKENDS = ("auto", "numpy", "numba")
 
 
