@@ -17,5 +17,7 @@ It may import the library and the pipeline (``adaptfilt.experiments``); nothing 
 * :mod:`~adaptfilt.course.particle_count` -- chapter 14: posteriors, run errors and KLD-sampling's count;
 * :mod:`~adaptfilt.course.coursemap` -- which chapter builds which library module;
 * :mod:`~adaptfilt.course.prose_numbers` -- the check that a chapter's prose quotes only numbers it printed;
+* :mod:`~adaptfilt.course.quoted_times` -- the check that the times the README, REPRODUCTION.md and
+  docs/RUNNING.md quote are the recorded ones;
 * :mod:`~adaptfilt.course.book` -- ``adaptfilt book``: the static book (mdBook).
 """
