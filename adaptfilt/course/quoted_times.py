@@ -183,10 +183,10 @@ def _blank(text: str, pattern: re.Pattern) -> str:
     return pattern.sub(lambda m: re.sub(r"[^\n]", " ", m.group()), text)
 
 
-def _blocks(text: str) -> list[tuple[int, int, bool]]:
-    """(start, end, is_code) of each block: runs of non-blank lines, a fenced code block one run with the
-    lines just above it (is_code: the offsets inside the fence)."""
-    out: list[tuple[int, int, bool]] = []
+def _blocks(text: str) -> list[tuple[int, int]]:
+    """(start, end) offsets of each block: a run of non-blank lines; a fenced code block (blank lines
+    included) is in one run with the lines just above it."""
+    out: list[tuple[int, int]] = []
     pos, start, fence = 0, None, None
     for line in text.splitlines(keepends=True):
         stripped = line.strip()
@@ -198,13 +198,13 @@ def _blocks(text: str) -> list[tuple[int, int, bool]]:
             start = pos if start is None else start
         elif not stripped:
             if start is not None:
-                out.append((start, pos, False))
+                out.append((start, pos))
             start = None
         elif start is None:
             start = pos
         pos += len(line)
     if start is not None:
-        out.append((start, pos, False))
+        out.append((start, pos))
     return out
 
 
@@ -241,8 +241,8 @@ def _line(text: str, offset: int) -> int:
     return text.count("\n", 0, offset) + 1
 
 
-def _block_of(blocks: list[tuple[int, int, bool]], offset: int) -> int:
-    for i, (a, b, _) in enumerate(blocks):
+def _block_of(blocks: list[tuple[int, int]], offset: int) -> int:
+    for i, (a, b) in enumerate(blocks):
         if a <= offset < b:
             return i
     return -1
