@@ -26,9 +26,16 @@ that fails with such an error or loses its worker, or any ``ValueError`` /
 line ``adaptfilt: error: ...`` on stderr and exits with status 2. Any other
 exception is a bug and keeps its traceback.
 
-Interrupts: Ctrl-C (SIGINT) or SIGTERM stops a command within seconds (its
-workers too) and prints one line ``adaptfilt: interrupted: ...`` saying what was
-kept and how to resume; the exit status is 130 (SIGINT) or 143 (SIGTERM).
+Interrupts: Ctrl-C (SIGINT) or SIGTERM stops a command (its workers too) and prints one line
+``adaptfilt: interrupted: ...`` saying what was kept and how to resume; the exit status is 130 (SIGINT)
+or 143 (SIGTERM). The exit is bounded whatever the command was doing (starting its workers or a Dask
+cluster, running jobs, closing): within 10 s of the signal in this process or on the local pool, within
+20 s with ``--cluster`` (a local or remote Dask cluster), measured from the signal to the end of the
+process (:data:`adaptfilt.experiments.sweep.STOP_SECONDS` and ``STOP_SECONDS_DASK``). A watchdog
+guarantees it: 2 s before the bound it ends the process (``os._exit``, same status) whatever still
+hangs, after the line, or with a line saying the stop was cut short. A second Ctrl-C or SIGTERM while
+stopping ends the process at once (130 or 143). A SIGTERM in the second or so before the handlers are
+installed (imports, argument parsing) ends the process at once by its default action.
 ``reproduce``, ``beyond`` and ``train --seeds`` resume: the same command again
 reuses every job that finished (:mod:`adaptfilt.experiments.journal`).
 """
@@ -41,6 +48,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import NoReturn
 
@@ -501,10 +509,16 @@ def _is_user_error(e: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     """Run ``adaptfilt ARGS``; a user error exits with status 2 and one line
     ``adaptfilt: error: ...`` on stderr; Ctrl-C or SIGTERM with status 130 or 143 and one line
-    ``adaptfilt: interrupted: ...`` saying what was kept and how to resume."""
+    ``adaptfilt: interrupted: ...`` saying what was kept and how to resume, within the bound the module
+    docstring states. ``argv`` None is this process's own command line (the console script,
+    ``python -m adaptfilt``): the bound then holds to the process's exit; a list is a call from Python
+    (a test), whose caller goes on: the bound holds until this returns or raises."""
     args = build_parser().parse_args(argv)
+    from adaptfilt.experiments.sweep import STOP_SECONDS, STOP_SECONDS_DASK
+
+    bound = STOP_SECONDS_DASK if getattr(args, "cluster", None) else STOP_SECONDS
     try:
-        with _sigterm_interrupts():
+        with _stop_on_signals(bound, own_process=argv is None):
             return args.func(args)
     except KeyboardInterrupt as e:
         _interrupted(e)
@@ -514,24 +528,104 @@ def main(argv: list[str] | None = None) -> int:
         _fail(_user_message(e))
 
 
+#: The watchdog ends the process this many seconds before the stated bound (module docstring): the rest is
+#: for the exit itself and for whoever measures it from outside.
+_WATCHDOG_MARGIN = 2.0
+
+
+class _Stop:
+    """A command's stop by signal. The first Ctrl-C or SIGTERM raises :class:`~adaptfilt.experiments.sweep.
+    Interrupted` in the main thread (which stops the work as Ctrl-C does) and arms the watchdog; a second
+    signal, or the watchdog at the bound, ends the process at once (``os._exit``), its output flushed and,
+    if the one line ``adaptfilt: interrupted: ...`` is not out yet, a line saying so."""
+
+    def __init__(self, bound: float) -> None:
+        self.bound = bound
+        self.signum: int | None = None  # the first signal's
+        self.deadline: float | None = None  # time.monotonic() at which the watchdog ends the process
+        self.said = False  # the line is out
+        self.done = False  # the command returned: the watchdog leaves
+
+    def watch(self) -> None:
+        """The watchdog (a daemon thread, started with the command: a thread started from a signal handler
+        could wait forever on a lock the interrupted main thread holds). It polls: the handler takes no lock."""
+        while not self.done:
+            if self.deadline is not None and time.monotonic() >= self.deadline:
+                self.exit_now(self.signum, f"stopping took over {self.bound - _WATCHDOG_MARGIN:g} s, so it was "
+                                           "cut short", flush_in_thread=True)
+            time.sleep(0.1)
+
+    def exit_now(self, signum: int, why: str, flush_in_thread: bool) -> NoReturn:
+        _flush(flush_in_thread)
+        if not self.said:  # after a newline: a progress bar may be mid-line
+            line = (f"\nadaptfilt: interrupted: {why}; every file written is whole (reproduce, beyond and "
+                    "train --seeds reuse their finished jobs when run again)\n")
+            with contextlib.suppress(OSError):
+                os.write(2, line.encode())
+        os._exit(128 + signum)
+
+
+def _flush(in_thread: bool) -> None:
+    """Flush stdout and stderr, but never wait on them for more than a second: a thread stuck writing holds
+    their lock (the watchdog flushes from a helper thread; a signal handler, in the main thread, cannot
+    start one safely and a reentrant flush there raises, which is ignored)."""
+
+    def flush() -> None:
+        for f in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                f.flush()
+
+    if not in_thread:
+        flush()
+        return
+    t = threading.Thread(target=flush, daemon=True, name="adaptfilt-flush")
+    t.start()
+    t.join(1.0)
+
+
+#: The stop in force (set by :func:`_stop_on_signals`), for :func:`_interrupted` to mark its line said.
+_STOP: _Stop | None = None
+
+
 @contextlib.contextmanager
-def _sigterm_interrupts():
-    """SIGTERM (a scheduler ending the job, a closed terminal's shell) stops a command as Ctrl-C does:
-    its workers stopped, what finished kept and said. Only from the main thread (signal's rule)."""
+def _stop_on_signals(bound: float, own_process: bool):
+    """Ctrl-C (SIGINT) and SIGTERM (a scheduler ending the job, a closed terminal's shell) stop a command:
+    its workers stopped, what finished kept and said, within ``bound`` seconds (:class:`_Stop`); a second
+    signal ends it at once. Only from the main thread (signal's rule); a signal ignored when the command
+    started (SIG_IGN, e.g. SIGINT in a background job) stays ignored.
+
+    ``own_process``: the process ends after this command; after a signal the handlers and the watchdog
+    then stay in force through the interpreter's exit (its exit hooks and threads can hang too). Otherwise
+    they go when the command returns or raises, and the caller goes on."""
+    global _STOP
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    from adaptfilt.experiments.sweep import Interrupted  # imported now: not in a handler, mid-import maybe
 
-    def stop(signum, frame):
-        from adaptfilt.experiments.sweep import Interrupted
+    stop = _Stop(bound)
 
+    def handle(signum, frame):
+        if stop.signum is not None:  # a second signal while stopping: at once
+            stop.exit_now(signum, "a second signal cut the stop short", flush_in_thread=False)
+        stop.signum = signum
+        stop.deadline = time.monotonic() + bound - _WATCHDOG_MARGIN
         raise Interrupted(signum=signum)
 
-    previous = signal.signal(signal.SIGTERM, stop)
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            previous[sig] = signal.signal(sig, handle)
+    threading.Thread(target=stop.watch, daemon=True, name="adaptfilt-stop-watchdog").start()
+    _STOP = stop
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if stop.signum is None or not own_process:
+            stop.done = True
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            _STOP = None
 
 
 def _interrupted(e: KeyboardInterrupt) -> NoReturn:
@@ -542,6 +636,9 @@ def _interrupted(e: KeyboardInterrupt) -> NoReturn:
             bar.close()
     kept = getattr(e, "kept", "") or "nothing was written"
     sys.stderr.write(f"adaptfilt: interrupted: {' '.join(kept.split())}\n")
+    sys.stderr.flush()
+    if _STOP is not None:
+        _STOP.said = True
     raise SystemExit(128 + getattr(e, "signum", signal.SIGINT))
 
 

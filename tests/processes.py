@@ -70,13 +70,13 @@ def run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     return done
 
 
-def wait_for(what, timeout: float = 240.0, proc: subprocess.Popen | None = None) -> None:
+def wait_for(what, timeout: float = 240.0, proc: subprocess.Popen | None = None, poll: float = 0.05) -> None:
     end = time.monotonic() + timeout
     while not what():
         if proc is not None and proc.poll() is not None:
             pytest.fail(f"exited ({proc.returncode}) before the moment to stop it: {proc.communicate()[1][-2000:]}")
         assert time.monotonic() < end, "timed out waiting"
-        time.sleep(0.05)
+        time.sleep(poll)
 
 
 def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:

@@ -1,18 +1,24 @@
 """Long work a user can stop and resume: Ctrl-C, SIGTERM and SIGKILL on the real command line.
 
 Each test starts ``adaptfilt`` in a process group of its own (as a terminal would), waits until its
-workers run (or until some jobs have finished, by the journal), sends the signal and checks: the
-exit within seconds, the status, the one line on stderr, and that no worker process is left (by
-pid, from /proc). A resumed run must reuse the finished jobs and write byte-identical files.
+workers start or run (or until some jobs have finished, by the journal), sends the signal and checks:
+the exit within the stated bound (:data:`~adaptfilt.experiments.sweep.STOP_SECONDS` on the local pool,
+``STOP_SECONDS_DASK`` on a Dask cluster, from the signal to the exit), the status, the one line on
+stderr, and that no worker process is left (by pid, from /proc). A resumed run must reuse the finished
+jobs and write byte-identical files. The watchdog that holds the bound when something hangs, and the
+second signal that ends a stop at once, are checked on a small script that hangs on purpose.
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
+import textwrap
 import time
 
 import pytest
 
+from adaptfilt.experiments.sweep import STOP_SECONDS, STOP_SECONDS_DASK
 from adaptfilt.learned import read_npz
 from processes import adaptfilt, descendants, digests, lines, one_line, run, start, stop, wait_for  # tests/processes.py
 
@@ -36,7 +42,7 @@ def test_ctrl_c_stops_train_seeds_and_the_same_command_resumes_to_identical_file
     wait_for(lambda: lines(journal) >= 1, proc=proc)
     seen = stop(proc, signal.SIGINT, group=True)
     line = one_line(seen["err"])
-    assert seen["rc"] == 130 and seen["seconds"] < 10
+    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS
     assert len(seen["workers"]) >= 2 and seen["left"] == []
     kept = lines(journal)
     assert 1 <= kept < 4 and f"{kept} finished jobs are kept in {journal}" in line and "resume" in line
@@ -60,10 +66,28 @@ def test_workers_die_with_their_parent(tmp_path, sig, engine):
     seen = stop(proc, sig, group=False)
     assert seen["left"] == [] and len(seen["workers"]) >= 3
     if sig == signal.SIGTERM:  # a scheduler ending the job: stopped as Ctrl-C stops it
-        assert seen["rc"] == 143 and seen["seconds"] < (10 if engine == "pool" else 15)
+        assert seen["rc"] == 143 and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK)
         one_line(seen["err"])
     else:
         assert seen["rc"] == -signal.SIGKILL
+
+
+@pytest.mark.parametrize("engine", ["pool", "dask"])
+def test_sigterm_while_the_workers_start(tmp_path, engine):
+    """SIGTERM as the first worker process appears: the pool spawning its workers, or a local Dask cluster
+    starting (its nannies spawning workers, before any job runs). A cluster whose start-up is interrupted
+    must still be closed, quietly (distributed's exit hook would print a traceback after the line) and
+    within the bound; no worker may outlive the command."""
+    if engine == "dask":
+        pytest.importorskip("distributed")
+    where = ["--workers", "2"] if engine == "pool" else ["--cluster", "local"]
+    proc = start(adaptfilt(*TRAIN, *where, "--out", str(tmp_path / "p.npz")), tmp_path)
+    wait_for(lambda: len(descendants(proc.pid)) >= 1, proc=proc, poll=0.005)
+    seen = stop(proc, signal.SIGTERM, group=False)
+    assert seen["rc"] == 143 and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK)
+    assert seen["left"] == []
+    assert one_line(seen["err"]) == "adaptfilt: interrupted: no job had finished: nothing to resume"
+    assert not (tmp_path / "p.journal.jsonl").exists() or lines(tmp_path / "p.journal.jsonl") == 0
 
 
 def test_ctrl_c_stops_a_local_dask_cluster(tmp_path):
@@ -72,7 +96,7 @@ def test_ctrl_c_stops_a_local_dask_cluster(tmp_path):
     proc = start(adaptfilt(*TRAIN, "--cluster", "local", "--out", str(tmp_path / "p.npz")), tmp_path)
     wait_for(lambda: lines(journal) >= 1, proc=proc)
     seen = stop(proc, signal.SIGINT, group=True)
-    assert seen["rc"] == 130 and seen["seconds"] < 15 and seen["left"] == []
+    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS_DASK and seen["left"] == []
     assert len(seen["workers"]) >= 2
     assert "finished jobs are kept" in one_line(seen["err"])
 
@@ -98,3 +122,56 @@ def test_ctrl_c_on_one_training_names_its_checkpoint(tmp_path):
     assert one_line(seen["err"]) == (f"adaptfilt: interrupted: the checkpoint {ckpt} is kept; add --resume to the "
                                      "same command to continue from it")
     read_npz(ckpt)  # whole
+
+
+#: A command stopped by SIGTERM whose stop then hangs (as a Dask close or an exit hook can): in ``where``,
+#: before the line ``adaptfilt: interrupted`` (``stop``) or after it (``exit``, in an exit hook).
+HANGS = """
+    import atexit, os, sys, time
+    from adaptfilt import cli
+
+    def hang():
+        print("hanging", flush=True)
+        time.sleep(120)
+
+    try:
+        with cli._stop_on_signals(BOUND, own_process=True):
+            print("ready", flush=True)
+            time.sleep(120)
+    except KeyboardInterrupt as e:
+        if WHERE == "stop":
+            hang()
+        atexit.register(hang)
+        cli._interrupted(e)
+"""
+
+
+def _hanging(tmp_path, where: str, bound: float):
+    code = textwrap.dedent(HANGS).replace("BOUND", repr(bound)).replace("WHERE", repr(where))
+    proc = start([sys.executable, "-c", code], tmp_path)
+    wait_for(lambda: proc.stdout.readline() == "ready\n", proc=proc)
+    return proc
+
+
+@pytest.mark.parametrize("where", ["stop", "exit"])
+def test_a_stop_that_hangs_ends_within_the_bound(tmp_path, where):
+    """The watchdog: whatever hangs after the signal, the process ends 2 s before the bound, with the
+    signal's status and one line (its own, saying the stop was cut short, if the command's is not out)."""
+    bound = 4.0
+    proc = _hanging(tmp_path, where, bound)
+    seen = stop(proc, signal.SIGTERM, group=False)
+    assert seen["rc"] == 143 and bound - 2.5 < seen["seconds"] < bound
+    line = one_line(seen["err"])
+    if where == "stop":
+        assert line.startswith("adaptfilt: interrupted: stopping took over 2 s, so it was cut short; ")
+    else:
+        assert line == "adaptfilt: interrupted: nothing was written"
+
+
+def test_a_second_signal_ends_the_stop_at_once(tmp_path):
+    proc = _hanging(tmp_path, "stop", 60.0)
+    os.kill(proc.pid, signal.SIGTERM)
+    wait_for(lambda: proc.stdout.readline() == "hanging\n", proc=proc)
+    seen = stop(proc, signal.SIGINT, group=True)
+    assert seen["rc"] == 130 and seen["seconds"] < 2
+    assert one_line(seen["err"]).startswith("adaptfilt: interrupted: a second signal cut the stop short; ")

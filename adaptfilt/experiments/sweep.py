@@ -33,6 +33,17 @@ terminal sends to the whole process group: this process alone decides what stops
 this process however it dies (SIGTERM, SIGKILL, the OOM killer): on Linux the kernel kills them
 (``prctl(PR_SET_PDEATHSIG)``), elsewhere a thread in each worker watches its parent. On a Dask cluster
 the futures are cancelled, and a cluster started here is closed.
+
+Stopping is bounded, whatever the phase (start-up, jobs, closing): :func:`run_jobs` returns or raises
+within :data:`STOP_SECONDS` (10 s) of the interrupt in this process or on the local pool, and within
+:data:`STOP_SECONDS_DASK` (20 s) on a Dask cluster; the command line (:mod:`adaptfilt.cli`) exits within
+the same bounds, a watchdog ending the process if anything hangs. The interrupt is an exception raised
+at whatever bytecode the main thread is running, so nothing that must not be torn apart runs there:
+a Dask client (and its local cluster) is started and closed in a thread of its own, the main thread
+only waiting for it, and a cluster whose start-up was interrupted is still closed once it is up; the
+pool's workers are found among this process's children, so one that was being started when the
+interrupt came is stopped too (a worker left alive would hold up the interpreter's exit, which joins
+every child process).
 """
 from __future__ import annotations
 
@@ -46,7 +57,17 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Sequence
 
-__all__ = ["run_jobs", "default_workers", "Interrupted", "JobFailed"]
+__all__ = ["run_jobs", "default_workers", "Interrupted", "JobFailed", "STOP_SECONDS", "STOP_SECONDS_DASK"]
+
+#: Seconds from an interrupt (Ctrl-C, SIGTERM) to the end of a run in this process or on the local pool,
+#: and on a Dask cluster (module docstring); :mod:`adaptfilt.cli` exits within them whatever hangs.
+STOP_SECONDS = 10.0
+STOP_SECONDS_DASK = 20.0
+#: Within them: the pool's workers get _POOL_GRACE s to exit after SIGTERM, then SIGKILL; a Dask client
+#: gets _DASK_CLOSE s to close (its local cluster and workers with it) and a cancel _DASK_CANCEL s.
+_POOL_GRACE = 3.0
+_DASK_CLOSE = 10.0
+_DASK_CANCEL = 3.0
 
 
 class JobFailed(RuntimeError):
@@ -157,7 +178,9 @@ def run_jobs(fn: Callable, jobs: Sequence[tuple], workers: int | None = None, cl
         if workers == 1 or len(jobs) == 1:
             return _run_here(fn, jobs, finished)
         return _run_pool(fn, jobs, min(workers, len(jobs)), finished)
-    except Interrupted:
+    except Interrupted as e:
+        if not e.total:  # raised by the command line's signal handler, which does not know the counts
+            e.done, e.total = done, len(jobs)
         raise
     except KeyboardInterrupt:
         raise Interrupted(done, len(jobs)) from None
@@ -190,6 +213,7 @@ def _run_here(fn: Callable, jobs: list[tuple], finished: Callable) -> list:
 def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable) -> list:
     import multiprocessing as mp
 
+    before = set(mp.active_children())  # the pool's workers are the children started from now on
     ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
                              initargs=(os.getpid(),))
     try:
@@ -207,16 +231,23 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
             finished(i, out[i])
         return out
     except BaseException:
-        _stop_pool(ex)
+        _stop_pool(ex, before)
         raise
     finally:
         ex.shutdown(wait=True)  # at once after _stop_pool; else every job has finished
 
 
-def _stop_pool(ex: ProcessPoolExecutor, grace: float = 3.0) -> None:
+def _stop_pool(ex: ProcessPoolExecutor, before: set = frozenset(), grace: float = _POOL_GRACE) -> None:
     """Cancel what has not started and terminate the workers (the with-block's shutdown would wait
-    for every queued job). A terminated job leaves no partial file: jobs write atomically."""
+    for every queued job). A terminated job leaves no partial file: jobs write atomically.
+
+    The workers are the pool's and every child process started since the pool was (``before``: the
+    children then): an interrupt that came while the pool was starting a worker leaves one the pool
+    does not know yet, and the interpreter's exit would wait for it (multiprocessing joins every child)."""
+    import multiprocessing as mp
+
     procs = list((getattr(ex, "_processes", None) or {}).values())
+    procs += [p for p in mp.active_children() if p not in before and p not in procs]
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
@@ -235,20 +266,11 @@ def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> l
     except ImportError as e:
         raise ImportError(f"a Dask cluster needs the distributed package: pip install 'adaptfilt[cluster]' ({e})") from e
 
-    own = None
-    if isinstance(cluster, Client):
-        client = cluster
-    elif cluster == "local":  # a throw-away cluster of local worker processes, one job each at a time
-        # CRITICAL, not ERROR: on Ctrl-C the scheduler closes first and each worker logs its failed
-        # heartbeat as an ERROR traceback; a job's own error reaches us as an exception, not a log line
-        own = client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
-                              dashboard_address=None, silence_logs=logging.CRITICAL)
-        # its workers are this process's children: they ignore Ctrl-C and die with it, as the pool's do
-        client.run(_worker_init, os.getpid())
-    else:
-        own = client = Client(str(cluster))
+    started = _Started()  # the client started here, if any: filled by its own thread, closed below
     futs: list = []
+    stopping = False
     try:
+        client = cluster if isinstance(cluster, Client) else _start_client(Client, cluster, started)
         futs = [client.submit(_call, fn, a, pure=False) for a in jobs]
         index = {f.key: i for i, f in enumerate(futs)}
         out: list = [None] * len(jobs)
@@ -261,11 +283,121 @@ def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> l
             finished(i, out[i])
         return out
     except BaseException:
+        stopping = True
         # the cancelled tasks and stopped workers are expected now: no screenful of warnings about them
         logging.getLogger("distributed").setLevel(logging.ERROR)
-        if futs:  # a shared cluster must not go on with jobs nobody waits for
-            client.cancel(futs)
+        if futs and cluster != "local":  # a shared cluster must not go on with jobs nobody waits for
+            _in_thread(lambda: client.cancel(futs), _DASK_CANCEL, "adaptfilt-dask-cancel")
         raise
     finally:
-        if own is not None:
-            own.close()
+        started.close(stopping)
+
+
+def _in_thread(fn: Callable[[], Any], seconds: float | None, name: str, started: "_Started | None" = None) -> dict:
+    """Run ``fn()`` in a daemon thread and wait for it at most ``seconds`` (None: until it ends).
+
+    An interrupt raised in the main thread (the signal handlers raise at whatever bytecode runs) then
+    stops the waiting, never ``fn`` half-way: a Dask client's start-up or close torn apart can leave a
+    cluster half-started or a lock held, which hangs a later close or the interpreter's exit.
+    Returns ``{"value": ...}``, ``{"error": exception}``, or ``{}`` if ``fn`` had not ended."""
+    box: dict = {}
+    done = threading.Event()
+
+    def run() -> None:
+        try:
+            box["value"] = fn()
+        except BaseException as e:  # reported to the waiting thread
+            box["error"] = e
+        finally:
+            done.set()
+
+    thread = threading.Thread(target=run, daemon=True, name=name)
+    if started is not None:
+        started.thread = thread
+    thread.start()
+    if seconds is None:
+        while not done.wait(0.1):
+            pass
+    else:
+        done.wait(seconds)
+    return dict(box)
+
+
+class _Started:
+    """The Dask client :func:`_start_client` starts, handed over by the thread that starts it, so that it
+    is closed however the start-up ends: an interrupt while it starts, or before the caller has it.
+
+    One of two closes it: :meth:`close` (the caller's), which waits for a start-up still going on, or,
+    if that one has left (it gave up waiting, or found nothing started yet), the start thread itself."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.thread: threading.Thread | None = None  # the start thread, once created
+        self.client = None  # handed over, not yet closed
+        self.stop = threading.Event()  # set: nobody will use the client; the start thread must not go on
+        self.gone = False  # set: the closer has left; a client handed over now is closed by its start thread
+
+    def hand_over(self, client) -> bool:
+        """From the start thread: keep ``client``; False if it must be closed there (the closer has left)."""
+        with self.lock:
+            if self.gone:
+                return False
+            self.client = client
+            return True
+
+    def close(self, stopping: bool) -> None:
+        """Close the client started here, waiting for a start-up still going on, all within ``_DASK_CLOSE`` s."""
+        self.stop.set()
+        end = time.monotonic() + _DASK_CLOSE
+        while True:
+            with self.lock:
+                client, self.client = self.client, None
+                if client is not None or self.thread is None or not self.thread.is_alive() \
+                        or time.monotonic() >= end:
+                    self.gone = True
+                    break
+            time.sleep(0.05)
+        if client is not None:
+            _close_client(client, stopping, max(1.0, end - time.monotonic()))
+
+
+def _start_client(Client, cluster, started: _Started) -> Any:
+    """A client of the cluster at address ``cluster``, or of a local cluster (``"local"``) whose workers are
+    this process's children: they ignore Ctrl-C and die with it, as the pool's do.
+
+    Started in a thread of its own (:func:`_in_thread`), which hands the client to ``started`` as soon
+    as it exists, so that the caller closes it (:meth:`_Started.close`) even if an interrupt stops the
+    waiting here, or comes before the caller holds the client."""
+    parent = os.getpid()
+
+    def start() -> Any:
+        if cluster == "local":
+            # CRITICAL, not ERROR: on Ctrl-C the scheduler closes first and each worker logs its failed
+            # heartbeat as an ERROR traceback; a job's own error reaches us as an exception, not a log line
+            client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
+                            dashboard_address=None, silence_logs=logging.CRITICAL)
+        else:
+            client = Client(str(cluster))
+        if not started.hand_over(client):
+            _close_client(client, stopping=True)
+        elif cluster == "local" and not started.stop.is_set():
+            client.run(_worker_init, parent)
+        return client
+
+    box = _in_thread(start, None, "adaptfilt-dask-start", started)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+def _close_client(client, stopping: bool, seconds: float = _DASK_CLOSE) -> None:
+    """Close ``client`` (and the local cluster it started, if any) within about ``seconds``, in a thread of
+    its own (:func:`_in_thread`). When stopping, a close that fails or does not end in time is left to
+    the process's exit: distributed's own exit hook, which would try again for 10 s and print a traceback
+    after the command's last line, is told the cluster is not its to close (its workers are this
+    process's children and die with it)."""
+    box = _in_thread(lambda: client.close(timeout=seconds), seconds + 1.0, "adaptfilt-dask-close")
+    if stopping and "value" not in box:
+        cluster = getattr(client, "cluster", None)
+        if cluster is not None:
+            cluster.shutdown_on_close = False
