@@ -41,6 +41,21 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
+def in_group(pgid: int) -> set[int]:
+    """Every live process of process group ``pgid``: :func:`start` makes the command a group leader, and its
+    workers stay in its group even once orphaned (re-parented, so no longer its descendants)."""
+    found = set()
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                state, _, pgrp = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[:3]
+            except (OSError, ValueError):
+                continue
+            if int(pgrp) == pgid and state != "Z":
+                found.add(int(d))
+    return found
+
+
 def alive(pid: int) -> bool:
     try:  # a zombie has exited: it only waits for a parent to collect its status
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -81,7 +96,8 @@ def wait_for(what, timeout: float = 240.0, proc: subprocess.Popen | None = None,
 
 def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:
     """Send ``sig`` (to the process group, as Ctrl-C in a terminal does, or to the parent alone); return
-    the seconds to exit, the status, stderr and the workers still alive 3 s later."""
+    the seconds to exit, the status, stderr and the processes still alive 3 s later: the workers seen
+    when the signal was sent, and any other process of the command's group (one started after it)."""
     workers = descendants(proc.pid)
     t0 = time.monotonic()
     (os.killpg if group else os.kill)(proc.pid, sig)
@@ -92,9 +108,9 @@ def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:
         raise
     seconds = time.monotonic() - t0
     end = time.monotonic() + 3
-    while any(alive(p) for p in workers) and time.monotonic() < end:
+    while (any(alive(p) for p in workers) or in_group(proc.pid)) and time.monotonic() < end:
         time.sleep(0.05)
-    left = sorted(p for p in workers if alive(p))
+    left = sorted({p for p in workers if alive(p)} | in_group(proc.pid))
     for p in left:  # do not leave them to the rest of the suite
         os.kill(p, signal.SIGKILL)
     print(f"{signal.Signals(sig).name}: exit {proc.returncode} after {seconds:.2f} s; "
