@@ -27,6 +27,8 @@ from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
 from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
 from adaptfilt.policies import FixedPolicy, GreedyPolicy  # noqa: E402
 
+pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
+
 
 @pytest.fixture(autouse=True)
 def _close_figures():

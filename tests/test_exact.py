@@ -6,6 +6,8 @@ from scipy import stats
 
 import adaptfilt as af
 
+pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
+
 
 def joint_gaussian(F, H, Q, R, m0, P0, T):
     """Mean and covariance of (x_1..x_T, z_1..z_T) built from the noise vector."""

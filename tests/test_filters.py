@@ -9,6 +9,8 @@ from filterpy.kalman import JulierSigmaPoints, UnscentedKalmanFilter
 import adaptfilt as af
 from adaptfilt.linalg import wrap_angle
 
+pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
+
 
 # ------------------------------------------------------------------ helpers
 def random_linear(seed, nx, nz):

@@ -15,6 +15,8 @@ from adaptfilt.mdp import Cost, FilterEnv, rollout
 from adaptfilt.policies import GreedyPolicy
 from adaptfilt.toy import BanditEnv, TrapEnv
 
+pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
+
 
 def _decision(env, M=12, steps=3, seed=1):
     """A decision ``steps`` greedy steps into an episode of ``M`` runs."""

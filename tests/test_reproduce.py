@@ -18,6 +18,7 @@ from adaptfilt.experiments.reproduce import FAITHFUL, KINDS, SEEDS, reproduce, s
 DATA = artefacts.data_dir()
 
 
+@pytest.mark.crosscpu
 def test_data_manifest_files_exist_match_and_load():
     man = artefacts.manifest()
     files = {e["path"]: e for e in man["files"]}
@@ -159,6 +160,7 @@ def _digest_all(root) -> dict:
     return {str(p.relative_to(root)): sha256(p) for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.crosscpu
 def test_retraining_with_recorded_command_is_deterministic(tmp_path):
     """The recorded command of a stored fast-mode policy, at reduced scale, twice: byte-identical files."""
     from adaptfilt.cli import main
@@ -248,6 +250,7 @@ def test_agreement_pairs_the_verdicts_of_two_reproductions():
     assert md.count("**not confirmed (n.s.)** vs **confirmed**") == 1
 
 
+@pytest.mark.crosscpu
 def test_the_floor_runs_on_the_evaluations_trajectories():
     """ungm_floor(eval_runs=M) filters the first runs of the very trajectories evaluate() draws for M runs."""
     from adaptfilt import metrics
@@ -266,6 +269,7 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
     assert ungm_floor(12, 0, 8)["rmse"] != floor["rmse"]  # the first 12 of 10^4 runs are other runs
 
 
+@pytest.mark.crosscpu
 def test_stored_medium_check_matches_and_agrees_with_the_full_reproduction():
     """data/medium: the summary files of ``adaptfilt reproduce --out DIR --scale medium --retrain``. They match
     their manifest, the stored agreement is recomputed from its claims and today's full-scale claims, and
@@ -308,6 +312,7 @@ def test_archived_one_pass_verdicts_are_the_comparison_rows():
         artefacts.load_archive("onepass", "nothing")
 
 
+@pytest.mark.crosscpu
 def test_fast_vs_faithful_applies_the_margin_and_keeps_the_verdict_without_it():
     """Issue 25, item 4: "not worse" needs the interval below a margin fixed in advance (10 % of the faithful
     ANEES IQM). Recomputed from the stored evaluations: fast minus faithful on UNGM ANEES, +0.55 [-0.51, +2.89],
@@ -328,6 +333,7 @@ def test_fast_vs_faithful_applies_the_margin_and_keeps_the_verdict_without_it():
     assert anees["verdict_no_margin"] == "not worse" and anees["verdict"] == "not shown"
 
 
+@pytest.mark.crosscpu
 def test_the_reconciliations_sif_row_is_the_table1_default():
     """Issue 25, item 5: the CTM reconciliation's "SIF n_iter 10 (the Table I default)" row runs the experiments'
     SIF (two passes, integration-error term); built without the error term it had ANEES 2.7e4 against about 6."""
@@ -342,6 +348,7 @@ def test_the_reconciliations_sif_row_is_the_table1_default():
     assert 4 < stored["anees"] < 10 and stored["n_runs"] == 2000
 
 
+@pytest.mark.crosscpu
 def test_choices_are_made_on_selection_seeds_not_on_the_evaluation_runs():
     """Issue 25, item 3: the SIF study's safe action set and the fast mode's tuning are chosen on seeds that
     are neither the reproduction's training seeds nor its evaluation seed (the tuning once reused training

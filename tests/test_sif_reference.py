@@ -29,6 +29,8 @@ import adaptfilt as af  # noqa: E402
 from adaptfilt.linalg import wrap_angle  # noqa: E402
 from adaptfilt.rules.stochastic import StochasticIntegrationRule, _gram_schmidt, stochastic_rule_points  # noqa: E402
 
+pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
+
 
 # ------------------------------------------------------------- Stone Soup models
 class FnMeasurement(NonLinearGaussianMeasurement):
