@@ -41,12 +41,13 @@ the same bounds, a watchdog ending the process if anything hangs. The interrupt 
 at whatever bytecode the main thread is running, so nothing that must not be torn apart runs there:
 a Dask client (and its local cluster) is started and closed in a thread of its own, the main thread
 only waiting for it, and a cluster whose start-up was interrupted is still closed once it is up; the
-pool's workers are found among this process's children, so one that was being started when the
-interrupt came is stopped too (a worker left alive would hold up the interpreter's exit, which joins
-every child process).
+pool starts its workers with the interrupt held for those milliseconds (a spawn torn apart leaves a
+child that prints a traceback), and stops every child process started since it was created (a worker
+left alive would hold up the interpreter's exit, which joins every child process).
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -213,11 +214,13 @@ def _run_here(fn: Callable, jobs: list[tuple], finished: Callable) -> list:
 def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable) -> list:
     import multiprocessing as mp
 
-    before = set(mp.active_children())  # the pool's workers are the children started from now on
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
-                             initargs=(os.getpid(),))
+    ex, before = None, set()
     try:
-        futs = {ex.submit(fn, *a): i for i, a in enumerate(jobs)}
+        with _deferred_interrupts():  # the workers are started here, in submit: not torn apart
+            before = set(mp.active_children())  # the pool's workers are the children started from now on
+            ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                     initializer=_worker_init, initargs=(os.getpid(),))
+            futs = {ex.submit(fn, *a): i for i, a in enumerate(jobs)}
         out: list = [None] * len(jobs)
         for f in as_completed(futs):
             i = futs[f]
@@ -231,10 +234,46 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
             finished(i, out[i])
         return out
     except BaseException:
-        _stop_pool(ex, before)
+        if ex is not None:
+            _stop_pool(ex, before)
         raise
     finally:
-        ex.shutdown(wait=True)  # at once after _stop_pool; else every job has finished
+        if ex is not None:
+            ex.shutdown(wait=True)  # at once after _stop_pool; else every job has finished
+
+
+@contextlib.contextmanager
+def _deferred_interrupts():
+    """Hold Ctrl-C and SIGTERM during a short section that must not be torn apart, then let the signal act
+    as it would have, at the section's end (its handler called then; SIG_DFL: the signal raised again).
+
+    Starting a worker process is one: a spawn interrupted half-way leaves a child reading its start-up data
+    from a pipe the parent never wrote, which prints a traceback after the command's last line. Signal
+    handlers are the main thread's, so elsewhere this holds nothing (and needs not)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+
+    def hold(signum, frame) -> None:
+        held.append(signum)
+
+    previous: dict = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            handler = signal.getsignal(sig)
+            if handler is not None and handler is not signal.SIG_IGN:  # None: not set from Python
+                previous[sig] = signal.signal(sig, hold)
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if held:
+            handler = previous[held[0]]
+            if callable(handler):
+                handler(held[0], None)
+            else:
+                signal.raise_signal(held[0])
 
 
 def _stop_pool(ex: ProcessPoolExecutor, before: set = frozenset(), grace: float = _POOL_GRACE) -> None:
