@@ -43,7 +43,9 @@ a Dask client (and its local cluster) is started and closed in a thread of its o
 only waiting for it, and a cluster whose start-up was interrupted is still closed once it is up; the
 pool starts its workers with the interrupt held for those milliseconds (a spawn torn apart leaves a
 child that prints a traceback), and stops every child process started since it was created (a worker
-left alive would hold up the interpreter's exit, which joins every child process).
+left alive would hold up the interpreter's exit, which joins every child process). Workers of the pool
+and of a local cluster are started with SIGINT blocked, so a terminal's Ctrl-C, sent to them too, finds
+them deaf even before their initializer ignores it.
 """
 from __future__ import annotations
 
@@ -247,11 +249,17 @@ def _deferred_interrupts():
     """Hold Ctrl-C and SIGTERM during a short section that must not be torn apart, then let the signal act
     as it would have, at the section's end (its handler called then; SIG_DFL: the signal raised again).
 
-    Starting a worker process is one: a spawn interrupted half-way leaves a child reading its start-up data
-    from a pipe the parent never wrote, which prints a traceback after the command's last line. Signal
-    handlers are the main thread's, so elsewhere this holds nothing (and needs not)."""
+    Starting worker processes is one: a spawn interrupted half-way leaves a child reading its start-up data
+    from a pipe the parent never wrote, which prints a traceback after the command's last line. The
+    section also blocks SIGINT in this thread (:func:`_deaf_to_ctrl_c`), so that the workers it starts
+    ignore a terminal's Ctrl-C from birth. Signal handlers are the main thread's: elsewhere only the
+    blocking applies."""
+    mask = _deaf_to_ctrl_c()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        try:
+            yield
+        finally:
+            _restore_mask(mask)
         return
     held: list[int] = []
 
@@ -266,6 +274,7 @@ def _deferred_interrupts():
                 previous[sig] = signal.signal(sig, hold)
         yield
     finally:
+        _restore_mask(mask)  # a Ctrl-C held by the mask comes now, to ``hold`` or to the handler restored
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         if held:
@@ -274,6 +283,29 @@ def _deferred_interrupts():
                 handler(held[0], None)
             else:
                 signal.raise_signal(held[0])
+
+
+def _deaf_to_ctrl_c():
+    """Block SIGINT in the calling thread and return the previous mask (None where there are no masks).
+
+    A terminal sends Ctrl-C to the whole process group, workers included, and a worker that gets it while
+    it starts, before its initializer ignores it (:func:`_worker_init`), prints a KeyboardInterrupt
+    traceback. Threads started by this one and processes they spawn inherit the mask, so the workers are
+    deaf to it from birth; the main thread, which does not block it, still gets it and stops the run (as
+    the standard library's resource tracker is started)."""
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        return None
+    # started first: starting it unblocks SIGINT and SIGTERM in the thread that does (multiprocessing's
+    # own trick to start it deaf), which would be the thread starting the workers, from then on
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    return signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+def _restore_mask(mask) -> None:
+    if mask is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def _stop_pool(ex: ProcessPoolExecutor, before: set = frozenset(), grace: float = _POOL_GRACE) -> None:
@@ -410,6 +442,7 @@ def _start_client(Client, cluster, started: _Started) -> Any:
     parent = os.getpid()
 
     def start() -> Any:
+        _deaf_to_ctrl_c()  # this thread's, inherited by the client's threads and the workers they spawn
         if cluster == "local":
             # CRITICAL, not ERROR: on Ctrl-C the scheduler closes first and each worker logs its failed
             # heartbeat as an ERROR traceback; a job's own error reaches us as an exception, not a log line
