@@ -254,8 +254,8 @@ def _deferred_interrupts():
     section also blocks SIGINT in this thread (:func:`_deaf_to_ctrl_c`), so that the workers it starts
     ignore a terminal's Ctrl-C from birth. Signal handlers are the main thread's: elsewhere only the
     blocking applies."""
-    mask = _deaf_to_ctrl_c()
     if threading.current_thread() is not threading.main_thread():
+        mask = _deaf_to_ctrl_c()
         try:
             yield
         finally:
@@ -267,11 +267,13 @@ def _deferred_interrupts():
         held.append(signum)
 
     previous: dict = {}
+    mask = None
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):
             handler = signal.getsignal(sig)
             if handler is not None and handler is not signal.SIG_IGN:  # None: not set from Python
                 previous[sig] = signal.signal(sig, hold)
+        mask = _deaf_to_ctrl_c()  # held too: it may start the resource tracker, a process
         yield
     finally:
         _restore_mask(mask)  # a Ctrl-C held by the mask comes now, to ``hold`` or to the handler restored
