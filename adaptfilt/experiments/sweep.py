@@ -169,9 +169,12 @@ def run_jobs(fn: Callable, jobs: Sequence[tuple], workers: int | None = None, cl
 
     def finished(i: int, value: Any) -> None:
         nonlocal done
-        done += 1
-        if on_done is not None:
-            on_done(i, value)
+        # whole or not at all: an interrupt between a journal's line and its count would say "no job had
+        # finished" of a run whose journal keeps one (the next run would still reuse it)
+        with _deferred_interrupts(deaf=False):
+            done += 1
+            if on_done is not None:
+                on_done(i, value)
         if bar is not None:
             bar.update(1)
 
@@ -245,17 +248,17 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
 
 
 @contextlib.contextmanager
-def _deferred_interrupts():
+def _deferred_interrupts(deaf: bool = True):
     """Hold Ctrl-C and SIGTERM during a short section that must not be torn apart, then let the signal act
     as it would have, at the section's end (its handler called then; SIG_DFL: the signal raised again).
 
     Starting worker processes is one: a spawn interrupted half-way leaves a child reading its start-up data
-    from a pipe the parent never wrote, which prints a traceback after the command's last line. The
-    section also blocks SIGINT in this thread (:func:`_deaf_to_ctrl_c`), so that the workers it starts
-    ignore a terminal's Ctrl-C from birth. Signal handlers are the main thread's: elsewhere only the
-    blocking applies."""
+    from a pipe the parent never wrote, which prints a traceback after the command's last line; recording a
+    finished job (``on_done``) is another. ``deaf``: the section also blocks SIGINT in this thread
+    (:func:`_deaf_to_ctrl_c`), so that the workers it starts ignore a terminal's Ctrl-C from birth. Signal
+    handlers are the main thread's: elsewhere only the blocking applies."""
     if threading.current_thread() is not threading.main_thread():
-        mask = _deaf_to_ctrl_c()
+        mask = _deaf_to_ctrl_c() if deaf else None
         try:
             yield
         finally:
@@ -273,7 +276,8 @@ def _deferred_interrupts():
             handler = signal.getsignal(sig)
             if handler is not None and handler is not signal.SIG_IGN:  # None: not set from Python
                 previous[sig] = signal.signal(sig, hold)
-        mask = _deaf_to_ctrl_c()  # held too: it may start the resource tracker, a process
+        if deaf:
+            mask = _deaf_to_ctrl_c()  # held too: it may start the resource tracker, a process
         yield
     finally:
         _restore_mask(mask)  # a Ctrl-C held by the mask comes now, to ``hold`` or to the handler restored
