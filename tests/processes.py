@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -94,18 +95,48 @@ def wait_for(what, timeout: float = 240.0, proc: subprocess.Popen | None = None,
         time.sleep(poll)
 
 
+def _described(pids) -> list[str]:
+    out = []
+    for p in sorted(pids):
+        try:
+            state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            cmd = Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        out.append(f"{p} {state} {cmd[:120]}")
+    return out
+
+
 def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:
     """Send ``sig`` (to the process group, as Ctrl-C in a terminal does, or to the parent alone); return
-    the seconds to exit, the status, stderr and the processes still alive 3 s later: the workers seen
-    when the signal was sent, and any other process of the command's group (one started after it)."""
+    the seconds until the command exited and every process holding its stdout and stderr (its workers)
+    had closed them, the status, stderr and the processes still alive 3 s later: the workers seen when
+    the signal was sent, and any other process of the command's group (one started after it). When that
+    took over 2 s, it prints when the command itself exited and what else of its group was alive then."""
     workers = descendants(proc.pid)
+    seen: dict = {}
+
+    def watch() -> None:  # when the command itself exits (a zombie, not yet collected), and who is left
+        while "closed" not in seen:
+            if "exited" not in seen and not alive(proc.pid):
+                seen["others"] = _described(in_group(proc.pid) - {proc.pid})
+                seen["exited"] = time.monotonic() - t0
+            time.sleep(0.02)
+
     t0 = time.monotonic()
     (os.killpg if group else os.kill)(proc.pid, sig)
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
     try:
         _, err = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
+        print(f"not closed after 60 s; the command {'exited after %.2f s' % seen['exited'] if 'exited' in seen else 'runs'}"
+              f"; its group: {_described(in_group(proc.pid))}")
         os.killpg(proc.pid, signal.SIGKILL)
         raise
+    finally:
+        seen["closed"] = True
+        watcher.join()
     seconds = time.monotonic() - t0
     end = time.monotonic() + 3
     while (any(alive(p) for p in workers) or in_group(proc.pid)) and time.monotonic() < end:
@@ -115,6 +146,9 @@ def stop(proc: subprocess.Popen, sig: int, group: bool) -> dict:
         os.kill(p, signal.SIGKILL)
     print(f"{signal.Signals(sig).name}: exit {proc.returncode} after {seconds:.2f} s; "
           f"{len(workers)} worker processes before, {len(left)} left")
+    if seconds > 2:
+        print(f"  the command exited after {seen.get('exited', seconds):.2f} s; then alive in its group: "
+              f"{seen.get('others')}")
     return {"seconds": seconds, "rc": proc.returncode, "err": err, "workers": workers, "left": left}
 
 

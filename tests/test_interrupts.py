@@ -62,7 +62,9 @@ def test_workers_die_with_their_parent(tmp_path, sig, engine):
     where = ["--workers", "2"] if engine == "pool" else ["--cluster", "local"]
     proc = start(adaptfilt(*TRAIN, *where, "--out", str(tmp_path / "p.npz")), tmp_path)
     wait_for(lambda: len(descendants(proc.pid)) >= 3, proc=proc)  # two workers and the resource tracker
-    time.sleep(2 if engine == "pool" else 6)  # into the training (a local cluster starts its workers first)
+    # into the training; a local cluster's workers may still be in their initializer then (it imports torch,
+    # seconds on a loaded machine), another phase that must stop in time
+    time.sleep(2 if engine == "pool" else 6)
     seen = stop(proc, sig, group=False)
     assert seen["left"] == [] and len(seen["workers"]) >= 3
     if sig == signal.SIGTERM:  # a scheduler ending the job: stopped as Ctrl-C stops it
