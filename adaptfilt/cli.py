@@ -537,25 +537,60 @@ class _Stop:
     """A command's stop by signal. The first Ctrl-C or SIGTERM raises :class:`~adaptfilt.experiments.sweep.
     Interrupted` in the main thread (which stops the work as Ctrl-C does) and arms the watchdog; a second
     signal, or the watchdog at the bound, ends the process at once (``os._exit``), its output flushed and,
-    if the one line ``adaptfilt: interrupted: ...`` is not out yet, a line saying so."""
+    if the one line ``adaptfilt: interrupted: ...`` is not out yet, a line saying so.
+
+    The watchdog counts from the signal's arrival, which it reads from the interpreter's wakeup fd (written
+    by the C-level handler the moment the signal comes, whatever the main thread is doing), not from the
+    Python handler's run: that waits for the main thread, which may be held in a long call or hold the
+    signal on purpose for a few milliseconds or more (:func:`adaptfilt.experiments.sweep._deferred_interrupts`)."""
 
     def __init__(self, bound: float) -> None:
         self.bound = bound
-        self.signum: int | None = None  # the first signal's
+        self.signum: int | None = None  # the first signal's, once its Python handler ran
         self.deadline: float | None = None  # time.monotonic() at which the watchdog ends the process
         self.said = False  # the line is out
         self.done = False  # the command returned: the watchdog leaves
+        self.exiting = threading.Lock()  # taken by whoever ends the process
+        self.wakeup_r, self.wakeup_w = os.pipe()
+        os.set_blocking(self.wakeup_r, False)
+        os.set_blocking(self.wakeup_w, False)  # the interpreter requires it
+
+    def arm(self, arrived: float) -> None:
+        limit = arrived + self.bound - _WATCHDOG_MARGIN
+        if self.deadline is None or limit < self.deadline:
+            self.deadline = limit
 
     def watch(self) -> None:
         """The watchdog (a daemon thread, started with the command: a thread started from a signal handler
-        could wait forever on a lock the interrupted main thread holds). It polls: the handler takes no lock."""
-        while not self.done:
-            if self.deadline is not None and time.monotonic() >= self.deadline:
-                self.exit_now(self.signum, f"stopping took over {self.bound - _WATCHDOG_MARGIN:g} s, so it was "
-                                           "cut short", flush_in_thread=True)
-            time.sleep(0.1)
+        could wait forever on a lock the interrupted main thread holds). The handler takes no lock: it sets
+        the deadline too, in case the wakeup fd was taken over (only one per process)."""
+        import select
 
-    def exit_now(self, signum: int, why: str, flush_in_thread: bool) -> NoReturn:
+        arrived: list[int] = []
+        try:
+            while not self.done:
+                ready, _, _ = select.select([self.wakeup_r], [], [], 0.1)
+                now = time.monotonic()
+                if ready:
+                    with contextlib.suppress(OSError):
+                        arrived += [b for b in os.read(self.wakeup_r, 512) if b in (signal.SIGINT, signal.SIGTERM)]
+                    if arrived:
+                        self.arm(now)
+                    if len(arrived) >= 2:  # a second signal while stopping, even if the main thread is stuck
+                        self.exit_now(arrived[1], "a second signal cut the stop short", flush_in_thread=True)
+                if self.deadline is not None and now >= self.deadline:
+                    self.exit_now(self.signum or (arrived or [signal.SIGTERM])[0],
+                                  f"stopping took over {self.bound - _WATCHDOG_MARGIN:g} s, so it was cut short",
+                                  flush_in_thread=True)
+        finally:
+            for fd in (self.wakeup_r, self.wakeup_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+    def exit_now(self, signum: int, why: str, flush_in_thread: bool) -> None:
+        """End the process (returns only if another thread already does)."""
+        if not self.exiting.acquire(blocking=False):
+            return
         _flush(flush_in_thread)
         if not self.said:  # after a newline: a progress bar may be mid-line
             line = (f"\nadaptfilt: interrupted: {why}; every file written is whole (reproduce, beyond and "
@@ -608,23 +643,26 @@ def _stop_on_signals(bound: float, own_process: bool):
     def handle(signum, frame):
         if stop.signum is not None:  # a second signal while stopping: at once
             stop.exit_now(signum, "a second signal cut the stop short", flush_in_thread=False)
+            return
         stop.signum = signum
-        stop.deadline = time.monotonic() + bound - _WATCHDOG_MARGIN
+        stop.arm(time.monotonic())
         raise Interrupted(signum=signum)
 
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
         if signal.getsignal(sig) is not signal.SIG_IGN:
             previous[sig] = signal.signal(sig, handle)
+    previous_wakeup = signal.set_wakeup_fd(stop.wakeup_w, warn_on_full_buffer=False)
     threading.Thread(target=stop.watch, daemon=True, name="adaptfilt-stop-watchdog").start()
     _STOP = stop
     try:
         yield
     finally:
         if stop.signum is None or not own_process:
-            stop.done = True
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            signal.set_wakeup_fd(previous_wakeup)
+            stop.done = True  # the watchdog leaves (and closes the pipe) within 0.1 s
             _STOP = None
 
 

@@ -42,7 +42,7 @@ def test_ctrl_c_stops_train_seeds_and_the_same_command_resumes_to_identical_file
     wait_for(lambda: lines(journal) >= 1, proc=proc)
     seen = stop(proc, signal.SIGINT, group=True)
     line = one_line(seen["err"])
-    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS
+    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS, seen["err"][-3000:]
     assert len(seen["workers"]) >= 2 and seen["left"] == []
     kept = lines(journal)
     assert 1 <= kept < 4 and f"{kept} finished jobs are kept in {journal}" in line and "resume" in line
@@ -68,7 +68,8 @@ def test_workers_die_with_their_parent(tmp_path, sig, engine):
     seen = stop(proc, sig, group=False)
     assert seen["left"] == [] and len(seen["workers"]) >= 3
     if sig == signal.SIGTERM:  # a scheduler ending the job: stopped as Ctrl-C stops it
-        assert seen["rc"] == 143 and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK)
+        assert seen["rc"] == 143 and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK), \
+            seen["err"][-3000:]
         one_line(seen["err"])
     else:
         assert seen["rc"] == -signal.SIGKILL
@@ -91,7 +92,8 @@ def test_a_signal_while_the_workers_start(tmp_path, sig, engine):
     if sig == signal.SIGINT:  # into the workers' own start-up (imports), when Python turns it into a traceback
         time.sleep(0.5)
     seen = stop(proc, sig, group=sig == signal.SIGINT)
-    assert seen["rc"] == 128 + sig and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK)
+    assert seen["rc"] == 128 + sig and seen["seconds"] < (STOP_SECONDS if engine == "pool" else STOP_SECONDS_DASK), \
+        seen["err"][-3000:]
     assert seen["left"] == []
     assert one_line(seen["err"]) == "adaptfilt: interrupted: no job had finished: nothing to resume"
     assert lines(tmp_path / "p.journal.jsonl") == 0
@@ -103,7 +105,7 @@ def test_ctrl_c_stops_a_local_dask_cluster(tmp_path):
     proc = start(adaptfilt(*TRAIN, "--cluster", "local", "--out", str(tmp_path / "p.npz")), tmp_path)
     wait_for(lambda: lines(journal) >= 1, proc=proc)
     seen = stop(proc, signal.SIGINT, group=True)
-    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS_DASK and seen["left"] == []
+    assert seen["rc"] == 130 and seen["seconds"] < STOP_SECONDS_DASK and seen["left"] == [], seen["err"][-3000:]
     assert len(seen["workers"]) >= 2
     assert "finished jobs are kept" in one_line(seen["err"])
 
@@ -131,11 +133,13 @@ def test_ctrl_c_on_one_training_names_its_checkpoint(tmp_path):
     read_npz(ckpt)  # whole
 
 
-#: A command stopped by SIGTERM whose stop then hangs (as a Dask close or an exit hook can): in ``where``,
-#: before the line ``adaptfilt: interrupted`` (``stop``) or after it (``exit``, in an exit hook).
+#: A command stopped by SIGTERM whose stop then hangs (as a Dask close or an exit hook can): before the line
+#: ``adaptfilt: interrupted`` (``stop``), after it (``exit``, in an exit hook), or with the signal held by the
+#: main thread (``held``: its Python handler never runs; the watchdog counts from the signal's arrival).
 HANGS = """
     import atexit, os, sys, time
     from adaptfilt import cli
+    from adaptfilt.experiments.sweep import _deferred_interrupts
 
     def hang():
         print("hanging", flush=True)
@@ -143,6 +147,10 @@ HANGS = """
 
     try:
         with cli._stop_on_signals(BOUND, own_process=True):
+            if WHERE == "held":
+                with _deferred_interrupts(deaf=False):
+                    print("ready", flush=True)
+                    time.sleep(120)
             print("ready", flush=True)
             time.sleep(120)
     except KeyboardInterrupt as e:
@@ -160,7 +168,7 @@ def _hanging(tmp_path, where: str, bound: float):
     return proc
 
 
-@pytest.mark.parametrize("where", ["stop", "exit"])
+@pytest.mark.parametrize("where", ["stop", "exit", "held"])
 def test_a_stop_that_hangs_ends_within_the_bound(tmp_path, where):
     """The watchdog: whatever hangs after the signal, the process ends 2 s before the bound, with the
     signal's status and one line (its own, saying the stop was cut short, if the command's is not out)."""
@@ -169,7 +177,7 @@ def test_a_stop_that_hangs_ends_within_the_bound(tmp_path, where):
     seen = stop(proc, signal.SIGTERM, group=False)
     assert seen["rc"] == 143 and bound - 2.5 < seen["seconds"] < bound
     line = one_line(seen["err"])
-    if where == "stop":
+    if where in ("stop", "held"):
         assert line.startswith("adaptfilt: interrupted: stopping took over 2 s, so it was cut short; ")
     else:
         assert line == "adaptfilt: interrupted: nothing was written"

@@ -43,7 +43,8 @@ a Dask client (and its local cluster) is started and closed in a thread of its o
 only waiting for it, and a cluster whose start-up was interrupted is still closed once it is up; the
 pool starts its workers with the interrupt held for those milliseconds (a spawn torn apart leaves a
 child that prints a traceback), and stops every child process started since it was created (a worker
-left alive would hold up the interpreter's exit, which joins every child process). Workers of the pool
+left alive would hold up the interpreter's exit, which joins every child process), waiting for them and
+for its own shutdown a few seconds at most. Workers of the pool
 and of a local cluster are started with SIGINT blocked, so a terminal's Ctrl-C, sent to them too, finds
 them deaf even before their initializer ignores it.
 """
@@ -241,10 +242,14 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
     except BaseException:
         if ex is not None:
             _stop_pool(ex, before)
+            # its manager thread ends once it sees the workers gone; not waited for beyond the bound (a worker
+            # in uninterruptible sleep dies late; the interpreter's exit joins the thread again)
+            _in_thread(lambda: ex.shutdown(wait=True), _POOL_GRACE, "adaptfilt-pool-shutdown")
+            ex = None
         raise
     finally:
         if ex is not None:
-            ex.shutdown(wait=True)  # at once after _stop_pool; else every job has finished
+            ex.shutdown(wait=True)  # every job has finished
 
 
 @contextlib.contextmanager
@@ -332,9 +337,12 @@ def _stop_pool(ex: ProcessPoolExecutor, before: set = frozenset(), grace: float 
     deadline = time.monotonic() + grace
     for p in procs:
         p.join(max(0.0, deadline - time.monotonic()))
+    deadline = time.monotonic() + 1.0  # one second for all, however many workers
+    for p in procs:
         if p.is_alive():
             p.kill()
-            p.join(1.0)
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
 
 
 def _run_dask(fn: Callable, jobs: list[tuple], cluster, finished: Callable) -> list:
