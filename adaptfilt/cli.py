@@ -541,8 +541,13 @@ class _Stop:
 
     The watchdog counts from the signal's arrival, which it reads from the interpreter's wakeup fd (written
     by the C-level handler the moment the signal comes, whatever the main thread is doing), not from the
-    Python handler's run: that waits for the main thread, which may be held in a long call or hold the
-    signal on purpose for a few milliseconds or more (:func:`adaptfilt.experiments.sweep._deferred_interrupts`)."""
+    Python handler's run, which waits for the main thread. That wait can be long: the kernel may deliver the
+    signal to another thread (any thread that does not block it), and a main thread blocked in a lock's
+    acquire (``concurrent.futures.as_completed`` waiting for a job) is then not woken: the handler would run
+    when the next job ends, minutes later. So the watchdog pokes the main thread (``pthread_kill`` with
+    :data:`_POKE`, whose handler does nothing: the interrupted call runs the pending handlers) until the
+    handler has run. The main thread may also hold the signal on purpose for a moment
+    (:func:`adaptfilt.experiments.sweep._deferred_interrupts`)."""
 
     def __init__(self, bound: float) -> None:
         self.bound = bound
@@ -567,6 +572,7 @@ class _Stop:
         import select
 
         arrived: list[int] = []
+        poked = -1.0
         try:
             while not self.done:
                 ready, _, _ = select.select([self.wakeup_r], [], [], 0.1)
@@ -578,6 +584,10 @@ class _Stop:
                         self.arm(now)
                     if len(arrived) >= 2:  # a second signal while stopping, even if the main thread is stuck
                         self.exit_now(arrived[1], "a second signal cut the stop short", flush_in_thread=True)
+                if arrived and self.signum is None and now >= poked + 0.2 and _POKE is not None:
+                    with contextlib.suppress(OSError, ValueError):  # its handler has not run: wake the main thread
+                        signal.pthread_kill(threading.main_thread().ident, _POKE)
+                    poked = now
                 if self.deadline is not None and now >= self.deadline:
                     self.exit_now(self.signum or (arrived or [signal.SIGTERM])[0],
                                   f"stopping took over {self.bound - _WATCHDOG_MARGIN:g} s, so it was cut short",
@@ -618,6 +628,15 @@ def _flush(in_thread: bool) -> None:
     t.join(1.0)
 
 
+#: The signal the watchdog sends the main thread to wake it (:class:`_Stop`): one nobody uses here (out-of-band
+#: socket data), ignored by default, so that only the handler below makes it interrupt a blocked call.
+_POKE = getattr(signal, "SIGURG", None) if hasattr(signal, "pthread_kill") else None
+
+
+def _poked(signum, frame) -> None:
+    """The poke's handler: nothing; the call it interrupted runs the pending handlers (SIGINT's, SIGTERM's)."""
+
+
 #: The stop in force (set by :func:`_stop_on_signals`), for :func:`_interrupted` to mark its line said.
 _STOP: _Stop | None = None
 
@@ -652,6 +671,8 @@ def _stop_on_signals(bound: float, own_process: bool):
     for sig in (signal.SIGINT, signal.SIGTERM):
         if signal.getsignal(sig) is not signal.SIG_IGN:
             previous[sig] = signal.signal(sig, handle)
+    if _POKE is not None:
+        previous[_POKE] = signal.signal(_POKE, _poked)
     previous_wakeup = signal.set_wakeup_fd(stop.wakeup_w, warn_on_full_buffer=False)
     threading.Thread(target=stop.watch, daemon=True, name="adaptfilt-stop-watchdog").start()
     _STOP = stop

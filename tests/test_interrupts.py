@@ -190,3 +190,33 @@ def test_a_second_signal_ends_the_stop_at_once(tmp_path):
     seen = stop(proc, signal.SIGINT, group=True)
     assert seen["rc"] == 130 and seen["seconds"] < 2
     assert one_line(seen["err"]).startswith("adaptfilt: interrupted: a second signal cut the stop short; ")
+
+
+#: A command whose main thread waits on a lock with no timeout (as ``as_completed`` waits for a job) while the
+#: kernel gives SIGTERM to another thread (here it must: the main thread blocks SIGTERM).
+ASLEEP = """
+    import signal, threading, time
+    from adaptfilt import cli
+
+    threading.Thread(target=time.sleep, args=(120,), daemon=True).start()  # a thread that takes SIGTERM
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    lock = threading.Lock()
+    lock.acquire()
+    try:
+        with cli._stop_on_signals(60.0, own_process=True):
+            print("ready", flush=True)
+            lock.acquire()
+    except KeyboardInterrupt as e:
+        cli._interrupted(e)
+"""
+
+
+def test_a_signal_another_thread_takes_still_stops_the_main_thread(tmp_path):
+    """The handler of a signal the kernel delivered to another thread runs only when the main thread runs
+    Python code, and a lock's acquire is not woken: the watchdog pokes the main thread (SIGURG) until it
+    has run. Without that the stop would wait for the watchdog's bound (58 s here)."""
+    proc = start([sys.executable, "-c", textwrap.dedent(ASLEEP)], tmp_path)
+    wait_for(lambda: proc.stdout.readline() == "ready\n", proc=proc)
+    seen = stop(proc, signal.SIGTERM, group=False)
+    assert seen["rc"] == 143 and seen["seconds"] < 2, seen["err"][-3000:]
+    assert one_line(seen["err"]) == "adaptfilt: interrupted: nothing was written"

@@ -57,7 +57,7 @@ import signal
 import sys
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Sequence
 
@@ -228,7 +228,7 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
                                      initializer=_worker_init, initargs=(os.getpid(),))
             futs = {ex.submit(fn, *a): i for i, a in enumerate(jobs)}
         out: list = [None] * len(jobs)
-        for f in as_completed(futs):
+        for f in _as_completed(futs):
             i = futs[f]
             try:
                 out[i] = f.result()
@@ -250,6 +250,16 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
     finally:
         if ex is not None:
             ex.shutdown(wait=True)  # every job has finished
+
+
+def _as_completed(futs: dict):
+    """``concurrent.futures.as_completed``, waking every half second: a signal handler runs in the main thread
+    only when it runs Python code, and a signal the kernel gives another thread does not wake a main thread
+    blocked in a lock's acquire, which ``as_completed`` is until the next job ends (minutes, maybe)."""
+    pending = set(futs)
+    while pending:
+        done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+        yield from sorted(done, key=futs.__getitem__)
 
 
 @contextlib.contextmanager
