@@ -322,7 +322,8 @@ def _wrong_contexts(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         "reproduce --cluster": (["reproduce", OUT, out, "--quick", "--retrain", "--no-progress", "--cluster", "nonsense"],
                                 "missing port number in address 'nonsense'"),
         "beyond --cluster": (["beyond", OUT, out, "--quick", "--studies", "cand", "--no-progress", "--cluster",
-                              "tcp://127.0.0.1:1"], "Timed out trying to connect"),
+                              "tcp://127.0.0.1:1"],  # distributed's timeout, or its IO loop failing to start
+                             ("Timed out trying to connect", "could not connect to the Dask scheduler at tcp://127.0.0.1:1")),
         "book": (["book", OUT, str(full)], "is a non-empty directory that is not a built book"),
     }
 
@@ -335,7 +336,7 @@ def test_every_subcommand_in_a_wrong_context_is_one_line(capsys, tmp_path):
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
         for name, (args, expect) in _wrong_contexts(tmp_path).items():
             line = cli_error(capsys, args)
-            assert expect in line, (name, line)
+            assert any(e in line for e in (expect if isinstance(expect, tuple) else (expect,))), (name, line)
     assert (tmp_path / "not-a-book" / "notes.txt").read_text() == "mine"
 
 

@@ -473,7 +473,12 @@ def _start_client(Client, cluster, started: _Started) -> Any:
             client = Client(processes=True, n_workers=default_workers(), threads_per_worker=1,
                             dashboard_address=None, silence_logs=logging.CRITICAL)
         else:
-            client = Client(str(cluster))
+            try:
+                client = Client(str(cluster))
+            except (OSError, ValueError):  # distributed's own word: a timeout, a malformed address
+                raise
+            except Exception as e:  # its IO loop failed to start (an AssertionError inside distributed)
+                raise ConnectionError(f"could not connect to the Dask scheduler at {cluster}: {e!r}") from e
         if not started.hand_over(client):
             _close_client(client, stopping=True)
         elif cluster == "local" and not started.stop.is_set():
