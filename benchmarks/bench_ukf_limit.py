@@ -1,0 +1,199 @@
+"""The library's UKF against a minimal hand-fused numpy UKF of the same model (issue 35, item 2).
+
+Run with ``python benchmarks/bench_ukf_limit.py`` (``--quick`` for a smoke run,
+``--repeat N`` for the best of N, default 5). It prints the machine (CPU model,
+cores, load), then:
+
+* the check: the library's ``af.UKF(ungm, kappa).run(z)`` and :func:`kernel`
+  below, on the same simulated UNGM measurements (M = 10^4 runs, T = 500
+  steps), give the same means, variances, NIS and log-likelihoods (max
+  relative difference printed; the means must agree to ``1e-8``: UNGM amplifies
+  round-off over 500 steps, the two differ only in the order of their sums);
+* the times: best of N of each, CPU time and wall, the two interleaved so that
+  both see the same load, the run-steps per second and the ratio
+  library / kernel, against the target ``<= 1.5``;
+* the breakdown: a cProfile of one library run, its time grouped by what it is
+  spent on (the model's f and h, which the kernel spends too; the moment
+  sums; the small matrix calls; the Cholesky factors and checks; Python per
+  step), and the number of Python-level calls per step.
+
+The kernel is the UKF of the scalar model written out: sigma points
+``m, m +- sqrt(1 + kappa) sqrt(P)``, weights ``kappa / (1 + kappa)`` and
+``1 / (2 (1 + kappa))``, deviations about the centre point as in the library,
+UNGM's f, h, Q, R hard-coded, every run at once. It returns what the
+library's run returns (mean, variance, NIS, log-likelihood per run and step).
+
+Where the remaining factor goes (measured on a shared 2-core Intel Xeon,
+numpy 2): the general form handles ``(n, n, M)`` arrays through small
+matrix calls (einsum for the weighted sums, the gain and ``K Pzz K^T``)
+where the kernel multiplies vectors; it keeps the model's ``(..., n)`` layout
+(two transposes per model call); it symmetrises every covariance and factors
+``P_pred``, ``Pzz`` and ``P_filt`` (the kernel takes one square root per
+step and checks nothing); it checks the parameter, the finiteness of every
+mean and the definiteness of every covariance, and it pays Python call
+overhead per step (about 100 calls, against the kernel's 25) that does not
+shrink with M.
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import platform
+import pstats
+import re
+import time
+
+import numpy as np
+
+import adaptfilt as af
+
+TARGET = 1.5
+
+
+def kernel(z: np.ndarray, kappa: float) -> np.ndarray:
+    """UKF of UNGM over the runs of ``z (M, T)``: ``(4, T, M)`` mean, variance, NIS, log-likelihood."""
+    M, T = z.shape
+    s, w = np.sqrt(1.0 + kappa), 0.5 / (1.0 + kappa)
+    zt = np.ascontiguousarray(z.T)
+    out = np.empty((4, T, M))
+    m, P = np.zeros(M), np.full(M, 5.0)
+    for t in range(T):
+        if t:  # predict with f(x, k = t), Q = 1
+            c = 8.0 * np.cos(0.05 * t)
+            f = lambda x: 0.5 * x + 25.0 * x / (1.0 + x * x) + c  # noqa: E731
+            a = s * np.sqrt(P)
+            f0 = f(m)
+            dp, dm = f(m + a) - f0, f(m - a) - f0
+            e = w * (dp + dm)
+            m, P = f0 + e, w * (dp * dp + dm * dm) - e * e + 1.0
+        a = s * np.sqrt(P)  # update with h(x) = x^2 / 20, R = 0.1
+        h0 = m * m / 20.0
+        dp, dm = (m + a) ** 2 / 20.0 - h0, (m - a) ** 2 / 20.0 - h0
+        e = w * (dp + dm)
+        Pzz = w * (dp * dp + dm * dm) - e * e + 0.1
+        K = w * a * (dp - dm) / Pzz
+        v = zt[t] - (h0 + e)
+        m, P = m + K * v, P - K * K * Pzz
+        nis = v * v / Pzz
+        out[:, t] = m, P, nis, -0.5 * (nis + np.log(Pzz) + np.log(2.0 * np.pi))
+    return out
+
+
+def library(ukf: af.UKF, z: np.ndarray) -> af.FilterRun:
+    return ukf.run(z)
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def rel_diff(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+def timed(fn) -> tuple[float, float]:
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+#: where a profiled function's own time goes; the first matching (file, name) entry wins
+CATEGORIES = (
+    ("model f, h (the kernel's work too)", lambda f, n: f.endswith("models.py") and n in ("f", "h")),
+    ("small matrix calls (einsum)", lambda f, n: "einsum" in n or n in ("mm", "mv")),
+    ("Cholesky, solves, log det", lambda f, n: f.endswith("linalg.py") and n in ("chol", "solve_spd", "logdet_chol",
+                                                                                  "_forward", "_backward")),
+    ("symmetrising", lambda f, n: n == "sym"),
+    ("axis moves (_wrap, moveaxis)", lambda f, n: n in ("moveaxis", "normalize_axis_tuple", "<lambda>", "transpose",
+                                                        "swapaxes", "_wrap") or "axis" in n),
+    ("reductions (sum, any, all)", lambda f, n: n in ("reduce", "_sum", "_any", "_all", "sum", "any", "all")),
+    ("allocation and copies", lambda f, n: n in ("zeros", "zeros_like", "empty", "empty_like", "copy", "concatenate",
+                                                  "ascontiguousarray", "copyto", "repeat", "full")),
+    ("parameter and finiteness checks", lambda f, n: n in ("check_param", "_check_tile", "isfinite", "ndim")),
+    ("moment rule arithmetic (rules/)", lambda f, n: "rules" in f),
+    ("filter arithmetic (gaf.py)", lambda f, n: f.endswith("gaf.py")),
+)
+
+
+def breakdown(ukf: af.UKF, z: np.ndarray, top: int) -> None:
+    """cProfile one library run; print its own time per category and the busiest functions."""
+    pr = cProfile.Profile()
+    pr.enable()
+    ukf.run(z)
+    pr.disable()
+    st = pstats.Stats(pr)
+    total = st.total_tt
+    T = z.shape[1]
+    n_calls = sum(v[1] for v in st.stats.values())
+    cats: dict[str, float] = {}
+    rows = []
+    for (file, _, name), (_, nc, tt, _, _) in st.stats.items():
+        builtin = re.match(r"<(?:built-in method |method ')([\w.]+)", name)  # numpy's C functions and methods
+        name = builtin.group(1).split(".")[-1] if builtin else name
+        cat = next((c for c, match in CATEGORIES if match(file, name)), "other Python and numpy")
+        cats[cat] = cats.get(cat, 0.0) + tt
+        rows.append((tt, nc, f"{os.path.basename(file)}:{name}" if file != "~" else f"numpy/builtin {name}"))
+    print(f"\nbreakdown of one library run under cProfile ({total:.2f} s profiled; the profiler inflates "
+          f"Python calls): {n_calls / T:.0f} Python-level calls per step")
+    for cat, tt in sorted(cats.items(), key=lambda kv: -kv[1]):
+        print(f"  {cat:<40} {tt:6.3f} s  {100 * tt / total:5.1f} %")
+    print(f"  busiest {top} functions (own time):")
+    for tt, nc, label in sorted(rows, reverse=True)[:top]:
+        print(f"    {label:<48} {nc:6d} calls  {tt:6.3f} s  {100 * tt / total:5.1f} %")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=10_000, help="Monte-Carlo runs M (default 10^4)")
+    ap.add_argument("--steps", type=int, default=500, help="steps T (default 500)")
+    ap.add_argument("--kappa", type=float, default=2.0, help="the UKF's fixed kappa (default 2)")
+    ap.add_argument("--repeat", type=int, default=5, help="timed repetitions; the best counts (default 5)")
+    ap.add_argument("--top", type=int, default=12, help="functions listed in the breakdown (default 12)")
+    ap.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
+    args = ap.parse_args(argv)
+    M, T, rep = args.runs, args.steps, args.repeat
+    if args.quick:
+        M, T, rep = 1000, 100, 2
+
+    print(f"adaptfilt {af.__version__}, numpy {np.__version__}, python {platform.python_version()}")
+    print(f"CPU: {cpu_model()}, {os.cpu_count()} CPUs"
+          + (f", load average {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""))
+    model = af.models.ungm()
+    z = model.simulate(n_runs=M, n_steps=T, rng=np.random.default_rng(0)).z
+    ukf = af.UKF(model, kappa=args.kappa)
+    print(f"UNGM, M = {M} runs, T = {T} steps, kappa = {args.kappa:g}, best of {rep}")
+
+    run, out = library(ukf, z), kernel(z[:, :, 0], args.kappa)  # also the cold runs
+    diffs = {"mean": rel_diff(out[0].T, run.mean[:, :, 0]), "variance": rel_diff(out[1].T, run.cov[:, :, 0, 0]),
+             "NIS": rel_diff(out[2].T, run.nis), "log-lik": rel_diff(out[3].T, run.loglik)}
+    print("same results, max relative difference: " + ", ".join(f"{k} {v:.1e}" for k, v in diffs.items()))
+    assert diffs["mean"] <= 1e-8, f"the kernel and the library disagree: {diffs}"
+
+    best = {"library": (np.inf, np.inf), "kernel": (np.inf, np.inf)}
+    for _ in range(rep):  # interleaved: both see the same load
+        for name, fn in (("library", lambda: library(ukf, z)), ("kernel", lambda: kernel(z[:, :, 0], args.kappa))):
+            wall, cpu = timed(fn)
+            best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
+    print(f"\n{'':8} {'wall s':>8} {'cpu s':>8} {'steps/s (cpu)':>15}")
+    for name, (wall, cpu) in best.items():
+        print(f"{name:8} {wall:8.3f} {cpu:8.3f} {M * T / cpu:15,.0f}")
+    r_cpu = best["library"][1] / best["kernel"][1]
+    r_wall = best["library"][0] / best["kernel"][0]
+    print(f"ratio library / kernel: {r_cpu:.2f} (cpu), {r_wall:.2f} (wall); target <= {TARGET}: "
+          + ("met" if r_cpu <= TARGET else "NOT met"))
+
+    breakdown(ukf, z, args.top)
+    if hasattr(os, "getloadavg"):
+        print(f"\nload average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+
+
+if __name__ == "__main__":
+    main()
