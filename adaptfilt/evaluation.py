@@ -51,11 +51,47 @@ Memory: a policy's full filtering covariances are reduced to per-run,
 per-step squared errors and NEES right after its rollout and dropped; only
 ``(T,)``, ``(M,)`` and bootstrap ``(n_boot,)`` summaries are kept.
 
+**Streaming** (``chunk_size``, default :data:`CHUNK_SIZE` = 10^4 runs). Up to
+``chunk_size`` runs, the evaluation is the one-pass evaluation: its files are
+byte for byte those it always wrote (every result in ``data/`` has at most 10^4
+runs). Beyond, memory is bounded in ``M``: each policy is rolled out one chunk
+of runs at a time and only sums over runs, per-run values (``run_*``) and counts
+are kept (about 60 KB per run of a chunk, 24 bytes per run and policy kept; UNGM:
+~0.5 GB at any ``M``, plus the ``run_*`` arrays: ~0.7 GB for the 29 baselines
+at 10^6). What goes to disk, in a temporary folder, instead of memory: the
+trajectories (written as simulated, ``8 (nx + nz) M T`` bytes), the bootstrap
+counts (one byte per count, ``n_boot M``) and one policy's one-step costs
+(``8 M T`` per cost, for their exact quantiles). The decision on draws:
+
+* the trajectories are the same runs as the one-pass evaluation's for every
+  ``M`` (the same draws of :meth:`StateSpaceModel.simulate` in the same order,
+  step by step for all runs, written to disk: one pass, ``O(M)`` memory), and so
+  are the bootstrap counts (the same multinomial draws, one resample at a time);
+* a deterministic rule (UKF, CKF, GH, ...) and deterministic policies therefore
+  give every run exactly the one-pass values (a run's filter does not depend on
+  the other runs of its batch): ``run_rmse``, ``run_anees``, ``run_cost``, their
+  medians, ``usage``, ``choices``, ``n_repairs``, ``divergent_frac``,
+  ``cost_max`` and the exact quantiles ``cost_median``/``q99``/``q999`` are
+  byte-identical; means over runs (``rmse``, ``anees_t``, ``cost``, ...) and the
+  bootstrap replicates are sums over chunks, equal up to the order of the
+  additions (relative differences ~1e-15; the ANEES band, a streamed variance,
+  ~1e-12);
+* random numbers drawn per step for all runs of a batch cannot be split by runs
+  without drawing all of them in every chunk: a stochastic rule (SIF) draws each
+  chunk's from its own stream (``_CHUNK_STREAM + c``, the same for every
+  policy, so the comparison stays paired), particle filters key their runs by
+  that stream, and a :class:`~adaptfilt.policies.RandomPolicy` goes on with its
+  generator. Their streamed results are other draws of the same evaluation, not
+  the one-pass numbers. The config of a streamed result records ``chunk_size``.
+
 What ``adaptfilt evaluate`` runs (files, tables, figures) is
 :func:`adaptfilt.experiments.evaluate.evaluate_experiment`, in the pipeline.
 """
 from __future__ import annotations
 
+import contextlib
+import numbers
+import tempfile
 import time
 from pathlib import Path
 from typing import Iterable, Literal, Sequence
@@ -77,6 +113,13 @@ __all__ = ["PolicyResult", "Results", "evaluate", "learned_name", "learned_names
 TRAJ_SEED_KEY = 0xE7A1
 #: Quantiles of the one-step cost that are reported besides its mean.
 COST_QUANTILES = (0.5, 0.99, 0.999)
+
+#: Runs filtered at a time by default: an evaluation of at most this many runs (every result in ``data/``)
+#: is the one-pass evaluation, byte for byte; one of more runs is streamed (module docstring, "Streaming").
+CHUNK_SIZE = 10_000
+#: Chunk ``c`` of a streamed evaluation keys a stochastic rule's random numbers with the stream
+#: ``_CHUNK_STREAM + c`` (a training episode's stream is its index, far below).
+_CHUNK_STREAM = 2**30
 
 #: A run has diverged when its time-averaged NEES exceeds this many times nx (:func:`metrics.divergent`).
 DIVERGED_NEES = metrics.DIVERGED_NEES
@@ -178,6 +221,7 @@ def evaluate(
     command: str | None = None,
     *,
     n_steps: int | None = None,
+    chunk_size: int = CHUNK_SIZE,
 ) -> Results:
     """Evaluate ``policies`` on the same ``n_runs`` simulated trajectories.
 
@@ -202,14 +246,19 @@ def evaluate(
     n_steps : int, optional
         A horizon other than the experiment's (``Experiment.make_env``); not
         with an environment, whose horizon is its own.
+    chunk_size : int
+        Runs filtered at a time (default :data:`CHUNK_SIZE`). Up to this many
+        runs the evaluation is the one-pass evaluation, bit for bit; beyond, it
+        streams the runs in chunks in bounded memory (see "Streaming" in the
+        module docstring for what is the same and what is not).
 
     Returns
     -------
     Results
     """
-    env, policies, traj, counts, config = _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command,
-                                                 n_steps)
-    return _evaluate([(env.cost, config)], env, policies, traj, counts, level, progress)[0]
+    with _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
+               chunk_size) as (env, policies, traj, counts, config):
+        return _evaluate([(env.cost, config)], env, policies, traj, counts, level, progress)[0]
 
 
 def evaluate_costs(
@@ -223,6 +272,7 @@ def evaluate_costs(
     command: str | None = None,
     *,
     n_steps: int | None = None,
+    chunk_size: int = CHUNK_SIZE,
 ) -> dict[str, Results]:
     """:func:`evaluate` on several experiments that differ in their cost only, each policy rolled out once.
 
@@ -238,7 +288,8 @@ def evaluate_costs(
     experiments differ in anything but their cost (model, filter, grid,
     horizon), naming it, or when a policy may choose by the cost (greedy,
     or a learned policy with candidate-cost features): those differ
-    between the experiments and are evaluated per experiment.
+    between the experiments and are evaluated per experiment. ``chunk_size``
+    as in :func:`evaluate`.
 
     Example
     -------
@@ -252,7 +303,17 @@ def evaluate_costs(
     """
     if isinstance(experiments, str) or len(experiments) == 0:
         raise ValueError(f"give a non-empty sequence of experiments, got {experiments!r}")
-    setups = [_setup(e, policies, n_runs, seed, n_boot, None, level, command, n_steps) for e in experiments]
+    with contextlib.ExitStack() as stack:
+        # the first experiment's runs are simulated (and, streamed, written to disk); the others' are the same
+        # runs by construction (same truth, seed and horizon: checked below), so only their configs are needed
+        setups = [stack.enter_context(_runs(experiments[0], policies, n_runs, seed, n_boot, None, level, command,
+                                            n_steps, chunk_size))]
+        setups += [_setup(e, policies, n_runs, seed, n_boot, None, level, command, n_steps, chunk_size, simulate=False)
+                   for e in experiments[1:]]
+        return _evaluate_costs(setups, level, progress)
+
+
+def _evaluate_costs(setups: list, level: float, progress) -> dict[str, Results]:
     env, pols, traj, counts, first = setups[0]
     names = [c["experiment"] for *_, c in setups]
     if len(set(names)) < len(names):
@@ -286,8 +347,14 @@ def _cost_blind(pol) -> bool:
     return fs is not None and not fs.candidates
 
 
-def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None):
-    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation."""
+def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None,
+           chunk_size: int | None = None, simulate: bool = True, store_dir: Path | None = None):
+    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation.
+
+    ``chunk_size`` None or at least the number of runs: the trajectories and the counts ``(n_boot, M)``
+    in memory, as always. More runs than ``chunk_size``: a :class:`_RunStore` in ``store_dir`` in place of
+    the trajectories, and None for the counts (the store holds them). ``simulate=False``: neither (for an
+    experiment whose runs are another's, :func:`evaluate_costs`)."""
     from adaptfilt._version import __version__
     from adaptfilt.experiment_registry import Experiment, get_experiment
 
@@ -315,12 +382,18 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
     for p in policies:
         _check_policy(p, env.grid)
     given = traj is not None
-    if not given:
-        if int(n_runs) < 2:
-            raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
-        traj = env.truth.simulate(int(n_runs), env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
-    M = traj.n_runs
-    counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1]))
+    if not given and int(n_runs) < 2:
+        raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
+    M = traj.n_runs if given else int(n_runs)
+    counts = None
+    if not simulate:
+        traj = None
+    elif chunk_size is not None and M > chunk_size:
+        traj = _RunStore(env, M, int(seed), int(n_boot), traj, int(chunk_size), store_dir)
+    else:
+        if not given:
+            traj = env.truth.simulate(M, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
+        counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1]))
     filt = env.filt
     config = {
         "experiment": None if exp is None else exp.name,
@@ -333,7 +406,101 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
         "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",
         "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
     }
+    if chunk_size is not None and M > chunk_size:
+        # only streamed results say so: a one-pass evaluation's file is byte for byte what it always was
+        config["chunk_size"] = int(chunk_size)
     return env, policies, traj, counts, config
+
+
+@contextlib.contextmanager
+def _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps, chunk_size):
+    """:func:`_setup` with a checked ``chunk_size``, the streamed runs' folder removed at the end."""
+    if isinstance(chunk_size, (bool, np.bool_)) or not isinstance(chunk_size, numbers.Integral) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer (runs filtered at a time), got {chunk_size!r}")
+    with tempfile.TemporaryDirectory(prefix="adaptfilt-evaluate-") as tmp:
+        yield _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
+                     int(chunk_size), store_dir=Path(tmp))
+
+
+class _RunStore:
+    """The runs of a streamed evaluation: trajectories and bootstrap counts on disk, read one chunk at a time.
+
+    The trajectories are those of ``truth.simulate(M, T, rng=default_rng([TRAJ_SEED_KEY, seed]))``, drawn in
+    the same order (step by step, all runs: :func:`_simulate_to_files`) and written time-major, so that each
+    step is one sequential write; a chunk reads its rows back, step by step. The counts are those of
+    :func:`metrics.bootstrap_counts` (``multinomial(M, 1/M)`` per resample, drawn one resample at a time:
+    the same numbers), as bytes (a count above 255 among ``M`` draws of ``1/M`` has probability ~1e-500).
+    Given trajectories stay where they are (in the caller's memory) and are sliced."""
+
+    def __init__(self, env, n_runs: int, seed: int, n_boot: int, traj: Trajectory | None, chunk_size: int,
+                 folder: Path):
+        self.n_runs, self.n_boot, self.chunk_size, self.n_steps = n_runs, n_boot, chunk_size, env.n_steps
+        self.traj, self.folder = traj, Path(folder)
+        self.widths = (env.nx, env.nz)
+        if traj is None:
+            _simulate_to_files(env.truth, n_runs, env.n_steps, np.random.default_rng([TRAJ_SEED_KEY, seed]),
+                               self.folder / "x.f8", self.folder / "z.f8")
+        rng = np.random.default_rng([TRAJ_SEED_KEY, seed, 1])
+        p = np.full(n_runs, 1.0 / n_runs)
+        with open(self.folder / "counts.u1", "wb") as f:
+            for _ in range(n_boot):
+                row = rng.multinomial(n_runs, p)
+                if row.max() > 255:
+                    raise RuntimeError(f"a bootstrap count of {row.max()} does not fit the byte it is stored in")
+                f.write(row.astype(np.uint8).tobytes())
+
+    def chunks(self) -> list[tuple[int, int]]:
+        """``(first, stop)`` run of each chunk."""
+        return [(a, min(a + self.chunk_size, self.n_runs)) for a in range(0, self.n_runs, self.chunk_size)]
+
+    def trajectory(self, a: int, b: int) -> Trajectory:
+        """Runs ``a`` to ``b - 1``, exactly the rows of the one-pass trajectories."""
+        if self.traj is not None:
+            return Trajectory(x=self.traj.x[a:b], z=self.traj.z[a:b])
+        return Trajectory(*(_read_rows(self.folder / n, self.n_steps, self.n_runs, w, a, b)
+                            for n, w in zip(("x.f8", "z.f8"), self.widths)))
+
+    def counts(self, a: int, b: int) -> np.ndarray:
+        """Columns ``a`` to ``b - 1`` of the counts ``(n_boot, M)``, as floats (what the products take)."""
+        out = np.empty((self.n_boot, b - a), dtype=np.uint8)
+        with open(self.folder / "counts.u1", "rb") as f:
+            for i in range(self.n_boot):
+                f.seek(i * self.n_runs + a)
+                out[i] = np.fromfile(f, dtype=np.uint8, count=b - a)
+        return out.astype(float)
+
+
+def _simulate_to_files(model, M: int, T: int, rng: np.random.Generator, x_path: Path, z_path: Path) -> None:
+    """:meth:`StateSpaceModel.simulate` ``(M, T, rng)``, the same draws in the same order, written step by
+    step (``(T, M, n)`` float64) instead of kept: memory ``O(M)``, not ``O(M T)``."""
+    from adaptfilt.models import StateSpaceModel
+
+    if type(model).simulate is not StateSpaceModel.simulate:  # a model that simulates otherwise: its own runs
+        traj = model.simulate(M, T, rng=rng)
+        for path, a in ((x_path, traj.x), (z_path, traj.z)):
+            np.ascontiguousarray(np.swapaxes(a, 0, 1)).tofile(path)
+        return
+    # the lines of StateSpaceModel.simulate, one step at a time (tests check that the runs are the same)
+    Lq, Lr, L0 = (np.linalg.cholesky(A) for A in (model.Q, model.R, model.P0))
+    with open(x_path, "wb") as fx, open(z_path, "wb") as fz:
+        x = model.m0 + rng.standard_normal((M, model.nx)) @ L0.T
+        for t in range(T):
+            if t:
+                x = model.f(x, t) + rng.standard_normal((M, model.nx)) @ Lq.T
+            z = model.h(x, t + 1) + rng.standard_normal((M, model.nz)) @ Lr.T
+            fx.write(np.ascontiguousarray(x, dtype=float).tobytes())
+            fz.write(np.ascontiguousarray(z, dtype=float).tobytes())
+
+
+def _read_rows(path: Path, T: int, M: int, width: int, a: int, b: int) -> np.ndarray:
+    """Runs ``a:b`` of a ``(T, M, width)`` float64 file, as a C-ordered ``(b - a, T, width)`` array."""
+    out = np.empty((T, b - a, width))
+    with open(path, "rb") as f:
+        for t in range(T):
+            f.seek((t * M + a) * width * 8)
+            out[t] = np.fromfile(f, dtype=float, count=(b - a) * width).reshape(b - a, width)
+    return np.ascontiguousarray(np.swapaxes(out, 0, 1))
+
 
 
 def _constant(pol) -> tuple | None:
@@ -343,10 +510,11 @@ def _constant(pol) -> tuple | None:
     return (pol.value, pol.predict_param) if type(pol) is FixedPolicy else None
 
 
-def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj: Trajectory, counts: np.ndarray,
+def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj, counts: np.ndarray | None,
               level: float, progress) -> list[Results]:
     """Roll each policy out once in ``env`` and summarise it for every ``(cost, config)`` of ``targets``
-    (the first cost is the environment's own)."""
+    (the first cost is the environment's own); ``traj`` a :class:`_RunStore` (``counts`` None): chunk by
+    chunk."""
     bar = policies
     if progress:
         from tqdm.auto import tqdm
@@ -354,6 +522,7 @@ def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj: Trajec
         bar = tqdm(policies, desc=f"evaluate {targets[0][1]['experiment'] or targets[0][1]['model']}", unit="policy")
     results = [Results(config=config) for _, config in targets]
     extra = [c for c, _ in targets[1:]]
+    weights = [0.0 if c is None else c.compute_weight for c, _ in targets]
     done: dict[tuple, str] = {}
     for pol in bar:
         if progress:
@@ -365,16 +534,223 @@ def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj: Trajec
                 twin = res.policies[done[key]]
                 res.policies[pol.name] = PolicyResult(**{**twin.__dict__, "name": pol.name, "wall_time_s": 0.0})
             continue
-        run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
-        costs = [cost] + run.info["extra_costs"]
-        for res, (c, _), cost_k in zip(results, targets, costs):
-            summ = _summarise(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs, level,
-                              compute_weight=0.0 if c is None else c.compute_weight)
+        if isinstance(traj, _RunStore):
+            summs = _streamed(env, pol, traj, extra, weights, level, progress)
+        else:
+            run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
+            costs = [cost] + run.info["extra_costs"]
+            summs = [_summarise(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs,
+                                level, compute_weight=w) for cost_k, w in zip(costs, weights)]
+            del run, cost, costs  # the (M, T, nx, nx) covariances go here
+        for res, summ in zip(results, summs):
             res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
-        del run, cost, costs  # the (M, T, nx, nx) covariances go here
         if key is not None:
             done[key] = pol.name
     return results
+
+
+def _streamed(env, pol, store: _RunStore, extra: list, weights: list[float], level: float, progress) -> list[dict]:
+    """:func:`_summarise` of ``pol``'s rollout over all the store's runs, for each cost (the environment's,
+    then ``extra``), one chunk of runs at a time: per run and per step only sums (and the per-run values
+    the results keep) stay, and each cost's one-step values go to a file for their quantiles."""
+    M, T, B, G = store.n_runs, env.n_steps, store.n_boot, env.grid.size
+    acc = _ChunkSums(M, T, B, G)
+    per_cost = [_CostSums(M, T, B, w, store.folder / f"cost{k}.f8") for k, w in enumerate(weights)]
+    on_indefinite = (getattr(env, "run_info", None) or {}).get("on_indefinite", "raise")
+    for c, (a, b) in enumerate(store.chunks()):
+        traj = store.trajectory(a, b)
+        # each chunk its own random numbers for a stochastic rule (the same for every policy: paired)
+        run, cost = rollout(env, pol, traj=traj, stream=_CHUNK_STREAM + c, progress=progress == "steps",
+                            extra_costs=extra)
+        cnt = store.counts(a, b)
+        acc.add(a, traj.x[:, :T], run, env.grid, cnt, on_indefinite)
+        extra_spent = np.broadcast_to(np.asarray(run.info.get("extra_spent", 0.0), dtype=float), (b - a,))
+        for cs, cost_k in zip(per_cost, [cost] + run.info["extra_costs"]):
+            if cost_k is not None:
+                cs.add(a, cost_k, extra_spent, cnt)
+        del run, cost, traj, cnt
+    base = acc.finish(level, env.nx)
+    return [{**base, **cs.finish(level, acc.extra_sum / M)} for cs in per_cost]
+
+
+class _ChunkSums:
+    """The cost-free summaries of :func:`_summarise`, summed over chunks of runs.
+
+    Per run (the values a one-pass evaluation computes, bit for bit where the rollout's are), integer
+    counts (usage, choices, repairs, divergent runs: exact) and maxima are exact; what is a mean over runs
+    (``rmse_t``, ``anees_t``, ``nis_t``, the bootstrap replicates) is summed chunk by chunk, the same
+    numbers up to the order of the additions (relative differences ~1e-15)."""
+
+    def __init__(self, M: int, T: int, B: int, G: int):
+        self.M = M
+        self.se_t, self.ne_t, self.nis_t = np.zeros(T), np.zeros(T), np.zeros(T)
+        self.n, self.ne_mean, self.ne_m2 = 0, np.zeros(T), np.zeros(T)  # Chan et al.'s pairwise variance
+        self.boot_se_t, self.boot_ne = np.zeros((B, T)), np.zeros(B)
+        self.run_rmse, self.run_anees = np.empty(M), np.empty(M)
+        self.chosen = np.zeros((T, G), dtype=np.int64)
+        self.n_bad, self.n_repairs, self.extra_sum, self.spent_sum, self.has_spent = 0, 0, 0.0, 0.0, True
+
+    def add(self, a: int, x: np.ndarray, run, grid: np.ndarray, cnt: np.ndarray, on_indefinite: str) -> None:
+        C = x.shape[0]
+        se = metrics.squared_error(x, run.mean)
+        ne = metrics.nees(x, run.mean, run.cov, on_indefinite=on_indefinite)
+        self.run_rmse[a:a + C] = np.sqrt(se.mean(axis=1))
+        self.run_anees[a:a + C] = ne.mean(axis=1)
+        self.se_t += se.sum(axis=0)
+        self.ne_t += ne.sum(axis=0)
+        self.nis_t += run.nis.sum(axis=0)
+        self.boot_se_t += cnt @ se
+        self.boot_ne += cnt @ self.run_anees[a:a + C]
+        with np.errstate(invalid="ignore"):  # an infinite NEES (a collapsed particle cloud): NaN, as np.std
+            m = ne.mean(axis=0)
+            m2 = ((ne - m) ** 2).sum(axis=0)
+            n = self.n + C
+            d = m - self.ne_mean
+            self.ne_mean = self.ne_mean + d * (C / n)
+            self.ne_m2 = self.ne_m2 + m2 + d * d * (self.n * C / n)
+        self.n = n
+        self.n_bad += int(np.count_nonzero(metrics.divergent(ne, x.shape[-1], run.mean)))
+        self.n_repairs += int(run.n_repairs)
+        info = getattr(run, "info", None) or {}
+        self.extra_sum += float(np.broadcast_to(np.asarray(info.get("extra_spent", 0.0), dtype=float), (C,)).sum())
+        if "spent" in info:
+            self.spent_sum += float(np.sum(info["spent"]))
+        else:
+            self.has_spent = False
+        for g, v in enumerate(grid):
+            self.chosen[:, g] += np.count_nonzero(run.params == v, axis=0)
+
+    def finish(self, level: float, nx: int) -> dict:
+        M, a = self.M, (1.0 - level) / 2.0
+        boot_rmse_t = np.sqrt(self.boot_se_t / M)
+        rmse_t, anees_t = np.sqrt(self.se_t / M), self.ne_t / M
+        half = stats.norm.ppf(1 - a) * np.sqrt(self.ne_m2 / (M - 1)) / np.sqrt(M)
+        out = dict(
+            rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0),
+            anees_t=anees_t, anees_t_band=np.stack([anees_t - half, anees_t + half]),
+            nis_t=self.nis_t / M, boot_rmse=boot_rmse_t.mean(axis=1), boot_anees=self.boot_ne / M,
+            run_rmse=self.run_rmse, run_anees=self.run_anees,
+        )
+        out["rmse"] = float(rmse_t.mean())
+        out["anees"] = float(anees_t.mean())
+        out["nis"] = float(out["nis_t"].mean())
+        out["rmse_ci"] = metrics.percentile_ci(out["boot_rmse"], level)
+        out["anees_ci"] = metrics.percentile_ci(out["boot_anees"], level)
+        out["rmse_run_median"] = float(np.median(self.run_rmse))
+        out["anees_run_median"] = float(np.median(self.run_anees))
+        out["divergent_frac"] = self.n_bad / M
+        out["extra_spent"] = self.extra_sum / M
+        out["spent"] = self.spent_sum / M if self.has_spent else float("nan")
+        out["choices"] = self.chosen / M  # a mean of booleans is their count over M: the same number
+        out["usage"] = self.chosen.sum(axis=0).astype(np.int64)
+        out["n_repairs"] = self.n_repairs
+        return out
+
+
+class _CostSums:
+    """The cost summaries of :func:`_summarise`, summed over chunks of runs (see :class:`_ChunkSums`); the
+    one-step costs themselves go to ``path`` for their exact quantiles (:func:`_file_quantiles`)."""
+
+    def __init__(self, M: int, T: int, B: int, weight: float, path: Path):
+        self.M, self.T, self.weight, self.path, self.used = M, T, weight, path, False
+        self.total, self.obj_total, self.max, self.cost_t = 0.0, 0.0, -np.inf, np.zeros(T)
+        self.run_cost = np.empty(M)
+        self.boot_cost, self.boot_obj, self.boot_charged = np.zeros(B), np.zeros(B), np.zeros(B)
+        path.unlink(missing_ok=True)
+
+    def add(self, a: int, cost: np.ndarray, extra: np.ndarray, cnt: np.ndarray) -> None:
+        self.used = True
+        C = cost.shape[0]
+        run_cost = self.run_cost[a:a + C] = cost.mean(axis=1)
+        self.total += float(cost.sum())
+        self.cost_t += cost.sum(axis=0)
+        self.max = float(np.maximum(self.max, cost.max()))  # NaN stays NaN, as in cost.max()
+        obj = np.log1p(np.where(np.isfinite(cost), np.maximum(cost, 0.0), np.finfo(float).max))
+        self.obj_total += float(obj.sum())
+        self.boot_cost += cnt @ run_cost
+        self.boot_obj += cnt @ obj.mean(axis=1)
+        # per run, so that a charged difference between two policies is paired like any other
+        self.boot_charged += cnt @ (run_cost + self.weight * extra)
+        with open(self.path, "ab") as f:
+            f.write(np.ascontiguousarray(cost, dtype=float).tobytes())
+
+    def finish(self, level: float, extra_mean: float) -> dict:
+        M, T, B = self.M, self.T, self.boot_cost.size
+        nan = float("nan")
+        if not self.used:  # no cost: what _summarise reports then
+            return dict(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
+                        boot_cost=np.full(B, nan), run_cost=np.full(M, nan), objective=nan, objective_ci=(nan, nan),
+                        boot_objective=np.full(B, nan), cost_charged=nan, cost_charged_ci=(nan, nan),
+                        boot_cost_charged=np.full(B, nan), cost_t=np.full(T, nan))
+        q = _file_quantiles(self.path, M * T, COST_QUANTILES)
+        self.path.unlink()
+        out = dict(cost=self.total / (M * T), run_cost=self.run_cost, boot_cost=self.boot_cost / M,
+                   cost_median=q[0], cost_q99=q[1], cost_q999=q[2], cost_max=self.max, cost_t=self.cost_t / M,
+                   boot_cost_charged=self.boot_charged / M, objective=self.obj_total / (M * T),
+                   boot_objective=self.boot_obj / M)
+        out["cost_charged"] = out["cost"] + self.weight * extra_mean
+        out["cost_ci"] = metrics.percentile_ci(out["boot_cost"], level)
+        out["cost_charged_ci"] = metrics.percentile_ci(out["boot_cost_charged"], level)
+        out["objective_ci"] = metrics.percentile_ci(out["boot_objective"], level)
+        return out
+
+
+def _float_keys(v: np.ndarray) -> np.ndarray:
+    """Unsigned integers in the order of the floats ``v`` (no NaN; -0.0 as 0.0, which compare equal)."""
+    bits = (v + 0.0).view(np.uint64)
+    neg = (bits >> np.uint64(63)).astype(bool)
+    return np.where(neg, ~bits, bits | np.uint64(1 << 63))
+
+
+def _file_quantiles(path: Path, N: int, qs: Sequence[float], block: int = 1 << 20) -> list[float]:
+    """``np.quantile(values, qs)`` (the linear method) of the ``N`` float64 values in ``path``, exactly, in
+    memory ``O(block)``: each order statistic it needs is found digit by digit (16 bits of the float's
+    order-preserving key per pass over the file), and interpolated as numpy does."""
+    q = np.asarray(qs, dtype=float)
+    vi = (N - 1) * q  # numpy's virtual indexes, previous and next order statistic, and weight
+    prev = np.floor(vi).astype(np.intp)
+    nxt = prev + 1
+    above = vi >= N - 1
+    prev[above], nxt[above] = N - 1, N - 1
+    gamma = vi - prev
+    ranks = sorted({int(r) for r in np.concatenate([prev, nxt])})
+
+    def blocks():
+        with open(path, "rb") as f:
+            while True:
+                v = np.fromfile(f, dtype=float, count=block)
+                if v.size == 0:
+                    return
+                yield v
+
+    if any(np.isnan(v).any() for v in blocks()):
+        return [float("nan")] * len(q)  # as np.quantile: a NaN among the values makes every quantile NaN
+    # per rank: the known leading bits of its key (prefix over `shift` remaining bits) and the count below
+    state = {r: (0, 64, 0) for r in ranks}
+    while any(shift for _, shift, _ in state.values()):
+        groups = sorted({(p, s) for p, s, _ in state.values() if s})
+        hists = {g: np.zeros(1 << 16, dtype=np.int64) for g in groups}
+        for v in blocks():
+            k = _float_keys(v)
+            for p, s in groups:
+                sel = k if s == 64 else k[(k >> np.uint64(s)) == np.uint64(p)]
+                hists[(p, s)] += np.bincount(((sel >> np.uint64(s - 16)) & np.uint64(0xFFFF)).astype(np.intp),
+                                             minlength=1 << 16)
+        for r, (p, s, below) in state.items():
+            if s:
+                cum = np.cumsum(hists[(p, s)])
+                d = int(np.searchsorted(cum, r - below, side="right"))
+                state[r] = ((p << 16) | d, s - 16, below + (int(cum[d - 1]) if d else 0))
+    value = {}
+    for r, (key, _, _) in state.items():
+        key = np.uint64(key)
+        bits = ~key if not key >> np.uint64(63) else key & ~np.uint64(1 << 63)
+        value[r] = float(np.array([bits], dtype=np.uint64).view(float)[0])
+    lo, hi = np.array([value[int(r)] for r in prev]), np.array([value[int(r)] for r in nxt])
+    diff = hi - lo  # numpy's _lerp, step for step
+    out = lo + diff * gamma
+    np.subtract(hi, diff * (1 - gamma), out=out, where=gamma >= 0.5)
+    return [float(x) for x in out]
 
 
 def learned_name(path: str | Path, experiment: str) -> str:

@@ -236,3 +236,91 @@ def test_a_policy_records_its_filter_and_is_refused_by_another_form():
     with pytest.raises(ValueError, match="mismatch in filter"):
         check_compatible({**ref, "filter": one["filter"]}, ref)
     check_compatible({k: v for k, v in ref.items() if k != "filter"}, ref)  # files written before the record: accepted
+
+
+def test_streamed_runs_are_the_one_pass_runs(tmp_path):
+    """The trajectories a streamed evaluation writes and reads back chunk by chunk are the rows of
+    ``simulate(M, T, default_rng([TRAJ_SEED_KEY, seed]))``, and its bootstrap counts are those of
+    ``metrics.bootstrap_counts``, bit for bit."""
+    from adaptfilt.evaluation import TRAJ_SEED_KEY, _RunStore
+
+    for name in ("ungm-ukf", "ctm-ukf"):
+        env = get_experiment(name).make_env(n_steps=12)
+        store = _RunStore(env, 50, 4, 30, None, 16, tmp_path)
+        want = env.truth.simulate(50, 12, rng=np.random.default_rng([TRAJ_SEED_KEY, 4]))
+        counts = metrics.bootstrap_counts(50, 30, rng=np.random.default_rng([TRAJ_SEED_KEY, 4, 1]))
+        assert store.chunks() == [(0, 16), (16, 32), (32, 48), (48, 50)]
+        for a, b in store.chunks():
+            tr = store.trajectory(a, b)
+            assert tr.x.tobytes() == want.x[a:b].tobytes() and tr.z.tobytes() == want.z[a:b].tobytes()
+            assert store.counts(a, b).tobytes() == np.ascontiguousarray(counts[:, a:b]).tobytes()
+
+
+def test_exact_quantiles_from_a_file_are_numpys(tmp_path):
+    from adaptfilt.evaluation import COST_QUANTILES, _file_quantiles
+
+    rng = np.random.default_rng(0)
+    for trial in range(40):
+        n = int(rng.integers(1, 2000))
+        v = rng.standard_normal(n) ** 2 * 10 ** rng.uniform(-3, 6, n)
+        if trial % 3 == 1:
+            v[rng.random(n) < 0.6] = 0.0  # ties at the median
+        if trial % 3 == 2:
+            v = np.round(v)
+        (tmp_path / "c").write_bytes(v.tobytes())
+        got = _file_quantiles(tmp_path / "c", n, COST_QUANTILES, block=int(rng.integers(1, 300)))
+        assert np.asarray(got).tobytes() == np.quantile(v, COST_QUANTILES).tobytes(), trial
+    (tmp_path / "c").write_bytes(np.array([1.0, np.nan, 2.0]).tobytes())
+    assert np.isnan(_file_quantiles(tmp_path / "c", 3, COST_QUANTILES)).all()
+
+
+#: what a streamed evaluation keeps exactly (per run, counts, order statistics); the rest is a sum over chunks
+_EXACT = ("run_rmse", "run_anees", "run_cost", "rmse_run_median", "anees_run_median", "usage", "choices", "n_repairs",
+          "divergent_frac", "cost_max", "cost_median", "cost_q99", "cost_q999", "spent", "extra_spent")
+
+
+def test_a_streamed_evaluation_is_the_one_pass_evaluation(tmp_path):
+    """A deterministic rule on runs streamed in chunks of 16: every per-run value, count and quantile is the
+    one-pass evaluation's byte for byte in the saved files, every mean and bootstrap replicate equal to 1e-12
+    (sums in another order); at chunk_size >= M the files are the one-pass files byte for byte."""
+    exp = get_experiment("ctm-ukf")
+    pols = lambda: [p for p in exp.baselines() if p.name in ("default", "fixed-kappa=20", "greedy")]  # noqa: E731
+    kw = dict(n_runs=70, seed=5, progress=False, n_steps=15, n_boot=100)
+    one = evaluate(exp, pols(), **kw)
+    same = evaluate(exp, pols(), chunk_size=70, **kw)
+    streamed = evaluate(exp, pols(), chunk_size=16, **kw)
+    for r in (one, same, streamed):
+        for p in r.policies.values():
+            p.wall_time_s = 0.0
+    one.save(tmp_path / "one"), same.save(tmp_path / "same"), streamed.save(tmp_path / "streamed")
+    for f in ("results.json", "results.npz"):
+        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "same" / f).read_bytes()
+    back = Results.load(tmp_path / "streamed")
+    assert back.config == {**one.config, "chunk_size": 16}
+    for n in one.names:
+        for k, v in one[n].__dict__.items():
+            w = getattr(back[n], k)
+            if k in _EXACT:
+                assert np.asarray(v).tobytes() == np.asarray(w).tobytes(), (n, k)
+            elif k != "name":
+                np.testing.assert_allclose(np.asarray(w, dtype=float), np.asarray(v, dtype=float), rtol=1e-12,
+                                           atol=0, err_msg=f"{n} {k}")
+    assert back.paired_difference("greedy", "default", "cost")[0] == pytest.approx(
+        one.paired_difference("greedy", "default", "cost")[0], rel=1e-12)
+
+
+def test_a_streamed_stochastic_rule_stays_paired():
+    """SIF draws per step for all runs of a batch: streamed, each chunk has its own stream (other draws than
+    one pass), the same for every policy, so that a twin of the default differs from it by exactly 0."""
+    exp = get_experiment("ctm-sif-nis")
+    pols = [p for p in exp.baselines() if p.name in ("default", "fixed-n_iter=10", "fixed-n_iter=3")]
+    res = evaluate(exp, pols, n_runs=24, seed=1, progress=False, n_steps=6, n_boot=50, chunk_size=10)
+    assert res.config["chunk_size"] == 10 and res["fixed-n_iter=10"].run_cost.shape == (24,)
+    assert res.paired_difference("fixed-n_iter=10", "default", "cost") == (0.0, 0.0, 0.0)
+    assert np.isfinite(res["fixed-n_iter=3"].cost) and res["fixed-n_iter=3"].usage.sum() == 24 * 6
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True])
+def test_a_chunk_size_that_is_not_a_positive_integer_is_refused(bad):
+    with pytest.raises(ValueError, match=r"chunk_size must be a positive integer .* got " + repr(bad).replace(".", r"\.")):
+        evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=4, progress=False, chunk_size=bad)
