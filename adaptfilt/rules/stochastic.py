@@ -11,8 +11,9 @@ from typing import Callable, Iterator, Literal
 import numpy as np
 
 from adaptfilt.linalg import chol, sym
-from adaptfilt.rules.base import (BatchFn, MomentRule, Moments, Residual, _active_runs, _check_tile, _PointSet, _scatter,
-                                  _take_runs, _weighted_sums)
+from adaptfilt.rules import _sif_kernels
+from adaptfilt.rules.base import (BatchFn, MomentRule, Moments, Residual, _active_runs, _check_tile, _PointSet, _take_runs,
+                                  _weighted_sums)
 
 __all__ = ["StochasticIntegrationRule", "haar_rotations", "stochastic_rule_points"]
 
@@ -26,17 +27,11 @@ def haar_rotations(n: int, M: int, rng: np.random.Generator) -> np.ndarray:
     return _gram_schmidt(rng.standard_normal((n, n, M)))
 
 
-def _gram_schmidt(G: np.ndarray) -> np.ndarray:
-    """The Q factor (positive diagonal R) of each ``G[:, :, j]``, ``(n, n, M)``: elementwise in the
-    run axis, so a subset of runs gets bit for bit the columns the whole batch gets."""
-    n = G.shape[0]
-    Q = np.empty_like(G)
-    for j in range(n):
-        v = G[:, j]
-        for k in range(j):  # modified Gram-Schmidt
-            v = v - (Q[:, k] * v).sum(axis=0) * Q[:, k]
-        Q[:, j] = v / np.sqrt((v * v).sum(axis=0))
-    return Q
+def _gram_schmidt(G: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
+    """The Q factor (positive diagonal R) of each ``G[:, :, j]``, ``(n, n, M)``, for the runs ``runs`` (all
+    when None): elementwise in the run axis, so a subset of runs gets bit for bit the columns the whole
+    batch gets. Compiled where numba is installed, the same numbers (:mod:`adaptfilt.rules._sif_kernels`)."""
+    return _sif_kernels.gram_schmidt(G, runs)
 
 
 def _simplex(n: int) -> np.ndarray:
@@ -295,15 +290,17 @@ class StochasticIntegrationRule(MomentRule):
         w0 = 1 - n * (r2 + d2 - n - 2) / (r2 * d2)
         return coef, w0
 
-    def _point_set(self, n: int, raw: tuple[np.ndarray, ...]) -> _PointSet:
+    def _point_set(self, n: int, raw: tuple[np.ndarray, ...], sel: np.ndarray | None = None) -> _PointSet:
+        """The point set of one draw for the runs ``sel`` of its random variates (all when None)."""
+        take = (lambda a: a) if sel is None else (lambda a: _take_runs(a, sel))  # noqa: E731
         if self.order == 1:
-            return _PointSet(scale=1.0, rotation=raw[0][:, None, :], weight=0.5)
+            return _PointSet(scale=1.0, rotation=take(raw[0])[:, None, :], weight=0.5)
+        # the rotation gathers its runs itself (one pass over G, no copy of the subset first)
+        Q = _gram_schmidt(raw[0], sel)
         if self.order == 3:
-            G, rho2 = raw
-            Q = _gram_schmidt(G)
+            rho2 = take(raw[1])
             return _PointSet(scale=np.sqrt(rho2), rotation=Q, weight=0.5 / rho2)
-        G, r2, q = raw
-        Q = _gram_schmidt(G)
+        r2, q = take(raw[1]), take(raw[2])
         r, a = np.sqrt(r2), np.arcsin(q) / 2
         rho, delta = r * np.sin(a), r * np.cos(a)
         coef, _ = self._degree5_weights(n, rho, delta)
@@ -312,24 +309,23 @@ class StochasticIntegrationRule(MomentRule):
         return _PointSet(scale=1.0, rotation=Q, weight=1.0, basis=self._basis(n), groups=groups)
 
     def _point_sets(self, n: int, M: int, n_iter: np.ndarray, rng: np.random.Generator, tile: int = 1,
-                    runs: Callable[[], np.ndarray | None] | None = None) -> Iterator[_PointSet]:
+                    runs: Callable[[], np.ndarray | None] | None = None) -> Iterator[tuple[_PointSet, np.ndarray | None]]:
         """The draws of one pass: ``max(n_iter)`` of them (at least ``n_min`` with ``tol``); the
         recursion may stop early. Every draw's random numbers are drawn for all ``M`` runs (so that
         draw ``i`` of a run is the same whatever the other runs do), but its points are made only
         for the runs ``runs()`` names when the draw is due (None: all); the others are done.
-        With ``tile = G`` each draw is made for ``M / G`` runs and repeated ``G`` times."""
+        With ``tile = G`` each draw is made for ``M / G`` runs and repeated ``G`` times.
+        Yields ``(point set, runs)``: the set is made for those runs, in that order (None: all ``M``)."""
         cap = int(n_iter.max()) if self.tol is None else max(int(n_iter.max()), self.n_min)
         M0 = M // tile
+        copies = np.tile(np.arange(M0), tile) if tile > 1 else None  # run g * M0 + j is copy g of run j
+        last_idx, last_sel = None, copies
         for _ in range(cap):
             raw = self._draw(n, M0, rng)
             idx = None if runs is None else runs()
-            if idx is not None:
-                raw = tuple(_take_runs(a, idx % M0) for a in raw)
-            elif tile > 1:
-                raw = tuple(np.concatenate([a] * tile, axis=-1) for a in raw)
-            ps = self._point_set(n, raw)
-            ps.runs = idx
-            yield ps
+            if idx is not last_idx:  # the runs' columns of the draws: recomputed only when the runs change
+                last_idx, last_sel = idx, (copies if idx is None else idx % M0 if tile > 1 else idx)
+            yield self._point_set(n, raw, last_sel), idx
 
     # -------------------------------------------------------- recursion
     def _recursion(self, make_sets, evaluate, n_iter: np.ndarray, M: int, what: str, cross: bool, c=None,
@@ -339,12 +335,18 @@ class StochasticIntegrationRule(MomentRule):
         ``make_sets(runs)``: the pass's draws (:meth:`_point_sets`), each made for the runs
         ``runs()`` names when it is due: the runs still iterating (None: all of them), so a
         run that is done costs no function evaluations, only its share of the random numbers.
+        ``evaluate(ps, runs, cross)``: the weighted sums of the set ``ps`` made for ``runs``.
         ``what``: ``"joint"`` (mean and covariances from the same draws),
         ``"mean"`` (first pass) or ``"cov"`` (second pass, about ``g0 + c``).
         Returns the averaged sums, the per-run counts and the Welford state.
         ``at`` (fixed count, scalar ``n_iter = max(at)`` only): return instead
         ``{k: state after draw k}`` for every ``k`` in ``at``, the states the
         recursion with ``n_iter = k`` ends in (the first ``k`` draws are the same).
+
+        The sums and the Welford state of the runs a draw was made for are updated in place at
+        their columns: the same operations on the same operands as on whole arrays (where the other
+        runs would add zeros, or keep their values), so every run's numbers are those of the
+        whole-batch form, without scattering each draw's sums into arrays of all ``M`` runs.
         """
         tol = self.tol
         per_run = n_iter.ndim > 0 or tol is not None
@@ -352,69 +354,92 @@ class StochasticIntegrationRule(MomentRule):
         cross = cross and want_cov
         want_var = want_mean and self.integration_error != "none"
         track = want_var or tol is not None
+        full_var = self.integration_error == "full"
         ng = None
         N = np.zeros(M) if per_run else 0.0
         active = np.ones(M, dtype=bool)
+        current = [None]  # the indices of the active runs (None: all), recomputed when ``active`` changes
         sums = None
         stats: dict[str, list[np.ndarray]] = {}
         Vfull = None
         if at is not None and (per_run or int(n_iter) != max(at)):
             raise ValueError("_recursion(at=...) needs a fixed count with scalar n_iter = max(at)")
         snaps: dict[int, dict] = {}
-        sets = make_sets((lambda: None if active.all() else _active_runs(active)) if per_run else None)
-        for ps in sets:
-            e, ee, ex = evaluate(ps, cross)
-            if ps.runs is not None:  # sums of the active runs: zeros for the others
-                e, ee, ex = (None if a is None else _scatter(a, ps.runs, M) for a in (e, ee, ex))
+
+        def set_active(new: np.ndarray) -> np.ndarray:
+            if not np.array_equal(new, active):
+                current[0] = None if new.all() else _active_runs(new)
+            return new
+
+        sets = make_sets((lambda: current[0]) if per_run else None)
+        for ps, idx in sets:
+            e, ee, ex = evaluate(ps, idx, cross)
             if sums is None:
                 ng = e.shape[0]
-                sums = [np.zeros_like(e), np.zeros_like(ee), None if ex is None else np.zeros_like(ex)]
-            sums[0] += e
-            sums[1] += ee
-            if cross:
-                sums[2] += ex
-            N = N + (1.0 if ps.runs is None else active)
+                sums = [np.zeros(a.shape[:-1] + (M,)) if a is not None else None for a in (e, ee, ex if cross else None)]
+            parts = ((sums[0], e), (sums[1], ee)) + (((sums[2], ex),) if cross else ())
+            if idx is None:
+                for s, a in parts:
+                    s += a
+            else:  # the other runs would add +0.0: no change (a sum that starts at +0.0 is never -0.0)
+                for s, a in parts:
+                    s[..., idx] += a
+            N = N + (1.0 if idx is None else active)
             if not track:
                 if at is not None and N in at:
                     snaps[int(N)] = self._averaged(sums, N, cross, None, None)
                 if per_run:
-                    active = N < n_iter
+                    active = set_active(N < n_iter)
                 continue
             tracked = {}
             if want_mean:
                 tracked["mean"] = e
             if want_cov and tol is not None:
-                tracked["cov"] = ee if c is None else ee - e[:, None] * c[None] - c[:, None] * e[None] + c[:, None] * c[None]
+                ck = c if c is None or idx is None else c[:, idx]
+                tracked["cov"] = ee if c is None else ee - e[:, None] * ck[None] - ck[:, None] * e[None] + ck[:, None] * ck[None]
                 if cross:
                     tracked["cross"] = ex
             act = active if per_run else None
             for name, X in tracked.items():
-                I, V = stats.get(name, (np.zeros_like(X), np.zeros_like(X)))
-                Dv = (X - I) / N
-                later = N >= 2  # V_1 = 0: one draw says nothing about the spread
-                if act is None:
-                    I, V = I + Dv, ((N - 2) / N * V + Dv * Dv if later else V)
-                else:
-                    I = np.where(act, I + Dv, I)
-                    V = np.where(act & later, (N - 2) / N * V + Dv * Dv, V)
-                stats[name] = [I, V]
-                if name == "mean" and self.integration_error == "full":
+                if name not in stats:
+                    stats[name] = [np.zeros(X.shape[:-1] + (M,)), np.zeros(X.shape[:-1] + (M,))]
+                I, V = stats[name]
+                if idx is None:
+                    Dv = (X - I) / N
+                    later = N >= 2  # V_1 = 0: one draw says nothing about the spread
+                    if act is None:
+                        I, V = I + Dv, ((N - 2) / N * V + Dv * Dv if later else V)
+                    else:
+                        I = np.where(act, I + Dv, I)
+                        V = np.where(act & later, (N - 2) / N * V + Dv * Dv, V)
+                    stats[name] = [I, V]
+                else:  # only the active runs change: their columns, in place (``at`` is None here)
+                    Nk, Ik, Vk = N[idx], I[..., idx], V[..., idx]
+                    Dv = (X - Ik) / Nk
+                    later = Nk >= 2
+                    I[..., idx] = Ik + Dv
+                    V[..., idx] = np.where(later, (Nk - 2) / Nk * Vk + Dv * Dv, Vk)
+                if name == "mean" and full_var:
                     if Vfull is None:
                         Vfull = np.zeros((ng, ng, M))
                     outer = Dv[:, None] * Dv[None]
-                    Vfull = np.where(np.broadcast_to(later if act is None else act & later, (M,)), (N - 2) / N * Vfull + outer, Vfull)
+                    if idx is None:
+                        Vfull = np.where(np.broadcast_to(later if act is None else act & later, (M,)), (N - 2) / N * Vfull + outer, Vfull)
+                    else:
+                        Fk = Vfull[..., idx]
+                        Vfull[..., idx] = np.where(later, (Nk - 2) / Nk * Fk + outer, Fk)
             if at is not None and N in at:
                 snaps[int(N)] = self._averaged(sums, N, cross, stats["mean"][1] if want_var else None, Vfull)
             if tol is None:
                 if per_run:
-                    active = N < n_iter
+                    active = set_active(N < n_iter)
             else:
                 big = np.zeros(M, dtype=bool)
                 for name in (("mean", "cov", "cross") if what == "joint" else ("mean",) if what == "mean" else ("cov", "cross")):
                     if name in stats:
                         V = stats[name][1]
                         big |= np.sqrt((V * V).reshape(-1, M).sum(axis=0)) > tol
-                active = active & ((N < self.n_min) | ((N < n_iter) & ((N < 2) | big)))
+                active = set_active(active & ((N < self.n_min) | ((N < n_iter) & ((N < 2) | big))))
                 if not active.any():
                     break
         if at is not None:
@@ -526,7 +551,15 @@ class StochasticIntegrationRule(MomentRule):
             L = chol(sym(P), "P")
         g0 = g(m[:, None, :])[:, 0, :]
         work: dict = {}
-        evaluate = lambda ps, cr: _weighted_sums(g, m, g0, L, ps, residual, cr, work)  # noqa: E731
+        taken: list = [None, None]  # the runs last evaluated and their m, g0, L: the subset changes rarely
+
+        def evaluate(ps: _PointSet, runs: np.ndarray | None, cr: bool):
+            if runs is None:
+                return _weighted_sums(g, m, g0, L, ps, residual, cr, work)
+            if taken[0] is not runs:
+                taken[:] = runs, tuple(_take_runs(a, runs) for a in (m, g0, L))
+            return _weighted_sums(g, *taken[1], ps, residual, cr, work)
+
         draws = lambda r: lambda runs: self._point_sets(n, M, n_iter, r, tile, runs)  # noqa: E731  (see _recursion)
         if self.passes == 1:
             joint = self._recursion(draws(rng), evaluate, n_iter, M, "joint", cross, at=at)
