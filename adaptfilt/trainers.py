@@ -147,6 +147,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     """
     import torch
     from stable_baselines3 import A2C, PPO
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     from adaptfilt._version import __version__
@@ -185,6 +186,9 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         env = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=float(gamma)) if normalize_reward else venv
         model = classes[config.algo](policy_class, env, gamma=float(gamma), seed=int(seed), device="cpu",
                                      verbose=0, **kwargs)
+        # SB3's default logger makes an empty folder in the temporary directory per learn() (SB3-<time>),
+        # one per policy trained; a logger with no outputs makes none
+        model.set_logger(Logger(folder=None, output_formats=[]))
         callbacks = [_curve_callback(curve, config.n_envs)]
         if max_seconds is not None:
             callbacks.append(_deadline(float(max_seconds)))

@@ -112,3 +112,14 @@ def test_reward_normalisation_rescales_what_the_learner_sees_not_the_learning_cu
     a, b = plain.curve["train_cost"], norm.curve["train_cost"]
     assert a.shape == b.shape and a[0] == b[0] and not np.array_equal(a, b)
     assert norm.metadata["normalize_reward"] is True and "normalize_reward" not in plain.metadata
+
+
+def test_sb3_training_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch):
+    """SB3's default logger makes an empty ``SB3-<time>`` folder in the temporary directory per learn():
+    thousands over a test run or a sweep. The SB3 trainers give it a logger that writes nowhere."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    for algo in ("fast", "a2c"):
+        train_policy("ungm-ukf", algo, 0.5, episodes=2, seed=0, parallel=2, n_steps=5, progress=False)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith("SB3-")] == []
