@@ -75,6 +75,17 @@ def _plus_error(C: np.ndarray, mo: Moments) -> np.ndarray:
     return C if mo.mean_var is None else C + mo.mean_var
 
 
+def _last_first(a: np.ndarray) -> np.ndarray:
+    """``np.moveaxis(a, 0, -1)`` (a view) without moveaxis's argument checks, which cost more than
+    the move on a small batch; ``a.ndim >= 1``."""
+    return a.transpose(tuple(range(1, a.ndim)) + (0,))
+
+
+def _first_last(a: np.ndarray) -> np.ndarray:
+    """``np.moveaxis(a, -1, 0)`` (a view), as :func:`_last_first`."""
+    return a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1)))
+
+
 def _public(a: np.ndarray) -> np.ndarray:
     """Run-last ``(n, ..., M)`` -> public ``(M, n, ...)`` view (no copy)."""
     return np.moveaxis(a, -1, 0)
@@ -126,6 +137,10 @@ class _UpdateRL:
     x_filt: np.ndarray
     P_filt: np.ndarray
     n_iter_spent: np.ndarray | None = None
+    #: the Cholesky factor of ``P_filt`` when it needed no repair (the next predict's factor, so that
+    #: :meth:`GaussianAssumedFilter.predict_rl` need not factor it again), else None. Not annotated, so
+    #: not a field: a copy built from the fields (the MDP's chosen candidates) leaves it None
+    L_filt = None
 
 
 @dataclass
@@ -244,13 +259,13 @@ class GaussianAssumedFilter:
 
     def _wrap(self, fn: Callable, k: int) -> Callable[[np.ndarray], np.ndarray]:
         # model functions take (..., n); the filter holds (n, ..., M)
-        return lambda X: np.moveaxis(np.asarray(fn(np.moveaxis(X, 0, -1), k)), -1, 0)
+        return lambda X: _first_last(np.asarray(fn(_last_first(X), k)))
 
     def _residual_rl(self):
         r = self.model.residual
         if r is None:
             return None
-        return lambda a, b: np.moveaxis(r(np.moveaxis(a, 0, -1), np.moveaxis(b, 0, -1)), -1, 0)
+        return lambda a, b: _first_last(r(_last_first(a), _last_first(b)))
 
     def _chol(self, P: np.ndarray, quantity: str, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Cholesky factor, or FilterError / documented repair."""
@@ -272,7 +287,7 @@ class GaussianAssumedFilter:
     # ------------------------------------------------------------- run-last core
     def predict_rl(
         self, m: np.ndarray, P: np.ndarray, t: int, rng: np.random.Generator | None = None, param=None,
-        info: dict | None = None, tile: int = 1,
+        info: dict | None = None, tile: int = 1, L: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Predict from step ``t`` to ``t + 1``; ``m (nx, M)``, ``P (nx, nx, M)``;
         ``param`` (default: the filter's) scalar or ``(M,)``.
@@ -280,6 +295,8 @@ class GaussianAssumedFilter:
         ``info``, if given, receives ``"n_iter"`` (the iterations a stochastic
         rule spent per run, or None). ``tile``: as in :meth:`update_rl` (the
         ``M`` runs are ``tile`` copies of ``M / tile`` runs that see the same draws).
+        ``L``: the Cholesky factor of ``P`` when the caller has it (an update's
+        ``L_filt``); ``P`` must then be symmetric, as an update's ``P_filt`` is.
         """
         model = self.model
         n_iter = None
@@ -288,7 +305,8 @@ class GaussianAssumedFilter:
             m_pred = mv(F, m)
             P_pred = mm(mm(F, P), F.swapaxes(0, 1)) + self._Q
         else:
-            L, P = self._chol(sym(P), "P_filt", t)
+            if L is None:
+                L, P = self._chol(sym(P), "P_filt", t)
             mo = self.predict_rule.moments(self._wrap(model.f, t + 1), m, P, self.param if param is None else param,
                                            rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False,
                                            tile=tile)
@@ -321,9 +339,12 @@ class GaussianAssumedFilter:
         the same draws in every copy, the draws an untiled call of the ``M / G``
         runs with the same ``rng`` gets. ``tile = 1``: independent draws per run.
         """
-        model = self.model
-        param = self.param if param is None else param
         L, P = self._chol(sym(P), "P_pred", t)
+        return self._update_factored(m, P, L, z, t, self.param if param is None else param, rng, tile)
+
+    def _update_factored(self, m, P, L, z, t: int, param, rng, tile: int) -> _UpdateRL:
+        """:meth:`update_rl` from ``P`` symmetric, repaired if need be, and its Cholesky factor ``L``."""
+        model = self.model
         n_iter = np.zeros(m.shape[1], dtype=int)
         if model.H is not None:
             H = model.H[:, :, None]
@@ -423,9 +444,15 @@ class GaussianAssumedFilter:
         if callable(z):
             z = z(z_pred, Lz)
         innov = z - z_pred if model.residual is None else self._residual_rl()(z, z_pred)
-        K = solve_spd(Lz, Pxz.swapaxes(0, 1)).swapaxes(0, 1)  # (nx, nz, M)
-        y = solve_spd(Lz, innov[:, None, :])[:, 0, :]
-        nis = (innov * y).sum(axis=0)
+        if Lz.shape[0] == 1:  # solve_spd's 1x1 division, with L_zz^2 squared once for K and y
+            Lz2 = Lz[0, 0] ** 2
+            K = Pxz / Lz2  # (nx, nz, M)
+            # the sum over one component, 0 + v (v / l^2), is v (v / l^2): it is never -0
+            nis = innov[0] * (innov[0] / Lz2)
+        else:
+            K = solve_spd(Lz, Pxz.swapaxes(0, 1)).swapaxes(0, 1)  # (nx, nz, M)
+            y = solve_spd(Lz, innov[:, None, :])[:, 0, :]
+            nis = (innov * y).sum(axis=0)
         loglik = -0.5 * (nis + logdet_chol(Lz) + model.nz * _LOG2PI)
         x_filt = m + mv(K, innov)
         P_filt = sym(P - mm(mm(K, Pzz), K.swapaxes(0, 1)))
@@ -434,8 +461,11 @@ class GaussianAssumedFilter:
         # What the filter returns is a covariance: an indefinite P_filt (a negative centre weight, a
         # stochastic rule's bad draw) is an error naming the step, or repaired here and counted, so that
         # no stored covariance gives a negative NEES.
-        _, P_filt = self._chol(P_filt, "P_filt", t)
-        return _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_filt, n_iter)
+        L_filt, P_checked = self._chol(P_filt, "P_filt", t)
+        u = _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_checked, n_iter)
+        if P_checked is P_filt:  # not repaired: L_filt is the factor of sym(P_filt) = P_filt
+            u.L_filt = L_filt
+        return u
 
     # ------------------------------------------------------------ public steps
     def predict(self, x_filt: np.ndarray, P_filt: np.ndarray, t: int) -> Prediction:
@@ -497,7 +527,8 @@ class GaussianAssumedFilter:
             return GaussianAssumedFilter.policy_runner(self, z, policy, keep_pred=keep_pred, progress=progress)
         M, T, nx = z.shape[0], z.shape[1], self.model.nx
         sched = self._param_schedule(params, M, T)
-        const = bool((sched == sched[0, 0]).all())  # one scalar parameter: no per-run weights
+        # one scalar parameter: no per-run weights
+        const = np.ndim(params) == 0 or bool((sched == sched[0, 0]).all())
         mean = np.empty((T, nx, M))
         cov = np.empty((T, nx, nx, M))
         nis = np.empty((T, M))
@@ -514,14 +545,20 @@ class GaussianAssumedFilter:
             from tqdm.auto import tqdm
 
             steps = tqdm(steps, desc=repr(self), leave=False)
+        u = None
         for t in steps:
             if t:
-                m, P = self.predict_rl(m, P, t - 1, info=pinfo)
+                m, P = self.predict_rl(m, P, t - 1, info=pinfo, L=u.L_filt)
                 if spent is not None and pinfo["n_iter"] is not None:
                     spent[0, t] = pinfo["n_iter"]
             if keep_pred:
                 xp[t], Pp[t] = m, P
-            u = self.update_rl(m, P, zt[t], t, sched[0, t] if const else sched[:, t])
+            param = sched[0, t] if const else sched[:, t]
+            if t:  # predict_rl's P_pred is symmetric: sym(P_pred) = P_pred, bit for bit
+                L, P = self._chol(P, "P_pred", t)
+                u = self._update_factored(m, P, L, zt[t], t, param, None, 1)
+            else:
+                u = self.update_rl(m, P, zt[t], t, param)
             if spent is not None:
                 spent[1, t] = u.n_iter_spent
             m, P = u.x_filt, u.P_filt

@@ -50,7 +50,11 @@ class NotPositiveDefinite(np.linalg.LinAlgError):
 
 def sym(P: np.ndarray) -> np.ndarray:
     """Symmetric part ``(P + P^T) / 2`` over the two leading axes."""
-    return 0.5 * (P + P.swapaxes(0, 1))
+    S = P + P.swapaxes(0, 1)
+    if S.dtype.kind != "f":
+        return 0.5 * S
+    S *= 0.5  # in place: one temporary fewer, the same numbers
+    return S
 
 
 def _bad_runs(bad: np.ndarray) -> np.ndarray:
@@ -79,6 +83,11 @@ def chol(P: np.ndarray, what: str = "matrix") -> np.ndarray:
         if bad.any():
             raise NotPositiveDefinite(np.flatnonzero(bad.ravel()), what)
         return np.moveaxis(L, (-2, -1), (0, 1))
+    if P.dtype == np.float64:
+        L = _chol_positive(P)
+        if L is not None:
+            return L
+    # some pivot is not positive: factor again, carrying on past the bad runs to name them all
     L = np.zeros_like(P)
     bad = np.zeros(P.shape[2:], dtype=bool)
     for j in range(n):
@@ -91,6 +100,32 @@ def chol(P: np.ndarray, what: str = "matrix") -> np.ndarray:
             L[j + 1 :, j] = s / d
     if bad.any():
         raise NotPositiveDefinite(_bad_runs(bad), what)
+    return L
+
+
+def _all_positive(d: np.ndarray) -> bool:
+    """Every entry ``> 0`` (NaN is not); one pass where ``(d > 0).all()`` takes two."""
+    return d.size == 0 or bool(d.min() > 0)
+
+
+def _chol_positive(P: np.ndarray) -> np.ndarray | None:
+    """:func:`chol`'s factor when every pivot is positive (the same operations, without the
+    per-run bookkeeping of bad pivots), else None."""
+    n = P.shape[0]
+    if n == 1:  # a 1x1 factor is the square root
+        if not _all_positive(P):
+            return None
+        return np.sqrt(P, out=np.empty_like(P))
+    L = np.zeros_like(P)  # the layout of P, as in the bookkeeping loop: einsum's order follows it
+    for j in range(n):
+        d = P[j, j] - np.einsum("k...,k...->...", L[j, :j], L[j, :j]) if j else P[j, j]
+        if not _all_positive(d):
+            return None
+        d = np.sqrt(d)
+        L[j, j] = d
+        if j + 1 < n:
+            s = P[j + 1 :, j] - np.einsum("ik...,k...->i...", L[j + 1 :, :j], L[j, :j]) if j else P[j + 1 :, j]
+            L[j + 1 :, j] = s / d
     return L
 
 
@@ -133,6 +168,8 @@ def solve_spd(L: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def logdet_chol(L: np.ndarray) -> np.ndarray:
     """``log det A`` from the Cholesky factor of ``A``."""
+    if L.shape[0] == 1:  # the sum of one log: 0 + log(l) = log(l) (a log is never -0)
+        return 2.0 * np.log(L[0, 0])
     return 2.0 * np.log(np.diagonal(L, axis1=0, axis2=1)).sum(axis=-1)
 
 

@@ -76,7 +76,8 @@ def kernel(z: np.ndarray, kappa: float) -> np.ndarray:
         v = zt[t] - (h0 + e)
         m, P = m + K * v, P - K * K * Pzz
         nis = v * v / Pzz
-        out[:, t] = m, P, nis, -0.5 * (nis + np.log(Pzz) + np.log(2.0 * np.pi))
+        out[0, t], out[1, t], out[2, t] = m, P, nis
+        out[3, t] = -0.5 * (nis + np.log(Pzz) + np.log(2.0 * np.pi))
     return out
 
 

@@ -101,15 +101,27 @@ def _pair_sums_lean(g, m, g0, A, w, residual, cross, work: dict):
 
 def _pair_sums(g, m, g0, A, weight, residual, cross):
     """The sums over the points ``m +- A[:, k]`` with weights ``weight[k]`` (scalar, ``(M,)`` or ``(K, M)``)."""
-    dX = np.concatenate([A, -A], axis=1)  # (n, 2K, M)
-    G = g(m[:, None, :] + dX)
+    K = A.shape[1]
+    mc = m[:, None, :]
+    shape = A.shape[:1] + (2 * K,) + A.shape[2:]
+    if not cross and m.dtype == A.dtype and mc.shape[2:] == A.shape[2:]:
+        # the points without dX (n, 2K, M): m - a is m + (-a), bit for bit
+        X = np.empty(shape, dtype=A.dtype)
+        np.add(mc, A, out=X[:, :K])
+        np.subtract(mc, A, out=X[:, K:])
+    else:  # dX = [A, -A], kept for Cov[x, g]
+        dX = np.empty(shape, dtype=A.dtype)
+        dX[:, :K] = A
+        np.negative(A, out=dX[:, K:])
+        X = mc + dX
+    G = g(X)
     D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
     # A model function returns (..., ng) with ng fastest; moved to run-last
     # its runs are strided, which makes the einsums below ~6x slower for
     # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
     D = np.ascontiguousarray(D)
     w = weight
-    if np.ndim(w) == 2:  # one weight per direction and run: the same for +a_k and -a_k
+    if getattr(w, "ndim", 0) == 2:  # one weight per direction and run: the same for +a_k and -a_k
         w = np.concatenate([w, w], axis=0)
     wD = D * w
     ED = wD.sum(axis=1)
@@ -140,6 +152,8 @@ def _scatter(a: np.ndarray, runs: np.ndarray, M: int) -> np.ndarray:
 
 
 def _check_tile(tile, M: int) -> int:
+    if type(tile) is int and tile == 1:  # the common case, without numpy's checks
+        return 1
     t = int(tile) if np.ndim(tile) == 0 and float(tile) == int(tile) else -1
     if t < 1:
         raise ValueError(f"tile must be a positive integer, got {tile!r}")
@@ -223,22 +237,33 @@ class MomentRule(ABC):
         if L is None:
             L = chol(sym(P), "P")
         g0 = g(m[:, None, :])[:, 0, :]
-        ED = np.zeros_like(g0)
-        EDD = np.zeros((g0.shape[0], g0.shape[0], M))
-        EXD = np.zeros((n, g0.shape[0], M)) if cross else None
+        sums = None
         count = 0.0
         for ps in self._point_sets(n, M, param, rng):
-            e, ee, ex = _weighted_sums(g, m, g0, L, ps, residual, cross)
-            ED += e
-            EDD += ee
-            if cross:
-                EXD += ex
+            part = _weighted_sums(g, m, g0, L, ps, residual, cross)
+            if sums is None and g0.dtype == part[0].dtype == part[1].dtype == np.float64 and (
+                    part[2] is None or part[2].dtype == np.float64):
+                # the first set's sums are fresh arrays: adding 0.0 in place is adding them to zeros
+                # (it turns -0 into +0), without the zeros
+                sums = [a if a is None else np.add(a, 0.0, out=a) for a in part]
+            else:
+                if sums is None:
+                    sums = [np.zeros_like(g0), np.zeros((g0.shape[0], g0.shape[0], M)),
+                            np.zeros((n, g0.shape[0], M)) if cross else None]
+                for acc, a in zip(sums, part):
+                    if acc is not None:
+                        acc += a
             count = count + 1.0
-        ED /= count
-        EDD /= count
+        if sums is None:  # no point set: the zero sums over a zero count, as ever
+            sums = [np.zeros_like(g0), np.zeros((g0.shape[0], g0.shape[0], M)),
+                    np.zeros((n, g0.shape[0], M)) if cross else None]
+        ED, EDD, EXD = sums
+        if count != 1.0:  # x / 1 = x: one set (the unscented rule) needs no averaging
+            ED /= count
+            EDD /= count
+            if cross:
+                EXD /= count
         cov = self._cov_from_sums(EDD, ED, param)
-        if cross:
-            EXD /= count
         return Moments(mean=g0 + ED, cov=sym(cov), cross=EXD)
 
 

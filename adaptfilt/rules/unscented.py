@@ -3,6 +3,7 @@ with the modified form for ``kappa < 0``) and :class:`CubatureRule` (the unscent
 """
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -82,6 +83,8 @@ class UnscentedRule(MomentRule):
 
     def check_param(self, param, n: int) -> np.ndarray:
         kappa = np.asarray(param, dtype=float)
+        if kappa.ndim == 0 and math.isfinite(kappa) and n + kappa > 0:  # the common case, without array checks
+            return kappa
         if not np.isfinite(kappa).all():
             raise ValueError(f"kappa must be finite, got {param!r}")
         if (n + kappa <= 0).any():
