@@ -30,15 +30,32 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    5..10 iterations by tolerance). Pooled over ``--seeds`` data-and-filter
    seeds (one divergent run dominates RMSE and ANEES, so seeds matter).
 
+4. **The rule's implementation, before and after** (``--speed``: this part alone):
+   CPU time (``time.process_time``, best of ``--speed-repeat``, the variants
+   interleaved) of (a) training a SIF policy, ``train_policy("ctm-sif-nis",
+   "fast", 0.5, 100, 0)``, and (b) the default SIF (``on_indefinite="clip"``) on ``M = 10^4`` CTM runs,
+   ``T = 150``, 10 iterations, under three implementations of the rule: the
+   baseline (the methods of ``adaptfilt/rules/stochastic.py`` at
+   ``--baseline``, a git revision, swapped in: numpy Gram-Schmidt, scattered
+   sums), today's rule with the numpy Gram-Schmidt
+   (``adaptfilt.rules._sif_kernels.BACKEND = "numpy"``: the bookkeeping alone)
+   and today's rule with the compiled one (numba). All three must give the
+   same numbers: the benchmark checks the policies' parameters and the runs'
+   outputs bit for bit and says so.
+
 The benchmark imports ``adaptfilt`` as installed; from a checkout that is not
 the installed one, run it as ``PYTHONPATH=. python benchmarks/bench_sif.py``.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import platform
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -188,13 +205,118 @@ def filter_quality(M: int, T: int, seeds: tuple[int, ...], seeds_deg5: tuple[int
     return rows
 
 
+#: the revision whose ``stochastic.py`` is the baseline of part 4: the parent of the commit that compiled
+#: the Gram-Schmidt and removed the scattering of per-draw sums
+BASELINE = "e42052d^"
+
+
+def baseline_rule_methods(rev: str) -> dict:
+    """The methods of ``StochasticIntegrationRule`` as ``adaptfilt/rules/stochastic.py`` defines them at
+    git revision ``rev``, loaded as a module of their own (their globals: that revision's helpers)."""
+    root = Path(__file__).resolve().parents[1]
+    src = subprocess.run(["git", "show", f"{rev}:adaptfilt/rules/stochastic.py"], cwd=root, capture_output=True,
+                         text=True, check=True).stdout
+    name = "adaptfilt.rules._stochastic_baseline"
+    spec = importlib.util.spec_from_loader(name, loader=None)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__file__ = f"<{rev}:adaptfilt/rules/stochastic.py>"
+    sys.modules[name] = mod
+    exec(compile(src, mod.__file__, "exec"), mod.__dict__)
+    return {k: v for k, v in vars(mod.StochasticIntegrationRule).items() if k in vars(StochasticIntegrationRule)
+            and (callable(v) or isinstance(v, (staticmethod, property)))}
+
+
+class _Implementation:
+    """Select one implementation of the rule for every instance, old and new, while in the ``with``."""
+
+    def __init__(self, methods: dict | None, backend: str):
+        self.methods, self.backend = methods, backend
+
+    def __enter__(self):
+        from adaptfilt.rules import _sif_kernels
+        self._saved = {k: vars(StochasticIntegrationRule)[k] for k in (self.methods or {})}
+        self._backend = _sif_kernels.BACKEND
+        for k, v in (self.methods or {}).items():
+            setattr(StochasticIntegrationRule, k, v)
+        _sif_kernels.BACKEND = self.backend
+        return self
+
+    def __exit__(self, *exc):
+        from adaptfilt.rules import _sif_kernels
+        for k, v in self._saved.items():
+            setattr(StochasticIntegrationRule, k, v)
+        _sif_kernels.BACKEND = self._backend
+
+
+def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
+    """Part 4: CPU time of a SIF training and a large SIF run under the baseline, the numpy and the
+    compiled implementation of the rule, interleaved, best of ``repeat``; outputs compared bit for bit."""
+    from adaptfilt.trainers import train_policy
+    try:
+        old = baseline_rule_methods(baseline)
+    except (subprocess.CalledProcessError, ImportError, OSError) as err:  # no git, no such revision, helpers gone
+        print(f"(baseline {baseline} unavailable: {str(err).strip()[:200]})")
+        old = None
+    variants = {"baseline " + baseline: (old, "numpy"), "numpy Gram-Schmidt": (None, "numpy"),
+                "compiled Gram-Schmidt": (None, "auto")}
+    if old is None:
+        del variants["baseline " + baseline]
+    model = af.models.coordinated_turn()
+    z = model.simulate(M, T, rng=1).z
+    # the work: (a) a training; (b) a run; each returns what must be equal across the variants
+    def train():
+        pol = train_policy("ctm-sif-nis", "fast", 0.5, episodes, 0, progress=False)
+        return _policy_arrays(pol)
+
+    def run():
+        r = af.SIF(model, seed=0, on_indefinite="clip").run(z, params=10)
+        return [r.mean, r.cov, r.nis, r.loglik]
+
+    with _Implementation(None, "auto"):
+        af.SIF(model, seed=0).run(z[:4, :2], params=2)  # compile (or load) the kernel outside the timings
+    for label, work in ((f"(a) train_policy('ctm-sif-nis', 'fast', 0.5, {episodes}, 0)", train),
+                        (f"(b) SIF(ctm, seed=0, on_indefinite='clip').run(z, params=10), M = {M}, T = {T}", run)):
+        best = {k: np.inf for k in variants}
+        outputs = {}
+        for _ in range(repeat):
+            for name, (methods, backend) in variants.items():
+                with _Implementation(methods, backend):
+                    c0 = time.process_time()
+                    out = work()
+                    best[name] = min(best[name], time.process_time() - c0)
+                outputs.setdefault(name, out)
+        ref = next(iter(outputs.values()))
+        same = all(len(o) == len(ref) and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(o, ref))
+                   for o in outputs.values())
+        first = next(iter(best.values()))
+        print(label + ("   outputs bit for bit equal: yes" if same else "   OUTPUTS DIFFER"))
+        for name, sec in best.items():
+            print(f"  {name:32s} {sec:8.2f} CPU-s   {first / sec:5.2f}x")
+
+
+def _policy_arrays(policy) -> list:
+    """The arrays that define a trained policy (network, scaler, training curve), sorted by name."""
+    arrays = policy.to_arrays()[0]
+    return [arrays[k] for k in sorted(arrays)]
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run, not the figures)")
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--seeds", type=int, default=3, help="seeds pooled in part 3 (degree 3)")
     ap.add_argument("--seeds-deg5", type=int, default=1, help="seeds pooled in part 3 (degree 5; slow)")
+    ap.add_argument("--speed", action="store_true", help="part 4 alone: the rule's implementation before and after")
+    ap.add_argument("--speed-repeat", type=int, default=3, help="part 4: best of this many")
+    ap.add_argument("--baseline", default=BASELINE, help="part 4: the git revision of the baseline stochastic.py")
     args = ap.parse_args(argv)
+    if args.speed:
+        episodes, M_speed, T_speed = (20, 1000, 30) if args.quick else (100, 10_000, 150)
+        print(f"# bench_sif --speed  python {platform.python_version()}  numpy {np.__version__}  cpus {os.cpu_count()}  "
+              f"{platform.processor() or platform.machine()}  load {os.getloadavg()[0]:.1f}\n")
+        print(f"## 4. the rule's implementation: CPU time, best of {args.speed_repeat}, interleaved")
+        speed(args.speed_repeat, episodes, M_speed, T_speed, args.baseline)
+        return
     M_cost, M_acc, M_filt, T = (2000, 500, 200, 40) if args.quick else (10_000, 2000, 2000, 150)
     print(f"# bench_sif  python {platform.python_version()}  numpy {np.__version__}  "
           f"cpus {os.cpu_count()}  {platform.machine()}{'  (quick)' if args.quick else ''}\n")

@@ -343,10 +343,11 @@ class StochasticIntegrationRule(MomentRule):
         ``{k: state after draw k}`` for every ``k`` in ``at``, the states the
         recursion with ``n_iter = k`` ends in (the first ``k`` draws are the same).
 
-        The sums and the Welford state of the runs a draw was made for are updated in place at
-        their columns: the same operations on the same operands as on whole arrays (where the other
-        runs would add zeros, or keep their values), so every run's numbers are those of the
-        whole-batch form, without scattering each draw's sums into arrays of all ``M`` runs.
+        The state (sums, counts, Welford terms) is kept for the active runs only, in arrays of
+        their columns: gathered when the active set changes (a few times a call: the runs stop
+        at a few distinct counts), written back then and at the end. Each run's numbers are
+        those of whole-batch arrays (the same operations on the same operands, element by
+        element; the runs that are done would only add zeros or keep their values).
         """
         tol = self.tol
         per_run = n_iter.ndim > 0 or tol is not None
@@ -355,96 +356,99 @@ class StochasticIntegrationRule(MomentRule):
         want_var = want_mean and self.integration_error != "none"
         track = want_var or tol is not None
         full_var = self.integration_error == "full"
-        ng = None
-        N = np.zeros(M) if per_run else 0.0
-        active = np.ones(M, dtype=bool)
-        current = [None]  # the indices of the active runs (None: all), recomputed when ``active`` changes
-        sums = None
-        stats: dict[str, list[np.ndarray]] = {}
-        Vfull = None
         if at is not None and (per_run or int(n_iter) != max(at)):
             raise ValueError("_recursion(at=...) needs a fixed count with scalar n_iter = max(at)")
+        tracked = ("mean",) * want_mean + (("cov",) + ("cross",) * cross if want_cov and tol is not None else ())
+        tested = [k for k in (("mean", "cov", "cross") if what == "joint" else ("mean",) if what == "mean" else ("cov", "cross"))
+                  if k in tracked]
+        # the state of the runs in ``cols`` (None: all M): state["sums"] (ED, EDD, EXD), state[name] = (I, V)
+        # of each tracked quantity, state["Vfull"]; N, the counts and the centre c of those runs
+        cols = None
+        state: dict[str, list] = {}
+        whole: dict[str, list] = {}  # the whole-batch arrays while cols is a subset
+        N = np.zeros(M) if per_run else 0.0
+        its, ck = n_iter, c
+        active = np.ones(M, dtype=bool) if per_run else None
         snaps: dict[int, dict] = {}
 
-        def set_active(new: np.ndarray) -> np.ndarray:
-            if not np.array_equal(new, active):
-                current[0] = None if new.all() else _active_runs(new)
-            return new
+        def regroup(new):
+            """Write the subset's state back into the whole-batch arrays and gather the runs ``new``."""
+            nonlocal cols, N, its, ck
+            if cols is None:
+                whole.update({k: list(v) for k, v in state.items()}, N=[N])
+            else:
+                for k, v in state.items():
+                    for a, part in zip(whole[k], v):
+                        if a is not None:
+                            a[..., cols] = part
+                whole["N"][0][cols] = N
+            cols = new
+            if new is None:
+                state.update({k: list(v) for k, v in whole.items() if k != "N"})
+                N, its, ck = whole["N"][0], n_iter, c
+            else:
+                state.update({k: [None if a is None else _take_runs(a, new) for a in v] for k, v in whole.items() if k != "N"})
+                N, ck = whole["N"][0][new], None if c is None else _take_runs(c, new)
+                its = n_iter if n_iter.ndim == 0 else n_iter[new]
 
-        sets = make_sets((lambda: current[0]) if per_run else None)
+        sets = make_sets((lambda: cols) if per_run else None)
         for ps, idx in sets:
             e, ee, ex = evaluate(ps, idx, cross)
-            if sums is None:
-                ng = e.shape[0]
-                sums = [np.zeros(a.shape[:-1] + (M,)) if a is not None else None for a in (e, ee, ex if cross else None)]
-            parts = ((sums[0], e), (sums[1], ee)) + (((sums[2], ex),) if cross else ())
-            if idx is None:
-                for s, a in parts:
-                    s += a
-            else:  # the other runs would add +0.0: no change (a sum that starts at +0.0 is never -0.0)
-                for s, a in parts:
-                    s[..., idx] += a
-            N = N + (1.0 if idx is None else active)
-            if not track:
-                if at is not None and N in at:
-                    snaps[int(N)] = self._averaged(sums, N, cross, None, None)
-                if per_run:
-                    active = set_active(N < n_iter)
-                continue
-            tracked = {}
-            if want_mean:
-                tracked["mean"] = e
-            if want_cov and tol is not None:
-                ck = c if c is None or idx is None else c[:, idx]
-                tracked["cov"] = ee if c is None else ee - e[:, None] * ck[None] - ck[:, None] * e[None] + ck[:, None] * ck[None]
-                if cross:
-                    tracked["cross"] = ex
-            act = active if per_run else None
-            for name, X in tracked.items():
-                if name not in stats:
-                    stats[name] = [np.zeros(X.shape[:-1] + (M,)), np.zeros(X.shape[:-1] + (M,))]
-                I, V = stats[name]
-                if idx is None:
-                    Dv = (X - I) / N
-                    later = N >= 2  # V_1 = 0: one draw says nothing about the spread
-                    if act is None:
+            if not state:
+                state["sums"] = [np.zeros_like(e), np.zeros_like(ee), np.zeros_like(ex) if cross else None]
+            sums = state["sums"]
+            sums[0] += e
+            sums[1] += ee
+            if cross:
+                sums[2] += ex
+            N = N + 1.0
+            if track:
+                X = {"mean": e}
+                if "cov" in tracked:
+                    X["cov"] = ee if c is None else ee - e[:, None] * ck[None] - ck[:, None] * e[None] + ck[:, None] * ck[None]
+                    if cross:
+                        X["cross"] = ex
+                for name in tracked:
+                    I, V = state.get(name) or (np.zeros_like(X[name]), np.zeros_like(X[name]))
+                    Dv = (X[name] - I) / N
+                    if per_run:
+                        later = N >= 2  # V_1 = 0: one draw says nothing about the spread
+                        I, V = I + Dv, np.where(later, (N - 2) / N * V + Dv * Dv, V)
+                    else:
+                        later = N >= 2
                         I, V = I + Dv, ((N - 2) / N * V + Dv * Dv if later else V)
-                    else:
-                        I = np.where(act, I + Dv, I)
-                        V = np.where(act & later, (N - 2) / N * V + Dv * Dv, V)
-                    stats[name] = [I, V]
-                else:  # only the active runs change: their columns, in place (``at`` is None here)
-                    Nk, Ik, Vk = N[idx], I[..., idx], V[..., idx]
-                    Dv = (X - Ik) / Nk
-                    later = Nk >= 2
-                    I[..., idx] = Ik + Dv
-                    V[..., idx] = np.where(later, (Nk - 2) / Nk * Vk + Dv * Dv, Vk)
-                if name == "mean" and full_var:
-                    if Vfull is None:
-                        Vfull = np.zeros((ng, ng, M))
-                    outer = Dv[:, None] * Dv[None]
-                    if idx is None:
-                        Vfull = np.where(np.broadcast_to(later if act is None else act & later, (M,)), (N - 2) / N * Vfull + outer, Vfull)
-                    else:
-                        Fk = Vfull[..., idx]
-                        Vfull[..., idx] = np.where(later, (Nk - 2) / Nk * Fk + outer, Fk)
+                    state[name] = [I, V]
+                    if name == "mean" and full_var:
+                        Vfull = state["Vfull"][0] if "Vfull" in state else np.zeros((e.shape[0],) * 2 + e.shape[1:])
+                        outer = Dv[:, None] * Dv[None]
+                        state["Vfull"] = [np.where(np.broadcast_to(later, Vfull.shape[-1:]), (N - 2) / N * Vfull + outer, Vfull)]
             if at is not None and N in at:
-                snaps[int(N)] = self._averaged(sums, N, cross, stats["mean"][1] if want_var else None, Vfull)
+                snaps[int(N)] = self._averaged(state["sums"], N, cross, state["mean"][1] if want_var else None,
+                                               state["Vfull"][0] if "Vfull" in state else None)
+            if not per_run:
+                continue
             if tol is None:
-                if per_run:
-                    active = set_active(N < n_iter)
+                still = N < its
             else:
-                big = np.zeros(M, dtype=bool)
-                for name in (("mean", "cov", "cross") if what == "joint" else ("mean",) if what == "mean" else ("cov", "cross")):
-                    if name in stats:
-                        V = stats[name][1]
-                        big |= np.sqrt((V * V).reshape(-1, M).sum(axis=0)) > tol
-                active = set_active(active & ((N < self.n_min) | ((N < n_iter) & ((N < 2) | big))))
+                big = np.zeros(N.shape, dtype=bool)
+                for name in tested:
+                    V = state[name][1]
+                    big |= np.sqrt((V * V).reshape(-1, V.shape[-1]).sum(axis=0)) > tol
+                still = (N < self.n_min) | ((N < its) & ((N < 2) | big))
+            if not still.all():  # some runs are done: the active set changes
+                if cols is None:
+                    active = still
+                else:
+                    active[cols] = still
                 if not active.any():
                     break
+                regroup(_active_runs(active))
+        if cols is not None:
+            regroup(None)
         if at is not None:
             return snaps
-        return self._averaged(sums, N, cross, stats["mean"][1] if want_var else None, Vfull)
+        return self._averaged(state["sums"], N, cross, state["mean"][1] if want_var else None,
+                              state["Vfull"][0] if "Vfull" in state else None)
 
     @staticmethod
     def _averaged(sums: list, N, cross: bool, V, Vfull) -> dict:
