@@ -49,7 +49,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym
+from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym, sym_fresh
 from adaptfilt.models import StateSpaceModel
 from adaptfilt.rules import MomentRule, Moments, StochasticIntegrationRule, UnscentedRule
 
@@ -149,7 +149,8 @@ class FilterRun:
 
     ``mean (M, T, nx)`` and ``cov (M, T, nx, nx)`` are the filtering moments,
     ``nis``/``loglik`` ``(M, T)`` the per-step normalised innovation squared and
-    measurement log-likelihood, ``params (M, T)`` the update-step parameter used.
+    measurement log-likelihood, ``params (M, T)`` the update-step parameter used
+    (read-only when it is one value for all runs and steps).
     ``x_pred``/``P_pred`` are kept when the run was asked to (``keep_pred``).
     With a stochastic rule, ``info["n_iter_spent"]`` and
     ``info["n_iter_spent_predict"]`` ``(M, T)`` hold the iterations each run
@@ -259,7 +260,12 @@ class GaussianAssumedFilter:
 
     def _wrap(self, fn: Callable, k: int) -> Callable[[np.ndarray], np.ndarray]:
         # model functions take (..., n); the filter holds (n, ..., M)
-        return lambda X: _first_last(np.asarray(fn(_last_first(X), k)))
+        def g(X: np.ndarray) -> np.ndarray:
+            if X.ndim == 3:  # (n, S, M), what the rules pass
+                return np.asarray(fn(X.transpose(1, 2, 0), k)).transpose(2, 0, 1)
+            return _first_last(np.asarray(fn(_last_first(X), k)))
+
+        return g
 
     def _residual_rl(self):
         r = self.model.residual
@@ -315,7 +321,7 @@ class GaussianAssumedFilter:
             info["n_iter"] = n_iter
         if not np.isfinite(m_pred).all():
             raise FilterError("non-finite predicted mean x_pred", t + 1, np.flatnonzero(~np.isfinite(m_pred).all(0)))
-        return m_pred, sym(P_pred)
+        return m_pred, sym_fresh(P_pred)
 
     def update_rl(
         self,
@@ -439,7 +445,7 @@ class GaussianAssumedFilter:
     def _finish_update(self, m, P, z, t: int, z_pred, S, Pxz, n_iter) -> _UpdateRL:
         """The update from the measurement moments: ``S = Cov[h] (+ V_z)`` without ``R``; ``P`` already repaired."""
         model = self.model
-        Pzz = sym(S + self._R)
+        Pzz = sym_fresh(S + self._R)
         Lz, Pzz = self._chol(Pzz, "Pzz", t)
         if callable(z):
             z = z(z_pred, Lz)
@@ -455,7 +461,7 @@ class GaussianAssumedFilter:
             nis = (innov * y).sum(axis=0)
         loglik = -0.5 * (nis + logdet_chol(Lz) + model.nz * _LOG2PI)
         x_filt = m + mv(K, innov)
-        P_filt = sym(P - mm(mm(K, Pzz), K.swapaxes(0, 1)))
+        P_filt = sym_fresh(P - mm(mm(K, Pzz), K.swapaxes(0, 1)))
         if not np.isfinite(x_filt).all():
             raise FilterError("non-finite filtering mean x_filt", t, np.flatnonzero(~np.isfinite(x_filt).all(0)))
         # What the filter returns is a covariance: an indefinite P_filt (a negative centre weight, a
@@ -492,18 +498,23 @@ class GaussianAssumedFilter:
             z = z[:, :, None]
         if z.ndim != 3 or z.shape[2] != nz:
             raise ValueError(f"z must have shape (M, T, nz={nz}) (or (M, T) when nz = 1), got {z.shape}")
-        if not np.isfinite(z).all():
+        # a finite sum has only finite terms (one pass, not two); an infinite one may be an overflow
+        if not np.isfinite(z.sum()) and not np.isfinite(z).all():
             bad = np.argwhere(~np.isfinite(z).all(axis=2))[0]
             raise ValueError(f"z has non-finite values (first at run {bad[0]}, step {bad[1]})")
         return z
 
     def _param_schedule(self, params, M: int, T: int) -> np.ndarray:
+        """The update parameter per run and step ``(M, T)``; one value is a read-only broadcast view
+        (no ``M x T`` array to fill and check)."""
         if params is None:
-            return np.full((M, T), self.param)
+            return np.broadcast_to(np.float64(self.param), (M, T))
         p = np.asarray(params, dtype=float)
         if p.ndim == 0:
-            p = np.full((M, T), float(p))
-        elif p.shape == (M,):
+            p = np.broadcast_to(np.float64(p), (M, T))
+            self.rule.check_param(p[:1, :1], self.model.nx)  # one entry stands for all (the same message)
+            return p
+        if p.shape == (M,):
             p = np.repeat(p[:, None], T, axis=1)
         elif p.shape != (M, T):
             raise ValueError(f"params must be a scalar, (M,) = ({M},) or (M, T) = ({M}, {T}); got {p.shape}")
@@ -528,7 +539,7 @@ class GaussianAssumedFilter:
         M, T, nx = z.shape[0], z.shape[1], self.model.nx
         sched = self._param_schedule(params, M, T)
         # one scalar parameter: no per-run weights
-        const = np.ndim(params) == 0 or bool((sched == sched[0, 0]).all())
+        const = sched.strides == (0, 0) or bool((sched == sched[0, 0]).all())
         mean = np.empty((T, nx, M))
         cov = np.empty((T, nx, nx, M))
         nis = np.empty((T, M))

@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "NotPositiveDefinite",
     "sym",
+    "sym_fresh",
     "chol",
     "mm",
     "mv",
@@ -55,6 +56,14 @@ def sym(P: np.ndarray) -> np.ndarray:
         return 0.5 * S
     S *= 0.5  # in place: one temporary fewer, the same numbers
     return S
+
+
+def sym_fresh(P: np.ndarray) -> np.ndarray:
+    """:func:`sym` of a covariance just computed (a fresh array, not shared), with a 1x1 matrix
+    returned as it is: the symmetric part of a 1x1 matrix is itself, and ``(P + P) / 2`` equals ``P``
+    bit for bit except where ``2 P`` overflows (``|P| > 8.9e307``, which it turns into inf). Saves
+    the filters of a scalar state or measurement two passes over the runs per covariance."""
+    return P if P.shape[0] == 1 else sym(P)
 
 
 def _bad_runs(bad: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from adaptfilt.linalg import chol, mm, sym
+from adaptfilt.linalg import chol, mm, sym, sym_fresh
 
 __all__ = ["Moments", "MomentRule"]
 
@@ -264,6 +264,6 @@ class MomentRule(ABC):
             if cross:
                 EXD /= count
         cov = self._cov_from_sums(EDD, ED, param)
-        return Moments(mean=g0 + ED, cov=sym(cov), cross=EXD)
+        return Moments(mean=g0 + ED, cov=sym_fresh(cov), cross=EXD)
 
 

@@ -83,7 +83,7 @@ class UnscentedRule(MomentRule):
 
     def check_param(self, param, n: int) -> np.ndarray:
         kappa = np.asarray(param, dtype=float)
-        if kappa.ndim == 0 and math.isfinite(kappa) and n + kappa > 0:  # the common case, without array checks
+        if kappa.ndim == 0 and math.isfinite(kappa) and n + float(kappa) > 0:  # one value: no array checks
             return kappa
         if not np.isfinite(kappa).all():
             raise ValueError(f"kappa must be finite, got {param!r}")
@@ -93,8 +93,9 @@ class UnscentedRule(MomentRule):
         return kappa
 
     def _point_sets(self, n, M, kappa, rng):
-        c = n + kappa
-        yield _PointSet(scale=np.sqrt(c), rotation=None, weight=0.5 / c)
+        # one kappa in Python floats (the same IEEE operations, without 0-d array overhead)
+        c = n + (float(kappa) if kappa.ndim == 0 else kappa)
+        yield _PointSet(scale=math.sqrt(c) if kappa.ndim == 0 else np.sqrt(c), rotation=None, weight=0.5 / c)
 
     def _cov_from_sums(self, EDD, ED, kappa):
         if self.form == "standard":
