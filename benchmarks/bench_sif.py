@@ -41,7 +41,12 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    (``adaptfilt.rules._sif_kernels.BACKEND = "numpy"``: the bookkeeping alone)
    and today's rule with the compiled one (numba). All three must give the
    same numbers: the benchmark checks the policies' parameters and the runs'
-   outputs bit for bit and says so.
+   outputs bit for bit and says so. Measured (shared 2-core Intel Xeon, load
+   about 6, best of 3): (a) 5.07 -> 3.79 (bookkeeping) -> 2.72 CPU-s
+   (compiled), 1.86x; (b) 12.10 -> 12.04 -> 11.23 CPU-s, 1.08x (a fixed
+   count has no subsets; what is left is the draws, about 38 %, the weighted
+   sums and the bearing, outside the rule's own code). The compiled kernel
+   costs about 0.25 CPU-s once per process (loading numba's cache).
 
 The benchmark imports ``adaptfilt`` as installed; from a checkout that is not
 the installed one, run it as ``PYTHONPATH=. python benchmarks/bench_sif.py``.
