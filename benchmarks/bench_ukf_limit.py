@@ -12,10 +12,13 @@ cores, load), then:
 * the times: best of N of each, CPU time and wall, the two interleaved so that
   both see the same load, the run-steps per second and the ratio
   library / kernel, against the target ``<= 1.5``;
-* the breakdown: a cProfile of one library run, its time grouped by what it is
-  spent on (the model's f and h, which the kernel spends too; the moment
-  sums; the small matrix calls; the Cholesky factors and checks; Python per
-  step), and the number of Python-level calls per step.
+* the breakdown: the CPU time per step of each, at M runs and at 10 runs
+  (where a step costs its Python and call overhead only), which splits the
+  library's extra time into Python per step and passes over the runs; then a
+  cProfile of one library run, its own time grouped by what it is spent on
+  (the model's f and h and the stored outputs, which the kernel spends too;
+  the moment sums; the small matrix calls; the Cholesky factors and checks),
+  and the number of Python-level calls per step.
 
 The kernel is the UKF of the scalar model written out: sigma points
 ``m, m +- sqrt(1 + kappa) sqrt(P)``, weights ``kappa / (1 + kappa)`` and
@@ -23,16 +26,36 @@ The kernel is the UKF of the scalar model written out: sigma points
 UNGM's f, h, Q, R hard-coded, every run at once. It returns what the
 library's run returns (mean, variance, NIS, log-likelihood per run and step).
 
-Where the remaining factor goes (measured on a shared 2-core Intel Xeon,
-numpy 2): the general form handles ``(n, n, M)`` arrays through small
-matrix calls (einsum for the weighted sums, the gain and ``K Pzz K^T``)
-where the kernel multiplies vectors; it keeps the model's ``(..., n)`` layout
-(two transposes per model call); it symmetrises every covariance and factors
-``P_pred``, ``Pzz`` and ``P_filt`` (the kernel takes one square root per
-step and checks nothing); it checks the parameter, the finiteness of every
-mean and the definiteness of every covariance, and it pays Python call
-overhead per step (about 100 calls, against the kernel's 25) that does not
-shrink with M.
+Measured (shared 2-core Intel Xeon, numpy 2.4, load about 5, best of 7, one
+session): ratio 2.21 before the work of issue 35 (library 1294 us per step,
+kernel 584 us), 1.44 after (829 us against 577 us).
+
+Where the remaining factor goes (the per-step split is printed; at 10^4 runs
+the library spends about 250 us per step more than the kernel):
+
+* about 70 us is Python per step, whatever M: some 155 Python-level calls
+  (the rule, its point set, the model wrappers, the Cholesky factors and
+  checks, six einsum calls) against the kernel's 75 ufunc calls;
+* the rest are passes over the runs that the kernel does not make, about 20
+  against its 75: the weight applied to every deviation before the sums
+  (the kernel factors it out); einsum for the weighted sums, ``K z~`` and
+  ``K Pzz K^T`` (a zero-filled output, then accumulated); ``+ 0`` on the
+  fresh sums, which keeps the signed zeros the zero-initialised accumulators
+  gave them; the positivity checks of the factors of ``P_pred``, ``Pzz`` and
+  ``P_filt``; ``L_zz`` and ``L_zz^2`` where the kernel divides by ``Pzz``
+  (the same maths, other round-off); ``log det`` from the factor; the
+  finiteness checks of ``x_pred`` and ``x_filt``; ``dX`` kept for
+  ``Pxz``; the per-run iteration count.
+
+Removed by issue 35 (all bit for bit, checked on 141 outputs of UKF and SIF
+runs; a 1x1 covariance left as it is differs from ``(P + P) / 2`` only where
+``2 P`` overflows, ``|P| > 8.9e307``): the bad-pivot bookkeeping of the Cholesky factor (a 1x1 factor is a
+square root), the second factorisation of ``P_filt`` in the next predict,
+the symmetrisation of ``P_pred`` before the update and of every 1x1
+covariance, zero accumulators and a division by one for one point set,
+``concatenate`` and ``moveaxis`` in the sigma points and model wrappers, the
+length-1 sums of the 1x1 solve, NIS and log det, the ``M x T`` parameter
+array (one value: a broadcast view) and 0-d array arithmetic on kappa.
 """
 from __future__ import annotations
 
@@ -116,12 +139,23 @@ CATEGORIES = (
     ("axis moves (_wrap, moveaxis)", lambda f, n: n in ("moveaxis", "normalize_axis_tuple", "<lambda>", "transpose",
                                                         "swapaxes", "_wrap") or "axis" in n),
     ("reductions (sum, any, all)", lambda f, n: n in ("reduce", "_sum", "_any", "_all", "sum", "any", "all")),
+    ("z layout (the kernel's too)", lambda f, n: n == "ascontiguousarray"),
     ("allocation and copies", lambda f, n: n in ("zeros", "zeros_like", "empty", "empty_like", "copy", "concatenate",
-                                                  "ascontiguousarray", "copyto", "repeat", "full")),
+                                                  "copyto", "repeat", "full")),
     ("parameter and finiteness checks", lambda f, n: n in ("check_param", "_check_tile", "isfinite", "ndim")),
     ("moment rule arithmetic (rules/)", lambda f, n: "rules" in f),
-    ("filter arithmetic (gaf.py)", lambda f, n: f.endswith("gaf.py")),
+    ("filter arithmetic (gaf.py)", lambda f, n: f.endswith("gaf.py") and n != "run"),
+    ("run loop, z layout, stored outputs (the kernel's too)", lambda f, n: n == "run"),
 )
+
+
+def python_per_step(ukf: af.UKF, z: np.ndarray, kappa: float, rep: int) -> tuple[float, float]:
+    """Best CPU seconds per step of each on ``z``'s first 10 runs: with arrays this small the time
+    is what a step costs in Python and call overhead, whatever M."""
+    z10 = np.ascontiguousarray(z[:10])
+    lib = min(timed(lambda: library(ukf, z10))[1] for _ in range(rep))
+    ker = min(timed(lambda: kernel(z10[:, :, 0], kappa))[1] for _ in range(rep))
+    return lib / z.shape[1], ker / z.shape[1]
 
 
 def breakdown(ukf: af.UKF, z: np.ndarray, top: int) -> None:
@@ -190,6 +224,17 @@ def main(argv=None) -> None:
     r_wall = best["library"][0] / best["kernel"][0]
     print(f"ratio library / kernel: {r_cpu:.2f} (cpu), {r_wall:.2f} (wall); target <= {TARGET}: "
           + ("met" if r_cpu <= TARGET else "NOT met"))
+
+    (lib_s, ker_s), T = python_per_step(ukf, z, args.kappa, max(rep, 3)), z.shape[1]
+    lib_M, ker_M = best["library"][1] / T, best["kernel"][1] / T
+    extra = lib_M - ker_M
+    print(f"\nper step (cpu): library {1e6 * lib_M:.0f} us, kernel {1e6 * ker_M:.0f} us; the same on 10 runs "
+          f"(Python and call overhead): library {1e6 * lib_s:.0f} us, kernel {1e6 * ker_s:.0f} us")
+    if extra > 0:
+        py = lib_s - ker_s
+        print(f"of the library's {1e6 * extra:.0f} us per step beyond the kernel, {1e6 * py:.0f} us "
+              f"({100 * py / extra:.0f} %) is Python per step and {1e6 * (extra - py):.0f} us "
+              f"({100 * (extra - py) / extra:.0f} %) passes over the {M} runs that the kernel does not make")
 
     breakdown(ukf, z, args.top)
     if hasattr(os, "getloadavg"):
