@@ -11,7 +11,7 @@ from typing import Callable, Iterator, Literal
 import numpy as np
 
 from adaptfilt.linalg import chol, sym
-from adaptfilt.rules import _sif_kernels
+from adaptfilt.rules._sif_kernels import gram_schmidt as _gram_schmidt_runs
 from adaptfilt.rules.base import (BatchFn, MomentRule, Moments, Residual, _active_runs, _check_tile, _PointSet, _take_runs,
                                   _weighted_sums)
 
@@ -31,7 +31,7 @@ def _gram_schmidt(G: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
     """The Q factor (positive diagonal R) of each ``G[:, :, j]``, ``(n, n, M)``, for the runs ``runs`` (all
     when None): elementwise in the run axis, so a subset of runs gets bit for bit the columns the whole
     batch gets. Compiled where numba is installed, the same numbers (:mod:`adaptfilt.rules._sif_kernels`)."""
-    return _sif_kernels.gram_schmidt(G, runs)
+    return _gram_schmidt_runs(G, runs)
 
 
 def _simplex(n: int) -> np.ndarray:
