@@ -31,12 +31,18 @@ import os
 
 import numpy as np
 
-__all__ = ["BACKEND", "available", "gram_schmidt", "gram_schmidt_numpy"]
+__all__ = ["BACKEND", "SUMS", "available", "gram_schmidt", "gram_schmidt_numpy", "points", "sums_available", "weighted_sums"]
 
 #: ``"auto"`` (the compiled kernel where numba is installed), ``"numba"`` (required) or ``"numpy"``
 BACKEND: str = os.environ.get("ADAPTFILT_SIF_BACKEND", "auto")
 
+#: whether the point sets' weighted sums (:func:`points`, :func:`weighted_sums`) are compiled too (where :data:`BACKEND` allows it
+#: and numpy's einsum sums without fused multiply-adds); False: numpy's form, e.g. to time the kernels apart
+SUMS: bool = True
+
 _kernel = None  # the compiled kernel once built; False where numba is missing
+_sums = None  # (points kernel, sums kernel) once built and checked against numpy; False where unusable
+_BLOCK = 256  # runs per block of the compiled sums (operands of a block stay in the first-level caches)
 
 
 def _build():
@@ -121,3 +127,157 @@ def gram_schmidt(G: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
     Q = np.empty((n, n, K))
     _kernel(np.asarray(G, dtype=float), idx, Q, np.empty((n, K)), np.empty(K))
     return Q
+
+
+# ------------------------------------------------------------------ the point sets' weighted sums
+def _build_sums():
+    """The compiled point construction and weighted sums, or False: numba missing, or numpy's einsum
+    found to sum otherwise than the kernel (a build whose baseline fuses multiply-adds, see
+    :func:`_einsum_is_plain`)."""
+    global _sums
+    if _sums is None:
+        if not available():
+            _sums = False
+            return _sums
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def _points(m, L, Q, rotate, scale, X, A):  # pragma: no cover - compiled
+            """``A = mm(L, Q) * scale`` (``L * scale`` without ``rotate``), ``X[:, :K] = m + A``,
+            ``X[:, K:] = m - A``: numpy's einsum sums ``0 + p_0 + p_1 + ...`` over ``k`` per element.
+            In blocks of runs (each run's arithmetic is its own: the blocks keep the operands in cache;
+            the rows as 1-D views, loops LLVM vectorises along the runs)."""
+            n, M = m.shape
+            K = A.shape[1]
+            for r0 in range(0, M, _BLOCK):
+                r1 = min(r0 + _BLOCK, M)
+                sc = scale[r0:r1]
+                for i in range(n):
+                    mi = m[i, r0:r1]
+                    for j in range(K):
+                        a = A[i, j, r0:r1]
+                        B = a.shape[0]
+                        if rotate:
+                            for b in range(B):
+                                a[b] = 0.0
+                            for k in range(L.shape[1]):
+                                lk, qk = L[i, k, r0:r1], Q[k, j, r0:r1]
+                                for b in range(B):
+                                    a[b] = a[b] + lk[b] * qk[b]
+                        else:
+                            lj = L[i, j, r0:r1]
+                            for b in range(B):
+                                a[b] = lj[b]
+                        xp, xm = X[i, j, r0:r1], X[i, K + j, r0:r1]
+                        for b in range(B):
+                            v = a[b] * sc[b]
+                            a[b] = v
+                            xp[b] = mi[b] + v
+                            xm[b] = mi[b] - v
+
+        @numba.njit(cache=True, nogil=True)
+        def _pair_sums_kernel(D, W, A, cross, wD, ED, EDD, EXD):  # pragma: no cover - compiled
+            """``wD = D * w`` (``W (K, M)``, the weight of ``+a_k`` and ``-a_k``), ``ED = sum_s wD``,
+            ``EDD = sum_s wD_i D_j``, ``EXD = sum_s dX_i wD_j`` (``dX = [A, -A]``), each sum from ``0``
+            in the order of ``s``, as numpy's reduction and einsum add them; in blocks of runs, as above."""
+            ng, S, M = D.shape
+            K = S // 2
+            for r0 in range(0, M, _BLOCK):
+                r1 = min(r0 + _BLOCK, M)
+                for i in range(ng):
+                    e = ED[i, r0:r1]
+                    B = e.shape[0]
+                    for b in range(B):
+                        e[b] = 0.0
+                    for s in range(S):
+                        d, w, wd = D[i, s, r0:r1], W[s if s < K else s - K, r0:r1], wD[i, s, r0:r1]
+                        for b in range(B):
+                            v = d[b] * w[b]
+                            wd[b] = v
+                            e[b] = e[b] + v
+                for i in range(ng):
+                    for j in range(ng):
+                        e = EDD[i, j, r0:r1]
+                        for b in range(B):
+                            e[b] = 0.0
+                        for s in range(S):
+                            wd, d = wD[i, s, r0:r1], D[j, s, r0:r1]
+                            for b in range(B):
+                                e[b] = e[b] + wd[b] * d[b]
+                if cross:
+                    for i in range(A.shape[0]):
+                        for j in range(ng):
+                            e = EXD[i, j, r0:r1]
+                            for b in range(B):
+                                e[b] = 0.0
+                            for s in range(K):
+                                a, wd = A[i, s, r0:r1], wD[j, s, r0:r1]
+                                for b in range(B):
+                                    e[b] = e[b] + a[b] * wd[b]
+                            for s in range(K):
+                                a, wd = A[i, s, r0:r1], wD[j, K + s, r0:r1]
+                                for b in range(B):
+                                    e[b] = e[b] + (-a[b]) * wd[b]
+
+        _sums = (_points, _pair_sums_kernel)
+        if not _einsum_is_plain():
+            _sums = False
+    return _sums
+
+
+def _einsum_is_plain() -> bool:
+    """Whether numpy's einsum adds its products as the kernels do: one rounded product, then one
+    rounded sum, per term. A numpy built with fused multiply-adds in its baseline (aarch64's NEON;
+    an x86-64 build with FMA3 in its baseline) rounds once per term instead, and no kernel without
+    FMA can give its bits. Checked on products whose fused and unfused sums differ."""
+    e = 2.0 ** -30
+    M = 37  # SIMD blocks and a tail
+    a = np.empty((1, 2, M))
+    a[0, 0], a[0, 1] = 1.0 + e, 1.0 + e
+    b = np.empty((1, 2, M))
+    b[0, 0], b[0, 1] = -1.0, 1.0 - e  # 0 + -(1 + e), then + (1 + e)(1 - e) = 1 - e^2: 1 rounded, -e fused
+    got = np.einsum("isM,jsM->ijM", a, b)  # fused: -e - e^2
+    return bool(np.all(got == -e))
+
+
+def sums_available() -> bool:
+    """Whether :func:`points` and :func:`weighted_sums` are compiled (numba importable, :data:`BACKEND` and :data:`SUMS` allow it and
+    numpy's einsum sums as the kernel does); imports numba the first time."""
+    return SUMS and _use_kernel() and bool(_build_sums())
+
+
+def points(m: np.ndarray, L: np.ndarray, rotation: np.ndarray | None, scale):
+    """The points ``X (n, 2K, M)`` = ``[m + A, m - A]`` and ``A = mm(L, rotation) * scale`` (``L * scale``
+    when ``rotation`` is None), compiled, bit for bit numpy's (:func:`adaptfilt.rules.base._pair_sums`);
+    None where the kernels do not apply (then the caller takes numpy's form): not compiled, one run
+    (numpy's reductions then sum a contiguous axis pairwise), not float64 throughout."""
+    n, M = m.shape
+    if M < 2 or not sums_available():
+        return None
+    K = n if rotation is None else rotation.shape[1]
+    if (m.dtype != np.float64 or L.dtype != np.float64 or L.shape != (n, n, M)
+            or (rotation is not None and (rotation.dtype != np.float64 or rotation.shape != (n, K, M)))):
+        return None
+    scale = np.asarray(scale)
+    if scale.dtype != np.float64 or scale.shape not in ((), (M,)):
+        return None
+    X, A = np.empty((n, 2 * K, M)), np.empty((n, K, M))
+    _sums[0](m, L, L if rotation is None else rotation, rotation is not None, np.broadcast_to(scale, (M,)), X, A)
+    return X, A
+
+
+def weighted_sums(D: np.ndarray, A: np.ndarray, weight, cross: bool):
+    """``(ED, EDD, EXD)`` of the deviations ``D (ng, 2K, M)`` at the points ``m +- A[:, k]`` with weight
+    ``weight`` (scalar, ``(M,)`` or ``(K, M)``) for ``+a_k`` and ``-a_k``, compiled, bit for bit numpy's;
+    None where the kernels do not apply (as :func:`points`)."""
+    n, K, M = A.shape
+    w = np.asarray(weight)
+    if (M < 2 or not sums_available() or D.dtype != np.float64 or A.dtype != np.float64 or D.ndim != 3
+            or D.shape[1:] != (2 * K, M) or w.dtype != np.float64 or w.shape not in ((), (M,), (K, M))):
+        return None
+    D = np.ascontiguousarray(D)
+    ng = D.shape[0]
+    ED, EDD = np.empty((ng, M)), np.empty((ng, ng, M))
+    EXD = np.empty((n, ng, M)) if cross else np.empty((0, ng, M))
+    _sums[1](D, np.broadcast_to(w, (K, M)), A, cross, np.empty_like(D), ED, EDD, EXD)
+    return ED, EDD, EXD if cross else None

@@ -12,6 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from adaptfilt.linalg import chol, mm, sym, sym_fresh
+from adaptfilt.rules import _sif_kernels as _kernels
 
 __all__ = ["Moments", "MomentRule"]
 
@@ -64,6 +65,10 @@ def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | Non
     the sums are those of the runs ``ps.runs``, in that order."""
     if ps.runs is not None:
         m, g0, L = (_take_runs(a, ps.runs) for a in (m, g0, L))
+    if ps.groups is None:
+        made = _kernels.points(m, L, ps.rotation, ps.scale)  # compiled, numpy's bits; None: numpy's form
+        if made is not None:
+            return _pair_sums_made(g, g0, *made, ps.weight, residual, cross)
     A = L if ps.rotation is None else mm(L, ps.rotation)
     if ps.groups is None:
         return _pair_sums(g, m, g0, A * ps.scale, ps.weight, residual, cross)
@@ -119,15 +124,31 @@ def _pair_sums(g, m, g0, A, weight, residual, cross):
     # A model function returns (..., ng) with ng fastest; moved to run-last
     # its runs are strided, which makes the einsums below ~6x slower for
     # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
-    D = np.ascontiguousarray(D)
+    return _sums_numpy(np.ascontiguousarray(D), dX if cross else None, weight)
+
+
+def _sums_numpy(D, dX, weight):
+    """The sums of :func:`_pair_sums` from the contiguous deviations ``D (ng, 2K, M)`` and the
+    directions ``dX = [A, -A]`` (None: no cross sums)."""
     w = weight
     if getattr(w, "ndim", 0) == 2:  # one weight per direction and run: the same for +a_k and -a_k
         w = np.concatenate([w, w], axis=0)
     wD = D * w
     ED = wD.sum(axis=1)
     EDD = np.einsum("isM,jsM->ijM", wD, D)
-    EXD = np.einsum("isM,jsM->ijM", dX, wD) if cross else None
+    EXD = np.einsum("isM,jsM->ijM", dX, wD) if dX is not None else None
     return ED, EDD, EXD
+
+
+def _pair_sums_made(g, g0, X, A, weight, residual, cross):
+    """:func:`_pair_sums` from the points ``X = [m + A, m - A]`` the compiled kernel made, its sums
+    compiled too where they apply (:mod:`adaptfilt.rules._sif_kernels`: numpy's bits)."""
+    G = g(X)
+    D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
+    sums = _kernels.weighted_sums(D, A, weight, cross)
+    if sums is None:
+        sums = _sums_numpy(np.ascontiguousarray(D), np.concatenate([A, -A], axis=1) if cross else None, weight)
+    return sums
 
 
 def _active_runs(active: np.ndarray) -> np.ndarray:
