@@ -406,8 +406,9 @@ class FilterEnv:
             self._decision = None
             info.update(truncated=True, final_decision=None)
             return None, cost, True, info
+        # the update's factor of P_filt (None after a repair, or for a chosen candidate): one Cholesky less
         (self._m, self._P), pred_repaired = self._logging_repairs(M, lambda: self.filt.predict_rl(
-            u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream), param=predict_param))
+            u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream), param=predict_param, L=u.L_filt))
         info["repaired"] = repaired | pred_repaired
         self._t = t + 1
         self._z_t = self._zs[self._t]
