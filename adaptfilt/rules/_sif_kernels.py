@@ -246,11 +246,23 @@ def sums_available() -> bool:
     return SUMS and _use_kernel() and bool(_build_sums())
 
 
-def points(m: np.ndarray, L: np.ndarray, rotation: np.ndarray | None, scale):
+def _buffer(work: dict | None, key: str, shape: tuple) -> np.ndarray:
+    """A scratch array of ``shape``, kept in ``work`` between calls (first-touch paging of fresh large
+    arrays costs about as much as the kernels); a new one without ``work``."""
+    if work is None:
+        return np.empty(shape)
+    a = work.get(key)
+    if a is None or a.shape != shape:
+        a = work[key] = np.empty(shape)
+    return a
+
+
+def points(m: np.ndarray, L: np.ndarray, rotation: np.ndarray | None, scale, work: dict | None = None):
     """The points ``X (n, 2K, M)`` = ``[m + A, m - A]`` and ``A = mm(L, rotation) * scale`` (``L * scale``
     when ``rotation`` is None), compiled, bit for bit numpy's (:func:`adaptfilt.rules.base._pair_sums`);
     None where the kernels do not apply (then the caller takes numpy's form): not compiled, one run
-    (numpy's reductions then sum a contiguous axis pairwise), not float64 throughout."""
+    (numpy's reductions then sum a contiguous axis pairwise), not float64 throughout. With ``work``,
+    ``X`` and ``A`` are buffers kept there: valid until the next call with the same ``work``."""
     n, M = m.shape
     if M < 2 or not sums_available():
         return None
@@ -261,12 +273,12 @@ def points(m: np.ndarray, L: np.ndarray, rotation: np.ndarray | None, scale):
     scale = np.asarray(scale)
     if scale.dtype != np.float64 or scale.shape not in ((), (M,)):
         return None
-    X, A = np.empty((n, 2 * K, M)), np.empty((n, K, M))
+    X, A = _buffer(work, "points X", (n, 2 * K, M)), _buffer(work, "points A", (n, K, M))
     _sums[0](m, L, L if rotation is None else rotation, rotation is not None, np.broadcast_to(scale, (M,)), X, A)
     return X, A
 
 
-def weighted_sums(D: np.ndarray, A: np.ndarray, weight, cross: bool):
+def weighted_sums(D: np.ndarray, A: np.ndarray, weight, cross: bool, work: dict | None = None):
     """``(ED, EDD, EXD)`` of the deviations ``D (ng, 2K, M)`` at the points ``m +- A[:, k]`` with weight
     ``weight`` (scalar, ``(M,)`` or ``(K, M)``) for ``+a_k`` and ``-a_k``, compiled, bit for bit numpy's;
     None where the kernels do not apply (as :func:`points`)."""
@@ -279,5 +291,5 @@ def weighted_sums(D: np.ndarray, A: np.ndarray, weight, cross: bool):
     ng = D.shape[0]
     ED, EDD = np.empty((ng, M)), np.empty((ng, ng, M))
     EXD = np.empty((n, ng, M)) if cross else np.empty((0, ng, M))
-    _sums[1](D, np.broadcast_to(w, (K, M)), A, cross, np.empty_like(D), ED, EDD, EXD)
+    _sums[1](D, np.broadcast_to(w, (K, M)), A, cross, _buffer(work, "sums wD", D.shape), ED, EDD, EXD)
     return ED, EDD, EXD if cross else None

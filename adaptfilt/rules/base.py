@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from adaptfilt.linalg import chol, mm, sym, sym_fresh
-from adaptfilt.rules import _sif_kernels as _kernels
+import adaptfilt.rules._sif_kernels as _kernels
 
 __all__ = ["Moments", "MomentRule"]
 
@@ -66,9 +66,9 @@ def _weighted_sums(g: BatchFn, m, g0, L, ps: _PointSet, residual: Residual | Non
     if ps.runs is not None:
         m, g0, L = (_take_runs(a, ps.runs) for a in (m, g0, L))
     if ps.groups is None:
-        made = _kernels.points(m, L, ps.rotation, ps.scale)  # compiled, numpy's bits; None: numpy's form
+        made = _kernels.points(m, L, ps.rotation, ps.scale, work)  # compiled, numpy's bits; None: numpy's form
         if made is not None:
-            return _pair_sums_made(g, g0, *made, ps.weight, residual, cross)
+            return _pair_sums_made(g, g0, *made, ps.weight, residual, cross, work)
     A = L if ps.rotation is None else mm(L, ps.rotation)
     if ps.groups is None:
         return _pair_sums(g, m, g0, A * ps.scale, ps.weight, residual, cross)
@@ -140,12 +140,13 @@ def _sums_numpy(D, dX, weight):
     return ED, EDD, EXD
 
 
-def _pair_sums_made(g, g0, X, A, weight, residual, cross):
+def _pair_sums_made(g, g0, X, A, weight, residual, cross, work: dict | None = None):
     """:func:`_pair_sums` from the points ``X = [m + A, m - A]`` the compiled kernel made, its sums
-    compiled too where they apply (:mod:`adaptfilt.rules._sif_kernels`: numpy's bits)."""
+    compiled too where they apply (:mod:`adaptfilt.rules._sif_kernels`: numpy's bits). ``X`` and ``A``
+    may be buffers of ``work`` (reused by the next point set): what is returned is fresh."""
     G = g(X)
     D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
-    sums = _kernels.weighted_sums(D, A, weight, cross)
+    sums = _kernels.weighted_sums(D, A, weight, cross, work)
     if sums is None:
         sums = _sums_numpy(np.ascontiguousarray(D), np.concatenate([A, -A], axis=1) if cross else None, weight)
     return sums
