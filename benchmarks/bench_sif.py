@@ -47,6 +47,14 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    count has no subsets; what is left is the draws, about 38 %, the weighted
    sums and the bearing, outside the rule's own code). The compiled kernel
    costs about 0.25 CPU-s once per process (loading numba's cache).
+   A fourth variant adds the compiled point construction and weighted sums
+   (``_sif_kernels.points`` / ``weighted_sums``, bit for bit numpy's einsum;
+   ``_sif_kernels.SUMS = False`` turns them off). Measured (same machine, load
+   about 5, best of 3, the test suite running beside it during (a)): (a) 3.34
+   (baseline) -> 2.81 -> 2.07 (compiled Gram-Schmidt) -> 2.17 CPU-s (with the
+   sums: 0.95x, within the noise of that load; per call the kernels are 0.99x
+   at 20 runs, 1.2x at 200, 1.4x at 1000); (b) 8.74 -> 8.49 -> 7.87 -> 7.13
+   CPU-s, the sums 1.10x, 1.23x in all.
 
 The benchmark imports ``adaptfilt`` as installed; from a checkout that is not
 the installed one, run it as ``PYTHONPATH=. python benchmarks/bench_sif.py``.
@@ -234,23 +242,23 @@ def baseline_rule_methods(rev: str) -> dict:
 class _Implementation:
     """Select one implementation of the rule for every instance, old and new, while in the ``with``."""
 
-    def __init__(self, methods: dict | None, backend: str):
-        self.methods, self.backend = methods, backend
+    def __init__(self, methods: dict | None, backend: str, sums: bool = True):
+        self.methods, self.backend, self.sums = methods, backend, sums
 
     def __enter__(self):
         from adaptfilt.rules import _sif_kernels
         self._saved = {k: vars(StochasticIntegrationRule)[k] for k in (self.methods or {})}
-        self._backend = _sif_kernels.BACKEND
+        self._backend, self._sums = _sif_kernels.BACKEND, _sif_kernels.SUMS
         for k, v in (self.methods or {}).items():
             setattr(StochasticIntegrationRule, k, v)
-        _sif_kernels.BACKEND = self.backend
+        _sif_kernels.BACKEND, _sif_kernels.SUMS = self.backend, self.sums
         return self
 
     def __exit__(self, *exc):
         from adaptfilt.rules import _sif_kernels
         for k, v in self._saved.items():
             setattr(StochasticIntegrationRule, k, v)
-        _sif_kernels.BACKEND = self._backend
+        _sif_kernels.BACKEND, _sif_kernels.SUMS = self._backend, self._sums
 
 
 def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
@@ -263,7 +271,7 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         print(f"(baseline {baseline} unavailable: {str(err).strip()[:200]})")
         old = None
     variants = {"baseline " + baseline: (old, "numpy"), "numpy Gram-Schmidt": (None, "numpy"),
-                "compiled Gram-Schmidt": (None, "auto")}
+                "compiled Gram-Schmidt": (None, "auto", False), "compiled GS, points, sums": (None, "auto")}
     if old is None:
         del variants["baseline " + baseline]
     model = af.models.coordinated_turn()
@@ -284,8 +292,8 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         best = {k: np.inf for k in variants}
         outputs = {}
         for _ in range(repeat):
-            for name, (methods, backend) in variants.items():
-                with _Implementation(methods, backend):
+            for name, spec in variants.items():
+                with _Implementation(*spec):
                     c0 = time.process_time()
                     out = work()
                     best[name] = min(best[name], time.process_time() - c0)
@@ -297,6 +305,8 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         print(label + ("   outputs bit for bit equal: yes" if same else "   OUTPUTS DIFFER"))
         for name, sec in best.items():
             print(f"  {name:32s} {sec:8.2f} CPU-s   {first / sec:5.2f}x")
+        if "compiled Gram-Schmidt" in best:
+            print(f"  (the compiled points and sums alone: {best['compiled Gram-Schmidt'] / best['compiled GS, points, sums']:.2f}x)")
 
 
 def _policy_arrays(policy) -> list:

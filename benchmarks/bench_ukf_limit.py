@@ -28,7 +28,10 @@ library's run returns (mean, variance, NIS, log-likelihood per run and step).
 
 Measured (shared 2-core Intel Xeon, numpy 2.4, load about 5, best of 7, one
 session): ratio 2.21 before the work of issue 35 (library 1294 us per step,
-kernel 584 us), 1.44 after (829 us against 577 us).
+kernel 584 us), 1.44 after (829 us against 577 us). With the compiled point sums of the moment
+rules (``adaptfilt.rules._sif_kernels``, used for ``n >= 2`` only: for the scalar UNGM their checks
+cost more than numpy's few calls, 1.42 against 1.35 when they were used) the ratio is unchanged:
+1.33-1.35 (756-761 us against 566 us, best of 5, load about 5).
 
 Where the remaining factor goes (the per-step split is printed; at 10^4 runs
 the library spends about 250 us per step more than the kernel):

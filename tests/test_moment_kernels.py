@@ -60,7 +60,7 @@ def _case(n, K, ng, M, seed, rotate, scale_kind, weight_kind, residual_kind, lay
     return g, m, g0, L, Q, scale, weight, residual
 
 
-SHAPES = [(1, 1, 1, 2), (1, 1, 2, 3), (2, 2, 1, 5), (3, 1, 2, 17), (4, 4, 1, 64), (5, 5, 1, 257), (5, 5, 3, 1001),
+SHAPES = [(2, 1, 1, 2), (2, 2, 2, 3), (2, 2, 1, 5), (3, 1, 2, 17), (4, 4, 1, 64), (5, 5, 1, 257), (5, 5, 3, 1001),
           (8, 8, 2, 33), (5, 1, 1, 1000)]
 
 

@@ -261,10 +261,11 @@ def points(m: np.ndarray, L: np.ndarray, rotation: np.ndarray | None, scale, wor
     """The points ``X (n, 2K, M)`` = ``[m + A, m - A]`` and ``A = mm(L, rotation) * scale`` (``L * scale``
     when ``rotation`` is None), compiled, bit for bit numpy's (:func:`adaptfilt.rules.base._pair_sums`);
     None where the kernels do not apply (then the caller takes numpy's form): not compiled, one run
-    (numpy's reductions then sum a contiguous axis pairwise), not float64 throughout. With ``work``,
+    (numpy's reductions then sum a contiguous axis pairwise), a scalar state (``n = 1``: no sums to
+    fuse, the kernels' checks cost more than numpy's few calls), not float64 throughout. With ``work``,
     ``X`` and ``A`` are buffers kept there: valid until the next call with the same ``work``."""
     n, M = m.shape
-    if M < 2 or not sums_available():
+    if M < 2 or n < 2 or not sums_available():  # n = 1 (the UNGM's UKF): numpy's few calls cost less than the checks
         return None
     K = n if rotation is None else rotation.shape[1]
     if (m.dtype != np.float64 or L.dtype != np.float64 or L.shape != (n, n, M)
