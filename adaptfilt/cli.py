@@ -4,7 +4,7 @@ Sub-commands (their names and flags are a contract the course, the README and
 ``data/manifest.json`` rely on)::
 
     adaptfilt experiments
-    adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
+    adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T] [--chunk-size C]
     adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
                          [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy
                          [--anchor-strength C] [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--resume]
@@ -71,6 +71,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         policy_files=[Path(p) for p in args.policy],
         progress=not args.no_progress,
         n_steps=args.horizon,
+        **({} if args.chunk_size is None else {"chunk_size": args.chunk_size}),
     )
     return 0
 
@@ -398,6 +399,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a learned policy file (repeatable); its result is named after the file; files "
                         "NAME-s0.npz, NAME-s1.npz ... are one policy trained on several seeds")
     p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--chunk-size", type=_int_at_least(1), default=None,
+                   help="runs filtered at a time (default 10^4): memory stays flat in --runs; up to it the "
+                        "evaluation is one pass, beyond it a stochastic filter's draws depend on it")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_evaluate)
 

@@ -324,3 +324,17 @@ def test_a_streamed_stochastic_rule_stays_paired():
 def test_a_chunk_size_that_is_not_a_positive_integer_is_refused(bad):
     with pytest.raises(ValueError, match=r"chunk_size must be a positive integer .* got " + repr(bad).replace(".", r"\.")):
         evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=4, progress=False, chunk_size=bad)
+
+
+def test_cli_chunk_size_is_recorded_and_changes_no_per_run_value_of_a_deterministic_filter(tmp_path):
+    """``adaptfilt evaluate --chunk-size C`` streams the runs C at a time: the command it records says so
+    (the default is left out, so older commands stay as they were), and a UKF's per-run values are the
+    one-pass ones byte for byte."""
+    base = ["evaluate", "ctm-ukf", "--runs", "30", "--horizon", "12", "--no-progress"]
+    assert main(base + ["--out", str(tmp_path / "one")]) == 0
+    assert main(base + ["--chunk-size", "7", "--out", str(tmp_path / "seven")]) == 0
+    one, seven = Results.load(tmp_path / "one"), Results.load(tmp_path / "seven")
+    assert "--chunk-size" not in one.config["command"] and "--chunk-size 7 " in seven.config["command"]
+    for name in one.names:
+        for k in ("run_rmse", "run_anees", "run_cost"):
+            assert getattr(one[name], k).tobytes() == getattr(seven[name], k).tobytes(), (name, k)

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from adaptfilt.evaluation import evaluate, learned_names
+from adaptfilt.evaluation import CHUNK_SIZE, evaluate, learned_names
 from adaptfilt.results import Results
 from adaptfilt.files import atomic_write
 
@@ -32,8 +32,10 @@ def evaluate_experiment(
     figures: bool = True,
     quiet: bool = False,
     n_steps: int | None = None,
+    chunk_size: int | None = None,
 ) -> Results:
-    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]`` runs.
+    """What ``adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T]
+    [--chunk-size C]`` runs.
 
     Policy files named ``<kind>-s<seed>.npz`` are one policy trained on several
     seeds: the table then adds the seed-level aggregate (IQM over seeds with a
@@ -45,7 +47,9 @@ def evaluate_experiment(
     name that a baseline uses is a ``ValueError``), then writes into
     ``out_dir``: ``results.json`` + ``results.npz``, ``summary.json``,
     ``summary.md`` and PNG figures; prints the table (unless ``quiet``). ``floor`` draws a reference RMSE (e.g. the
-    point-mass Bayes floor on UNGM) in the RMSE figures.
+    point-mass Bayes floor on UNGM) in the RMSE figures. ``chunk_size`` (default
+    :data:`adaptfilt.evaluation.CHUNK_SIZE`): runs filtered at a time (:func:`adaptfilt.evaluation.evaluate`);
+    recorded in the command when it is not the default.
     """
     from adaptfilt.experiment_registry import get_experiment
 
@@ -63,11 +67,14 @@ def evaluate_experiment(
                                  f"({', '.join(sorted(baseline_names))}); rename the file")
         policies += [load_policy(p, experiment=exp, name=n) for p, n in zip(policy_files, names)]
     out = Path(out_dir)
+    chunk_size = CHUNK_SIZE if chunk_size is None else int(chunk_size)
     command = (f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed}"
-               + ("" if n_steps is None else f" --horizon {n_steps}") + f" --out {out}"
+               + ("" if n_steps is None else f" --horizon {n_steps}")
+               + ("" if chunk_size == CHUNK_SIZE else f" --chunk-size {chunk_size}") + f" --out {out}"
                + "".join(f" --policy {p}" for p in policy_files))
     target = exp if n_steps is None else exp.make_env(seed=seed, n_steps=n_steps)
-    res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command)
+    res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command,
+                   chunk_size=chunk_size)
     res.config.update(experiment=exp.name, description=exp.description)
     res.save(out)
     atomic_write(out / "summary.json", json.dumps(res.summary(), indent=1) + "\n")
