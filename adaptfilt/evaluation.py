@@ -294,7 +294,7 @@ def evaluate_costs(
     Example
     -------
     >>> from adaptfilt.evaluation import evaluate_costs
-    >>> from adaptfilt.experiments import get_experiment
+    >>> from adaptfilt.experiment_registry import get_experiment
     >>> exps = ["ctm-sif-stateinnov", "ctm-sif-nis"]
     >>> pols = [p for p in get_experiment(exps[0]).baselines() if p.name in ("default", "fixed-n_iter=3")]
     >>> res = evaluate_costs(exps, pols, n_runs=20, progress=False)  # doctest: +SKIP

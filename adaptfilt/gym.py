@@ -42,7 +42,7 @@ Example
 >>> venv = afg.make_vec("ungm-ukf", n_envs=64, seed=0)         # doctest: +SKIP
 >>> model = PPO("MlpPolicy", venv, gamma=0.5).learn(200_000)   # doctest: +SKIP
 >>> from adaptfilt.evaluation import evaluate                  # doctest: +SKIP
->>> from adaptfilt.experiments import get_experiment           # doctest: +SKIP
+>>> from adaptfilt.experiment_registry import get_experiment           # doctest: +SKIP
 >>> exp = get_experiment("ungm-ukf")                           # doctest: +SKIP
 >>> res = evaluate(exp, exp.baselines() + [afg.as_policy(model, name="ppo")], n_runs=2000)  # doctest: +SKIP
 """

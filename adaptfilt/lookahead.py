@@ -106,7 +106,7 @@ toy :class:`~adaptfilt.toy.TrapEnv`, whose optimum is known.
 Example
 -------
 >>> import numpy as np
->>> from adaptfilt.experiments import get_experiment
+>>> from adaptfilt.experiment_registry import get_experiment
 >>> from adaptfilt.lookahead import RolloutPolicy
 >>> from adaptfilt.mdp import rollout
 >>> exp = get_experiment("ungm-ukf")
