@@ -97,12 +97,10 @@ from pathlib import Path
 from typing import Iterable, Literal, Sequence
 
 import numpy as np
-from scipy import stats
 
 from adaptfilt import metrics
 from adaptfilt.mdp import FilterEnv, rollout
 from adaptfilt.models import Trajectory
-from adaptfilt.particle_env import ParticleCountEnv
 from adaptfilt.results import RESULTS_FORMAT, PolicyResult, Results  # what evaluate returns (adaptfilt.results)
 
 __all__ = ["PolicyResult", "Results", "evaluate", "learned_name", "learned_names",
@@ -143,6 +141,8 @@ def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.
     anees_t = ne.mean(axis=0)
     # ANEES_k is a mean over runs: its pointwise band is the normal one from the
     # standard error (a second (B, M) x (M, T) bootstrap product would double the cost).
+    from scipy import stats  # on first use: scipy.stats is most of the import time of the library
+
     half = stats.norm.ppf(1 - a) * ne.std(axis=0, ddof=1) / np.sqrt(M)
     out = dict(
         rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0),
@@ -357,6 +357,7 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
     experiment whose runs are another's, :func:`evaluate_costs`)."""
     from adaptfilt._version import __version__
     from adaptfilt.experiment_registry import Experiment, get_experiment
+    from adaptfilt.particle_env import ParticleCountEnv  # here: `import adaptfilt` loads no particle filter
 
     exp = get_experiment(experiment_or_env) if isinstance(experiment_or_env, str) else experiment_or_env
     if isinstance(exp, Experiment):
@@ -624,6 +625,8 @@ class _ChunkSums:
         M, a = self.M, (1.0 - level) / 2.0
         boot_rmse_t = np.sqrt(self.boot_se_t / M)
         rmse_t, anees_t = np.sqrt(self.se_t / M), self.ne_t / M
+        from scipy import stats
+
         half = stats.norm.ppf(1 - a) * np.sqrt(self.ne_m2 / (M - 1)) / np.sqrt(M)
         out = dict(
             rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0),

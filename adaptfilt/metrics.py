@@ -14,7 +14,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy import stats
 
 from adaptfilt.linalg import NotPositiveDefinite, chol, solve_spd
 
@@ -265,6 +264,8 @@ def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float, floa
     v = np.asarray(values, dtype=float).ravel()
     m = float(v.mean())
     se = float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
+    from scipy import stats  # on first use: scipy.stats is most of the import time of the library
+
     zq = stats.norm.ppf(0.5 + level / 2.0)
     return m, m - zq * se, m + zq * se
 
@@ -274,6 +275,8 @@ def chi2_bounds(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
     values (NEES with ``dof = nx``, NIS with ``dof = nz``): a consistent filter's
     average falls inside with probability ``level``."""
     a = (1.0 - level) / 2.0
+    from scipy import stats
+
     lo, hi = stats.chi2.ppf([a, 1.0 - a], dof * n) / n
     return float(lo), float(hi)
 

@@ -63,9 +63,7 @@ import os
 from typing import Sequence
 
 import numpy as np
-from scipy import stats
 
-from adaptfilt import particle_kernels
 from adaptfilt.gaf import FilterRun
 from adaptfilt.models import StateSpaceModel
 
@@ -164,6 +162,7 @@ def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -
     the Wilson-Hilferty approximation of :math:`\chi^2_{k-1,1-\delta}/(2\epsilon)`. ``k <= 1``
     gives 1 (one bin: any one particle describes it).
 
+    >>> from scipy import stats
     >>> round(float(kld_bound(10)), 1), round(float(stats.chi2.ppf(0.99, 9) / 0.1), 1)
     (217.0, 216.7)
     """
@@ -171,6 +170,8 @@ def kld_bound(k: np.ndarray | int, epsilon: float = 0.05, delta: float = 0.01) -
     k = np.asarray(k, dtype=float)
     km1 = np.maximum(k - 1.0, 1.0)
     a = 2.0 / (9.0 * km1)
+    from scipy import stats  # on first use (the library's import time)
+
     n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * stats.norm.ppf(1.0 - delta)) ** 3
     return np.where(k > 1, n, 1.0)
 
@@ -268,6 +269,8 @@ class ParticleCountFilter:
             raise ValueError(f"block_particles must be a positive integer, got {block_particles!r}")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        from adaptfilt import particle_kernels  # here: numba loads with the first particle filter, not with adaptfilt
+
         if backend == "numba" and not particle_kernels.AVAILABLE:
             raise ImportError("backend='numba' needs numba: pip install 'adaptfilt[fast]'")
         self.model, self.seed = model, int(seed)
@@ -367,6 +370,8 @@ class ParticleCountFilter:
         if self.backend == "numba":
             noise = _buffer(work, "noise", (M, cap, nx))
             x_anc = _buffer(work, "x_anc", (M, cap, nx)) if t else noise
+            from adaptfilt import particle_kernels
+
             particle_kernels.predict_particles(self.seed, ids, t, n, nx, x_old if t else noise,
                                                w_old if t else np.zeros((M, 1)), n_old if t else n, x_anc, noise)
             scaled = self._scale(noise, self._L0 if t == 0 else self._Lq, inplace=True)
@@ -402,6 +407,8 @@ class ParticleCountFilter:
         const = model.nz * np.log(2 * np.pi)
         if self.backend == "numba":
             out = _buffer(work, "logl", x.shape[:2])
+            from adaptfilt import particle_kernels
+
             particle_kernels.gaussian_loglik(r, self._Rinv, self._logdetR, const, out)
             return out
         quad = 0.0  # r' R^-1 r term by term, in the order the kernel sums it (einsum's, in 1-D)
@@ -424,6 +431,8 @@ class ParticleCountFilter:
             out = {"w": _buffer(work, "w", (M, cap)), "mean": np.empty((M, nx)), "cov": np.empty((M, nx, nx)),
                    "loglik": np.empty(M), "ess": np.empty(M)}
             amax = np.empty(M)
+            from adaptfilt import particle_kernels
+
             particle_kernels.weigh_particles(logl, n, x, out["w"], out["mean"], out["cov"], out["loglik"], out["ess"],
                                              amax)
             self._check_explained(amax, t, ids)

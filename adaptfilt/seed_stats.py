@@ -37,7 +37,6 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 __all__ = ["iqm", "seed_groups", "SeedAggregate", "aggregate", "difference", "seed_verdict", "collapse_seeds",
            "METRICS", "MARGINS", "margin_for"]
@@ -49,6 +48,8 @@ _SEED = re.compile(r"^(?P<group>.+)-s(?P<seed>\d+)$")
 
 def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
     """Interquartile mean: the 25 %-trimmed mean (``scipy.stats.trim_mean(x, 0.25)``), as ``rliable``."""
+    from scipy import stats  # on first use: scipy.stats is most of the import time of the library
+
     return stats.trim_mean(np.asarray(x, dtype=float), 0.25, axis=axis)
 
 

@@ -1,5 +1,6 @@
 """The package's import graph: eager (module-level) imports are acyclic, and the filter does not
-import the MDP built on it (the MDP registers its episode loop with the filter instead)."""
+import the MDP built on it (the MDP registers its episode loop with the filter instead), and `import adaptfilt`
+loads no heavy dependency."""
 import ast
 from pathlib import Path
 
@@ -52,3 +53,16 @@ def test_filter_does_not_import_the_mdp():
     assert not any(i.startswith("adaptfilt.mdp") for i in _imports(PKG / "gaf.py", top_level_only=False))
     for rules in sorted((PKG / "rules").glob("*.py")):  # the rules package
         assert not any(i.startswith(("adaptfilt.mdp", "adaptfilt.gaf")) for i in _imports(rules, False))
+
+
+def test_import_adaptfilt_loads_no_heavy_dependency():
+    """``import adaptfilt`` (every command-line run, every worker) loads numpy, scipy's linear algebra and the
+    filters; torch, matplotlib, numba (the compiled kernels) and scipy.stats (about a second of import time on a
+    2-core machine) load when first used."""
+    import subprocess
+    import sys
+
+    code = ("import sys, adaptfilt; print(' '.join(m for m in ('torch', 'matplotlib', 'numba', 'scipy.stats', "
+            "'adaptfilt.particle_kernels') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
