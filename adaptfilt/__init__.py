@@ -21,7 +21,7 @@ import importlib as _importlib
 from adaptfilt import (evaluation, experiment_registry, linalg, lookahead, mdp, metrics, models, policies, rules,
                        seed_stats)
 from adaptfilt._version import __version__
-from adaptfilt.exact import KalmanFilter, PointMassFilter
+from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter, PointMassFilter
 from adaptfilt.gaf import CKF, SIF, UKF, FilterError, FilterRun, GaussianAssumedFilter, Prediction, Update
 from adaptfilt.models import StateSpaceModel, Trajectory
 
@@ -41,6 +41,6 @@ __all__ = [
     "linalg", "metrics", "models", "rules", "mdp", "policies", "lookahead", "experiment_registry", "seed_stats", "evaluation",
     "StateSpaceModel", "Trajectory",
     "GaussianAssumedFilter", "UKF", "SIF", "CKF", "FilterRun", "FilterError", "Prediction", "Update",
-    "KalmanFilter", "PointMassFilter",
+    "KalmanFilter", "PointMassFilter", "BootstrapParticleFilter",
     "__version__",
 ]

@@ -66,7 +66,7 @@ from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy, d
 
 __all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment",
            "describe_experiments", "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES",
-           "ESS_TARGETS", "KLD_BIN_SCALES"]
+           "ESS_TARGETS", "KLD_BIN_SCALES", "SIF_EXPERIMENTS"]
 
 UNGM_KAPPA_GRID = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 3000.0, 10000.0)
 CTM_KAPPA_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
@@ -185,6 +185,9 @@ EXPERIMENTS: dict[str, Experiment] = {
                    filter_options=_SIF_OPTIONS),
     ]
 }
+
+#: The three SIF experiments of Table I (one filter, three costs), in the paper's column order.
+SIF_EXPERIMENTS: tuple[str, ...] = tuple(e.name for e in EXPERIMENTS.values() if e.filter_kind == "sif")
 
 
 #: Variants of the paper's experiments, by name, for comparison (``adaptfilt evaluate/train`` take them;

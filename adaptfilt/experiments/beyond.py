@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 13 reads beyond.SIF_EXPERIMENTS
 from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.files import atomic_savefig, atomic_write, sha256
 
@@ -79,7 +80,6 @@ ANCHOR = ("greedy", 3.0, 0.01, 1.0)
 #: Evaluation seed of the ``anchor`` study: runs that no choice of its recipe saw (the recipe was tuned on
 #: selection runs, seed 1, and its shield added after a first check on the evaluation runs of seed 0).
 ANCHOR_EVAL_SEED = 2
-SIF_EXPERIMENTS = ("ctm-sif-stateinnov", "ctm-sif-logmaxnis", "ctm-sif-nis")
 
 
 @dataclass(frozen=True)
