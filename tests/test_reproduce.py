@@ -64,6 +64,39 @@ def test_data_manifest_files_exist_match_and_load():
             "confirmed", "contradicted", "not confirmed (n.s.)")
 
 
+@pytest.mark.crosscpu
+def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
+    """The guard of any change to the pipeline's job builders: each command in data/manifest.json, byte for
+    byte, is what reproduce's builders make today for that file at full scale (the policies: experiment,
+    kind and seed from the file name; an evaluation: its experiment's learned policies in the pipeline's
+    order, the fast kinds then the paper-faithful one, seeds ascending); the files of the report carry the
+    run's own command, and the references the command their JSON records."""
+    from adaptfilt.experiments.reproduce import FULL, evaluate_command, policy_command, policy_rel
+
+    man = artefacts.manifest()
+    assert man["generated_by"] == "adaptfilt reproduce --out data --retrain"
+    kinds = {e: [*KINDS, *(k for k, (_, es) in FAITHFUL.items() if e in es)] for e in EXPERIMENTS}
+    by_length = sorted(EXPERIMENTS, key=len, reverse=True)
+    seen = set()
+    for entry in man["files"]:
+        rel, cmd = entry["path"], entry["command"]
+        if rel.startswith("policies/"):
+            stem, seed = rel[len("policies/"):-len(".npz")].rsplit("-s", 1)
+            e = next(x for x in by_length if stem.startswith(x + "-"))
+            want = policy_command(e, stem[len(e) + 1:], int(seed), FULL)
+        elif rel.startswith("results/") and rel.count("/") == 2:
+            e = rel.split("/")[1]
+            want = evaluate_command(e, [policy_rel(e, k, s) for k in kinds[e] for s in SEEDS], FULL)
+        elif rel in ("results/ungm-floor.json", "results/ctm-reconciliation.json"):
+            want = json.loads((DATA / rel).read_text())["command"]
+            assert f"({FULL.floor_runs if 'floor' in rel else FULL.recon_runs}, 0" in want, rel
+        else:
+            want = man["generated_by"]
+        assert cmd == want, rel
+        seen.add(rel.split("/")[0])
+    assert seen == {"policies", "results", "figures"}
+
+
 def test_data_is_small():
     """The reproduction (about 31 MB: 96 policies, five evaluations at M = 10^4) and the seven studies beyond
     the paper (about 34 MB, stored without per-run arrays; the anchored and look-ahead studies added 12 MB,
