@@ -13,10 +13,11 @@ command that regenerates it, the seed, the package version and its wall time.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
+
+from adaptfilt.files import sha256
 
 __all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
            "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
@@ -217,7 +218,7 @@ def _check_files(d: Path, files: list[dict], load, label: str) -> list[str]:
         if not p.exists():
             problems.append(f"{e['path']}: missing")
             continue
-        h = hashlib.sha256(p.read_bytes()).hexdigest()
+        h = sha256(p)
         if h != e["sha256"]:
             problems.append(f"{e['path']}: sha256 {h} != manifest {e['sha256']}")
             continue
