@@ -221,6 +221,10 @@ def _run_pool(fn: Callable, jobs: list[tuple], workers: int, finished: Callable)
     import multiprocessing as mp
 
     ex, before = None, set()
+    # Idle OpenBLAS threads spin before they sleep, on cores the other workers need (the UNGM floor:
+    # 38-40 CPU-s against 44-49 with the default wait, two workers on two cores); the workers inherit
+    # the shortest wait, which changes no number. A value set in the environment is kept.
+    os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")
     try:
         with _deferred_interrupts():  # the workers are started here, in submit: not torn apart
             before = set(mp.active_children())  # the pool's workers are the children started from now on
