@@ -346,3 +346,64 @@ def test_look_gain_figure_cuts_far_values_at_the_edge():
     assert ax.get_xlim()[1] > 2.2 and list(ax.get_xticks()) == [0, 1, 2]
     fig = plot_look_gain(look)  # by default the range fits everything
     assert ax is not fig.axes[0] and fig.axes[0].get_ylim()[0] < -21.4
+
+
+def _beyond_policy_command(rel: str, root: str, selection: dict) -> str:
+    """What the pipeline builds today for the policy file ``rel`` of a full-scale ``adaptfilt beyond --out ROOT``."""
+    from adaptfilt.experiments import beyond
+    from adaptfilt.experiments.particles_study import PARTICLE_FULL
+
+    stem, seed = rel[len("policies/"):-len(".npz")].rsplit("-s", 1)
+    kinds = ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw",
+             "adaptive-anchored", "adaptive")
+    kind = next(k for k in kinds if stem.endswith("-" + k))
+    e, s, out = stem[:-len(kind) - 1], int(seed), f"{root}/beyond/{rel}"
+    sc = beyond.FULL
+    args = {"adaptive-cand": (0.5, sc, beyond.CAND_EXPERIMENTS.get(e), beyond.CAND_ALGO, 0.0),
+            "myopic-cand": (0.0, sc, beyond.CAND_EXPERIMENTS.get(e), beyond.CAND_ALGO, 0.0),
+            "adaptive-penalised": (0.5, sc, None, "fast", beyond.PENALTY),
+            "adaptive-safe": (0.5, sc, None, "fast", 0.0, tuple(selection["safe"])),
+            "adaptive-raw": (0.5, sc, None, "fast", 0.0, None, "none"),
+            "adaptive-anchored": (0.5, sc, beyond.CAND_EXPERIMENTS.get(e), "fast", 0.0, None, "log1p", beyond.ANCHOR),
+            "adaptive": (0.5, beyond.BeyondScale("full", PARTICLE_FULL.episodes, sc.seeds, PARTICLE_FULL.n_steps,
+                                                  PARTICLE_FULL.eval_runs, 0), None, "fast", 0.0)}[kind]
+    g, scale, *rest = args
+    return beyond._train_command(e, kind, g, s, out, scale, *rest)
+
+
+def _beyond_run_command(root: str, studies: tuple[str, ...]) -> str:
+    from adaptfilt.experiments.beyond import STUDIES
+
+    return f"adaptfilt beyond --out {root}" + ("" if set(studies) == set(STUDIES) else f" --studies {','.join(studies)}")
+
+
+@pytest.mark.crosscpu
+def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_builds():
+    """The guard of the studies' move (issue 36): each command in data/beyond/manifest.json, byte for byte, is
+    what the pipeline builds for that file at full scale. The studies were run from several checkouts, so a
+    policy's recorded ``--out`` is absolute (``/work/main/data/beyond/...``, ``/work/study/data/beyond/...``):
+    the root is taken from the record, and the rest of the path must be the file's own; the run's files carry
+    the ``adaptfilt beyond`` command of the run that wrote them, which must have chosen their study."""
+    import re
+
+    from adaptfilt.experiments import artefacts
+
+    beyond_dir = artefacts.data_dir() / "beyond"
+    man = json.loads((beyond_dir / "manifest.json").read_text())
+    selection = json.loads((beyond_dir / "summary.json").read_text())["sif-selection"]
+    assert man["scale"] == "full" and selection["seed"] == 1
+    for entry in man["files"]:
+        rel, cmd = entry["path"], entry["command"]
+        if rel.startswith("policies/"):
+            m = re.fullmatch(r"adaptfilt train .* --out (/\S+)/beyond/" + re.escape(rel), cmd)
+            assert m, (rel, cmd)
+            assert cmd == _beyond_policy_command(rel, m.group(1), selection), rel
+            continue
+        m = re.fullmatch(r"adaptfilt beyond --out (\S+)(?: --studies (\S+))?", cmd)
+        assert m, (rel, cmd)
+        studies = tuple(m.group(2).split(",")) if m.group(2) else ()
+        assert cmd == _beyond_run_command(m.group(1), studies), rel
+        study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(
+            rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
+        assert study is None or study in studies, rel
+    assert len(man["files"]) == 190 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 144
