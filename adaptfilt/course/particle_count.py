@@ -10,7 +10,7 @@ from scipy import stats
 from adaptfilt import metrics
 from adaptfilt.course.common import _ax
 
-__all__ = ["separated_modes", "plot_two_modes", "plot_run_errors", "plot_kld_run"]
+__all__ = ["separated_modes", "plot_two_modes", "plot_run_errors", "plot_kld_run", "study_protocol"]
 
 
 def separated_modes(density: Mapping[int, np.ndarray], grid: np.ndarray, gap: float = 3.0) -> np.ndarray:
@@ -59,3 +59,22 @@ def plot_kld_run(counts: np.ndarray, x: np.ndarray, two_modes: np.ndarray, ax=No
     ax2.set(ylim=(-20, 20), ylabel="$x_k$")
     ax.figure.legend(loc="outside lower center", ncol=3, fontsize="small")
     return ax
+
+
+def study_protocol(experiments, root=None) -> str:
+    """How the particle study was made, read from what it stored: per experiment, the number of
+    evaluation runs (``results.json``) and the learned seeds' training command (``data/beyond/manifest.json``,
+    the seed left out), so that the chapter's prose can quote both from an output."""
+    import re
+
+    from adaptfilt.experiments import artefacts
+
+    base = artefacts.data_dir() if root is None else root
+    files = artefacts.manifest(f"{base}/beyond")["files"]
+    lines = []
+    for e in experiments:
+        n_runs = artefacts.load_beyond_results(f"particles-{e}", root).config["n_runs"]
+        cmds = [f["command"] for f in files if f["path"].startswith(f"policies/{e}-adaptive-s")]
+        recipe = {re.sub(r" --seed \d+ --out \S+", "", c) for c in cmds}
+        lines.append(f"{e}: evaluated on {n_runs} runs; {len(cmds)} learned seeds, each `{' | '.join(sorted(recipe))}`")
+    return "\n".join(lines)
