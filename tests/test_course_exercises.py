@@ -1,0 +1,112 @@
+"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4 and 5
+(adaptfilt.course.exercises): each accepts the right answer and rejects wrong ones, naming the
+slip where it can (issue 37, item 6)."""
+import numpy as np
+import pytest
+
+from adaptfilt.course import exercises as ex
+
+
+def _gauss(r, var):
+    return np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
+
+
+def bayes_step(model, grid, prev, z, t, predict=True, like=True, normalise=True):
+    dx = grid[1] - grid[0]
+    Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
+    trans = _gauss(grid[:, None] - model.f(grid[:, None], t)[:, 0][None, :], Q)
+    pred = trans @ prev * dx if predict else prev
+    post = (_gauss(z - model.h(grid[:, None], t + 1)[:, 0], R) if like else 1.0) * pred
+    return post / (post.sum() * dx) if normalise else post
+
+
+def test_bayes_step(capsys):
+    assert ex.check_bayes_step(bayes_step)
+    assert "right" in capsys.readouterr().out
+    for kw, says in ((dict(predict=False), "prediction step (3b) is missing"),
+                     (dict(like=False), "predictive density"),
+                     (dict(normalise=False), "integrates to")):
+        assert not ex.check_bayes_step(lambda *a, kw=kw: bayes_step(*a, **kw))
+        assert says in capsys.readouterr().out
+    assert not ex.check_bayes_step(lambda *a: None)
+    assert "returned None" in capsys.readouterr().out
+    assert not ex.check_bayes_step(lambda m, g, p, z, t: bayes_step(m, g, p, z, t + 1))   # off by a step
+    assert not ex.check_bayes_step(lambda *a: 1 / 0)
+    assert "ZeroDivisionError" in capsys.readouterr().out
+
+
+def discounted(costs, t0, gamma):
+    T = costs.shape[-1]
+    return (costs[:, :, t0:] * gamma ** np.arange(T - t0)).sum(-1).argmin(0)
+
+
+def test_discounted_choice(capsys):
+    assert ex.check_discounted_choice(discounted)
+    capsys.readouterr()
+    wrong = {"myopic choice": lambda c, t0, g: c[:, :, t0].argmin(0),
+             "sum from step 0": lambda c, t0, g: (c * g ** np.arange(c.shape[-1])).sum(-1).argmin(0),
+             "undiscounted": lambda c, t0, g: c[:, :, t0:].sum(-1).argmin(0),
+             "argmax": lambda c, t0, g: (c[:, :, t0:] * g ** np.arange(c.shape[-1] - t0)).sum(-1).argmax(0)}
+    for says, fn in wrong.items():
+        assert not ex.check_discounted_choice(fn)
+        assert says in capsys.readouterr().out
+    assert not ex.check_discounted_choice(lambda c, t0, g: discounted(c, t0, g)[:-1])   # a run short
+
+
+def nis_cost(nu, Pzz):
+    nis = np.einsum("mi,mi->m", nu, np.linalg.solve(Pzz, nu[..., None])[..., 0])
+    return (nis - nu.shape[1]) ** 2
+
+
+def test_nis_cost(capsys):
+    assert ex.check_nis_cost(nis_cost)
+    assert ex.check_nis_cost(lambda nu, P: (np.einsum("mi,mij,mj->m", nu, np.linalg.inv(P), nu) - nu.shape[1]) ** 2)
+    capsys.readouterr()
+    nis = lambda nu, P: np.einsum("mi,mi->m", nu, np.linalg.solve(P, nu[..., None])[..., 0])  # noqa: E731
+    wrong = {"the NIS itself": nis,
+             "mean n_z, not 1": lambda nu, P: (nis(nu, P) - 1) ** 2,
+             "diagonal of Pzz only": lambda nu, P: ((nu ** 2 / np.diagonal(P, axis1=1, axis2=2)).sum(1)
+                                                    - nu.shape[1]) ** 2,
+             "without the square": lambda nu, P: nis(nu, P) - nu.shape[1]}
+    for says, fn in wrong.items():
+        assert not ex.check_nis_cost(fn)
+        assert says in capsys.readouterr().out
+    # the transpose of the inverse is the same for a symmetric Pzz: only a genuinely wrong form fails
+    assert not ex.check_nis_cost(lambda nu, P: (np.einsum("mi,mi->m", nu, nu) - nu.shape[1]) ** 2)
+
+
+def paired(a, b, counts):
+    rep = counts @ (a - b) / len(a)
+    lo, hi = np.quantile(rep, [0.025, 0.975])
+    return np.mean(a - b), lo, hi
+
+
+def test_paired_ci(capsys):
+    assert ex.check_paired_ci(paired)
+    capsys.readouterr()
+
+    def unpaired(a, b, counts):
+        ia = np.quantile(counts @ a / len(a), [0.025, 0.975])
+        ib = np.quantile(counts @ b / len(b), [0.025, 0.975])
+        return np.mean(a - b), ia[0] - ib[1], ia[1] - ib[0]
+
+    def ninety(a, b, counts):
+        rep = counts @ (a - b) / len(a)
+        return (np.mean(a - b), *np.quantile(rep, [0.05, 0.95]))
+
+    def independent(a, b, counts):   # b resampled with other counts: unpaired, wide, named by its width
+        rep = (counts @ a - counts[::-1] @ b) / len(a)
+        return (np.mean(a - b), *np.quantile(rep, [0.025, 0.975]))
+
+    for fn, says in ((unpaired, "unpaired"), (ninety, "90 %"), (lambda a, b, c: paired(b, a, c), "b - a"),
+                     (independent, "times as wide")):
+        assert not ex.check_paired_ci(fn)
+        assert says in capsys.readouterr().out
+    def normal(a, b, counts):        # a normal approximation: close, not the percentile interval
+        d = a - b
+        s = d.std(ddof=1) / np.sqrt(len(d))
+        return d.mean(), d.mean() - 1.96 * s, d.mean() + 1.96 * s
+
+    assert not ex.check_paired_ci(normal)
+    assert not ex.check_paired_ci(lambda a, b, c: (0.0, 0.0))
+    assert "three numbers" in capsys.readouterr().out
