@@ -29,7 +29,8 @@ from adaptfilt.models import StateSpaceModel, Trajectory
 # Modules that pull in torch or matplotlib load on first use: `import adaptfilt`
 # stays fast for filtering alone.
 # The course (adaptfilt.course) and the pipeline (adaptfilt.experiments) are imported by their own names.
-_LAZY = ("plots", "learned", "actor_critic", "toy", "style", "gym", "trainers", "features", "anchor", "distill", "files")
+_LAZY = ("plots", "learned", "actor_critic", "toy", "style", "gym", "trainers", "features", "anchor", "distill", "files",
+         "kalmannet")
 
 
 def __getattr__(name: str):

@@ -123,8 +123,8 @@ class TrainingDiverged(FloatingPointError):
 class GainNet(nn.Module):
     """KalmanNet's architecture 2: three GRUs (Q, Sigma, S) and the fully connected layers FC1-FC7.
 
-    ``step`` maps the four (normalised) features and the GRU states of one step to the gain
-    ``K (J, B, m, n)`` (``J = 1`` without dropout sampling) and the next GRU states.
+    ``step`` maps the four (normalised) features and the GRU states of one step (batch ``B``) to the
+    gain ``K (B, m, n)`` and the next GRU states; ``mask`` is the Bayesian variant's dropout mask.
     """
 
     def __init__(self, nx: int, nz: int, in_mult: int = 5, out_mult: int = 40, dropout: float = 0.0):
@@ -153,24 +153,24 @@ class GainNet(nn.Module):
         h_S = torch.eye(n, dtype=_DT).reshape(1, -1).expand(B, -1).contiguous()
         return h_Q, h_Sigma, h_S
 
-    def step(self, F1, F2, F3, F4, h_Q, h_Sigma, h_S, n_samples: int = 1):
+    def dropout_mask(self, B: int) -> torch.Tensor | None:
+        """A Monte-Carlo dropout mask of FC2's hidden layer per run (scaled by ``1/(1-p)``), or None."""
+        if self.dropout == 0.0:
+            return None
+        keep = 1.0 - self.dropout
+        return torch.bernoulli(torch.full((B, self.fc2_hidden.out_features), keep, dtype=_DT)) / keep
+
+    def step(self, F1, F2, F3, F4, h_Q, h_Sigma, h_S, mask: torch.Tensor | None = None):
         h_Q = self.gru_Q(self.fc5(F4), h_Q)
         Sigma = self.gru_Sigma(torch.cat([h_Q, self.fc6(F3)], -1), h_Sigma)
         h_S = self.gru_S(torch.cat([self.fc1(Sigma), self.fc7(torch.cat([F1, F2], -1))], -1), h_S)
         a = torch.relu(self.fc2_hidden(torch.cat([Sigma, h_S], -1)))
-        if n_samples > 1:
-            # Bayesian KalmanNet: J dropout masks, on also at test time (Monte-Carlo dropout)
-            a = nn.functional.dropout(a.unsqueeze(0).expand(n_samples, -1, -1), self.dropout, training=True)
-        elif self.dropout > 0.0 and self.training:
-            a = nn.functional.dropout(a, self.dropout, training=True)
+        if mask is not None:
+            a = a * mask
         K = self.fc2_out(a)
-        K = K.reshape(*K.shape[:-1], self.nx, self.nz)
-        if K.dim() == 3:
-            K = K.unsqueeze(0)
-        K_bar = K.mean(0)
-        b = self.fc3(torch.cat([h_S, K_bar.reshape(K_bar.shape[0], -1)], -1))
+        b = self.fc3(torch.cat([h_S, K], -1))
         h_Sigma = self.fc4(torch.cat([Sigma, b], -1))  # the backward flow overwrites the Sigma-GRU state
-        return K, h_Q, h_Sigma, h_S
+        return K.reshape(-1, self.nx, self.nz), h_Q, h_Sigma, h_S
 
 
 # ------------------------------------------------------------- model functions in torch
@@ -215,10 +215,11 @@ class _Carry:
     x_filt_prev: torch.Tensor  # x_{t-2|t-2}
     x_pred: torch.Tensor       # x_{t-1|t-2}
     h: tuple
+    mask: torch.Tensor | None = None  # the Bayesian variant's dropout mask, fixed over a sequence
 
     def detach(self) -> "_Carry":
         return _Carry(self.x_filt.detach(), self.x_filt_prev.detach(), self.x_pred.detach(),
-                      tuple(h.detach() for h in self.h))
+                      tuple(h.detach() for h in self.h), self.mask)
 
 
 # --------------------------------------------------------------------- the filter
@@ -257,9 +258,9 @@ class KalmanNet:
             raise ValueError(f"in_mult and out_mult must be positive integers, got {in_mult}, {out_mult}")
         if not 0.0 <= float(dropout) < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {dropout}")
-        if int(n_samples) < 1 or (int(n_samples) > 1 and float(dropout) == 0.0):
-            raise ValueError(f"n_samples must be 1, or > 1 together with dropout > 0 (got n_samples={n_samples}, "
-                             f"dropout={dropout})")
+        if int(n_samples) < 1 or (int(n_samples) > 1) != (float(dropout) > 0.0):
+            raise ValueError(f"the Bayesian variant needs both n_samples > 1 and dropout > 0, the plain KalmanNet "
+                             f"n_samples = 1 and dropout = 0 (got n_samples={n_samples}, dropout={dropout})")
         self.model = model
         self.options = dict(feature_norm=feature_norm, in_mult=int(in_mult), out_mult=int(out_mult),
                             dropout=float(dropout), n_samples=int(n_samples), model_grad=model_grad)
@@ -334,15 +335,28 @@ class KalmanNet:
         return F
 
     def _start(self, B: int) -> _Carry:
-        m0 = self._m0.expand(B, -1)
-        return _Carry(m0, m0, m0, self.net.initial_states(B))
+        """The carry before the first step for ``B`` runs (``J B`` filter copies in the Bayesian variant)."""
+        J = self.options["n_samples"]
+        x0 = self._m0.expand(J * B, -1)
+        if J > 1:
+            # the J copies start from J draws of the prior N(m0, P0), centred so that their mean is m0:
+            # without them every copy starts at m0 and the first covariance is only the gains' spread
+            d = torch.randn(J, B, self.model.nx, dtype=_DT) @ torch.from_numpy(np.linalg.cholesky(self.model.P0).T)
+            x0 = x0 + (d - d.mean(0)).reshape(J * B, -1)
+        return _Carry(x0, x0, x0, self.net.initial_states(J * B), self.net.dropout_mask(J * B))
 
-    def _window(self, z: np.ndarray, z_prev: np.ndarray, t0: int, carry: _Carry, n_samples: int):
+    def _window(self, z: np.ndarray, z_prev: np.ndarray, t0: int, carry: _Carry):
         """Steps ``t0 .. t0 + len(z) - 1`` from ``carry``: per-step tensors and the final carry.
 
-        ``z``, ``z_prev`` ``(B, L, nz)`` numpy (``z_prev`` the measurement of the step before).
+        ``z``, ``z_prev`` ``(B, L, nz)`` numpy (``z_prev`` the measurement of the step before). The
+        Bayesian variant runs ``J`` copies of the filter per run (sample ``j`` of run ``b`` at
+        ``j B + b``), each with its own dropout mask, estimate and GRU states; the outputs are their
+        mean and sample covariance.
         """
         nx, nz = self.model.nx, self.model.nz
+        J = self.options["n_samples"]
+        if J > 1:
+            z, z_prev = np.tile(z, (J, 1, 1)), np.tile(z_prev, (J, 1, 1))
         B, L = z.shape[:2]
         F1_all = torch.from_numpy(np.ascontiguousarray(self.model.diff_z(z, z_prev)))
         zt_all = torch.from_numpy(np.ascontiguousarray(z))
@@ -352,26 +366,29 @@ class KalmanNet:
         c = carry
         for i in range(L):
             t = t0 + i
-            x_pred = self._m0.expand(B, -1) if t == 0 else self._f(c.x_filt, t)  # f(x_k, k), k = t
+            x_pred = c.x_pred if t == 0 else self._f(c.x_filt, t)  # f(x_k, k), k = t; x_{0|-1} = m0
             z_pred = self._h(x_pred, t + 1)
             innov = self._dz(zt_all[:, i], z_pred)
             F1 = self._norm(F1_all[:, i], s_z1)
             F2 = self._norm(innov, s_z2)
             F3 = self._norm(c.x_filt - c.x_filt_prev, s_x3)
             F4 = self._norm(c.x_filt - c.x_pred, s_x4)
-            K, h_Q, h_Sigma, h_S = self.net.step(F1, F2, F3, F4, *c.h, n_samples=n_samples)
-            x_j = x_pred.unsqueeze(0) + (K @ innov.unsqueeze(-1)).squeeze(-1)  # (J, B, nx)
-            x_filt = x_j.mean(0)
-            if n_samples > 1:
-                e = x_j - x_filt
-                covs.append(torch.einsum("jbi,jbk->bik", e, e) / (n_samples - 1))
+            K, h_Q, h_Sigma, h_S = self.net.step(F1, F2, F3, F4, *c.h, mask=c.mask)
+            x_filt = x_pred + (K @ innov.unsqueeze(-1)).squeeze(-1)
             means.append(x_filt)
             preds.append(x_pred)
             innovs.append(innov)
-            gains.append(K.mean(0))
-            c = _Carry(x_filt, c.x_filt, x_pred, (h_Q, h_Sigma, h_S))
+            gains.append(K)
+            c = _Carry(x_filt, c.x_filt, x_pred, (h_Q, h_Sigma, h_S), c.mask)
         out = dict(mean=torch.stack(means, 1), x_pred=torch.stack(preds, 1), innov=torch.stack(innovs, 1),
-                   K=torch.stack(gains, 1), cov=torch.stack(covs, 1) if covs else None)
+                   K=torch.stack(gains, 1), cov=None)
+        if J > 1:  # (J B, L, ...) -> the mean over the J copies and their sample covariance
+            x_j = out["mean"].reshape(J, B // J, L, nx)
+            out["mean"] = x_j.mean(0)
+            e = x_j - out["mean"]
+            out["cov"] = torch.einsum("jbti,jbtk->btik", e, e) / (J - 1)
+            out["x_pred"] = out["x_pred"].reshape(J, B // J, L, nx).mean(0)
+            out["K"] = out["K"].reshape(J, B // J, L, nx, nz).mean(0)
         return out, c
 
     def _z_prev(self, z: np.ndarray) -> np.ndarray:
@@ -403,7 +420,7 @@ class KalmanNet:
                 torch.manual_seed(self.seed if seed is None else int(seed))
                 for a in range(0, M, int(chunk)):
                     b = min(M, a + int(chunk))
-                    out, _ = self._window(z[a:b], z_prev[a:b], 0, self._start(b - a), J)
+                    out, _ = self._window(z[a:b], z_prev[a:b], 0, self._start(b - a))
                     mean[a:b], x_pred[a:b] = out["mean"].numpy(), out["x_pred"].numpy()
                     if J > 1:
                         cov[a:b] = out["cov"].numpy()
@@ -486,13 +503,16 @@ def _loss(knet: KalmanNet, out: dict, x: torch.Tensor | None, kind: str, calibra
     return loss
 
 
-def _evaluate(knet: KalmanNet, traj: Trajectory, kind: str) -> float:
-    """Validation loss: the MSE of the estimate (supervised) or of the predicted measurement."""
-    run = knet.run(traj.z)
-    if kind == "unsupervised":
-        z_pred = np.stack([knet.model.h(run.x_pred[:, t], t + 1) for t in range(traj.z.shape[1])], 1)
-        return float((knet.model.diff_z(traj.z, z_pred) ** 2).mean())
-    return float(((run.mean - traj.x) ** 2).mean())
+def _evaluate(knet: KalmanNet, traj: Trajectory, kind: str, calibration: float) -> float:
+    """Validation loss, the training loss on the validation set with the filter's own dropout masks."""
+    was_training = knet.net.training
+    knet.net.eval()
+    try:
+        with torch.no_grad():
+            out, _ = knet._window(traj.z, knet._z_prev(traj.z), 0, knet._start(traj.n_runs))
+            return float(_loss(knet, out, torch.from_numpy(traj.x), kind, calibration))
+    finally:
+        knet.net.train(was_training)
 
 
 def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 50, n_steps: int | None = None,
@@ -563,7 +583,6 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         int(n_train), T, rng=np.random.default_rng([ds, 0]))
     val = _check_traj(val, model, "val") if val is not None else model.simulate(
         int(n_val), T, rng=np.random.default_rng([ds, 1]))
-    J = knet.options["n_samples"]
     opt = torch.optim.Adam(knet.net.parameters(), lr=lr, weight_decay=weight_decay)
     order_rng = np.random.default_rng([int(seed), 2])
     hist = {"train_loss": [], "val_loss": [], "best_epoch": 0, "loss": loss, "epochs": int(epochs),
@@ -580,7 +599,9 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         bar = tqdm(bar, desc=f"train {knet!r}", leave=False)
     with one_torch_thread(), torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(seed) + 1)
-        best = _evaluate(knet, val, loss)
+        best = _evaluate(knet, val, loss, calibration)
+        if not math.isfinite(best):  # an untrained filter that diverges on validation: any finite epoch beats it
+            best = math.inf
         best_state = copy.deepcopy(knet.net.state_dict())
         hist["val_loss"].append(best)
         step = 0
@@ -595,7 +616,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                 carry = knet._start(len(idx))
                 for t0 in range(0, Tn, L):
                     t1 = min(Tn, t0 + L)
-                    out, carry = knet._window(z[:, t0:t1], zp[:, t0:t1], t0, carry, J)
+                    out, carry = knet._window(z[:, t0:t1], zp[:, t0:t1], t0, carry)
                     ell = _loss(knet, out, x[:, t0:t1], loss, calibration)
                     step += 1
                     if not torch.isfinite(ell):
@@ -615,7 +636,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     carry = carry.detach()
                     losses.append(float(ell.detach()))
             hist["train_loss"].append(float(np.mean(losses)))
-            v = _evaluate(knet, val, loss)
+            v = _evaluate(knet, val, loss, calibration)
             if not math.isfinite(v):
                 raise TrainingDiverged(f"KalmanNet training: non-finite validation loss after epoch {epoch}")
             hist["val_loss"].append(v)
