@@ -101,11 +101,12 @@ import numpy as np
 import torch
 
 from adaptfilt._version import __version__
-from adaptfilt.learned import (Actor, Critic, LearnedPolicy, arrays_to_state, describe_env, read_npz,
-                               state_to_arrays, write_npz)
+from adaptfilt.costs import transform_cost
+from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
+from adaptfilt.learned import Actor, Critic, LearnedPolicy, arrays_to_state, read_npz, state_to_arrays, write_npz
 
-__all__ = ["Hyper", "train", "train_experiment", "soft_update", "transform_cost", "checkpoint_path"]
+__all__ = ["Hyper", "train", "train_experiment", "soft_update", "checkpoint_path"]
 
 
 @dataclass(frozen=True)
@@ -138,15 +139,6 @@ def _hyper_record(H: Hyper) -> dict:
     return {k: v for k, v in asdict(H).items() if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
 
 
-def transform_cost(cost: np.ndarray, kind: str) -> np.ndarray:
-    """The cost the networks learn from: ``sign(L) log(1 + |L|)`` or ``L``."""
-    if kind == "log1p":
-        return np.sign(cost) * np.log1p(np.abs(cost))
-    if kind == "none":
-        return cost
-    raise ValueError(f"unknown cost_transform {kind!r}: choose 'log1p' or 'none'")
-
-
 @torch.no_grad()
 def soft_update(target: torch.nn.Module, source: torch.nn.Module, tau: float) -> None:
     """Polyak averaging ``psi_bar <- tau * psi + (1 - tau) * psi_bar`` (Algorithm 2, last line)."""
@@ -159,18 +151,6 @@ def checkpoint_path(out: str | Path) -> Path:
     """``OUT.ckpt.npz`` next to the policy file ``OUT.npz``."""
     out = Path(out)
     return out.with_name((out.name[:-4] if out.name.endswith(".npz") else out.name) + ".ckpt.npz")
-
-
-def _resolve(env_or_experiment, seed: int, n_steps: int | None):
-    """(env, experiment name or None, the experiment's recommended feature set or None)."""
-    if isinstance(env_or_experiment, str):
-        from adaptfilt.experiment_registry import get_experiment
-
-        env_or_experiment = get_experiment(env_or_experiment)
-    if hasattr(env_or_experiment, "make_env"):
-        e = env_or_experiment
-        return e.make_env(seed=seed, n_steps=n_steps), e.name, e.features
-    return env_or_experiment, getattr(env_or_experiment, "experiment", None), None
 
 
 def _adam_arrays(prefix: str, opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
@@ -248,10 +228,11 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
         raise ValueError("actor_sign must be +1 (correct) or -1 (the paper's printed sign)")
     if episodes < 1 or parallel < 1:
         raise ValueError("episodes and parallel must be >= 1")
-    env, experiment, recommended = _resolve(env_or_experiment, seed, n_steps)
+    target = resolve(env_or_experiment, seed, n_steps)
+    env, experiment, recommended = target.env, target.name, target.features
     if H.features is None:
         H = dataclasses.replace(H, features=recommended or "paper")
-    desc = describe_env(env)
+    desc = env.describe()
     grid = np.asarray(env.grid, dtype=float)
     G = grid.size
     config = {"experiment": experiment, "gamma": float(gamma), "episodes": int(episodes), "parallel": int(parallel),

@@ -30,17 +30,13 @@ def rollout_data(experiment, seed: int = 0, *, runs: int = 500, features: str | 
     Returns ``{"features" (N, d) raw information states of the feature set, "greedy" (N,) greedy's
     choice, "q" (N, G) the rollout estimate of every candidate's discounted cost}``, ``N = runs * T``.
     """
-    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiment_registry import resolve
     from adaptfilt.features import observe
     from adaptfilt.lookahead import RolloutPolicy
 
-    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
-    if hasattr(exp, "make_env"):
-        fs, env, label = features or exp.features, exp.make_env(seed=seed, n_steps=n_steps), exp.name
-    else:  # an environment of one's own (a FilterEnv, or a toy MDP with a look-ahead model): its horizon is its own
-        if n_steps is not None and n_steps != exp.n_steps:
-            raise ValueError(f"n_steps={n_steps} for an environment with horizon {exp.n_steps}")
-        fs, env, label = features or "paper", exp, getattr(exp, "experiment", None)
+    # an environment of one's own (a FilterEnv, or a toy MDP with a look-ahead model) keeps its horizon
+    target = resolve(experiment, seed=seed, n_steps=n_steps)
+    fs, env, label = features or target.features or "paper", target.env, target.name
     teacher = RolloutPolicy(env.grid, horizon=horizon, samples=samples, gamma=gamma, seed=seed)
     d = env.reset(n_runs=int(runs), rng=np.random.default_rng([seed, _DISTILL_KEY]), stream=seed)
     X, g, Q = [], [], []
@@ -94,7 +90,7 @@ def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str
 
     from adaptfilt._version import __version__
     from adaptfilt.features import FeatureSet, fit_scaler
-    from adaptfilt.learned import Actor, LearnedPolicy, describe_env, one_torch_thread
+    from adaptfilt.learned import Actor, LearnedPolicy, one_torch_thread
 
     spec = Anchor("greedy", strength, kl)
     for k, v, lo in (("runs", runs, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1)):
@@ -139,7 +135,7 @@ def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str
                 opt.step()
                 tot += float(loss.detach()) * i.numel()
             curve.append(tot / N)
-    meta = {**describe_env(env, fs), "experiment": data["experiment"], "feature_set": FeatureSet.parse(fs).name,
+    meta = {**env.describe(fs), "experiment": data["experiment"], "feature_set": FeatureSet.parse(fs).name,
             "algo": "rollout-distill", "seed": int(seed), "runs": int(runs), "n_steps": int(env.n_steps),
             "teacher": {"policy": "rollout", "horizon": int(horizon), "samples": int(samples), "gamma": float(gamma)},
             "trainer": {"epochs": int(epochs), "lr": float(lr), "batch_size": int(batch_size), "clip": float(clip),

@@ -99,12 +99,12 @@ from typing import Iterable, Literal, Sequence
 import numpy as np
 
 from adaptfilt import metrics
-from adaptfilt.mdp import FilterEnv, rollout
+from adaptfilt.mdp import rollout
 from adaptfilt.models import Trajectory
-from adaptfilt.results import RESULTS_FORMAT, PolicyResult, Results  # what evaluate returns (adaptfilt.results)
+from adaptfilt.paramenv import ParamEnv
+from adaptfilt.results import PolicyResult, Results
 
-__all__ = ["PolicyResult", "Results", "evaluate", "learned_name", "learned_names",
-           "RESULTS_FORMAT", "TRAJ_SEED_KEY"]
+__all__ = ["evaluate", "evaluate_costs", "learned_name", "learned_names", "TRAJ_SEED_KEY"]
 
 #: Trajectories of an evaluation with seed ``s`` come from ``default_rng([TRAJ_SEED_KEY, s])``, so
 #: that they are not the trajectories a training run with the same seed simulates.
@@ -119,8 +119,6 @@ CHUNK_SIZE = 10_000
 #: ``_CHUNK_STREAM + c`` (a training episode's stream is its index, far below).
 _CHUNK_STREAM = 2**30
 
-#: A run has diverged when its time-averaged NEES exceeds this many times nx (:func:`metrics.divergent`).
-DIVERGED_NEES = metrics.DIVERGED_NEES
 
 def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
                counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
@@ -227,9 +225,11 @@ def evaluate(
 
     Parameters
     ----------
-    experiment_or_env : Experiment, str or FilterEnv
+    experiment_or_env : Experiment, str or ParamEnv
         A registered experiment (or its name), or an environment built by hand
-        (its filter, grid, cost and horizon are used as they are).
+        (a :class:`~adaptfilt.mdp.FilterEnv` or any other :class:`~adaptfilt.paramenv.ParamEnv`: its
+        filter, grid, cost and horizon are used as they are), read by
+        :func:`~adaptfilt.experiment_registry.resolve`.
     policies : sequence of policies, optional
         Objects with ``.name`` and ``.act(decision)``; default: the
         experiment's baselines (``Experiment.baselines()``).
@@ -327,24 +327,11 @@ def _evaluate_costs(setups: list, level: float, progress) -> dict[str, Results]:
         if e2.truth.name != env.truth.name:
             raise ValueError(f"experiments {first['experiment']!r} and {c['experiment']!r} simulate different truths")
     for p in pols:
-        if not _cost_blind(p):
-            raise ValueError(f"policy {p.name!r} may choose by the cost (greedy, candidate features, or a policy type "
-                             "evaluate_costs does not know): evaluate it per experiment")
+        if not getattr(p, "cost_blind", False):
+            raise ValueError(f"policy {p.name!r} may choose by the cost (greedy, candidate features, or a policy that "
+                             "does not declare cost_blind = True): evaluate it per experiment")
     out = _evaluate([(e.cost, c) for e, _, _, _, c in setups], env, pols, traj, counts, level, progress)
     return dict(zip(names, out))
-
-
-def _cost_blind(pol) -> bool:
-    """Whether ``pol``'s choices cannot depend on the environment's cost: constants, maximum likelihood,
-    random choice, KLD-sampling and ESS targets, and learned policies whose information state has no
-    candidate costs."""
-    from adaptfilt.particle_env import ESSTargetPolicy, KLDSamplingPolicy
-    from adaptfilt.policies import FixedPolicy, MaxLikelihoodPolicy, RandomPolicy
-
-    if isinstance(pol, (FixedPolicy, MaxLikelihoodPolicy, RandomPolicy, KLDSamplingPolicy, ESSTargetPolicy)):
-        return True
-    fs = getattr(pol, "feature_set", None)
-    return fs is not None and not fs.candidates
 
 
 def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None,
@@ -356,23 +343,14 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
     the trajectories, and None for the counts (the store holds them). ``simulate=False``: neither (for an
     experiment whose runs are another's, :func:`evaluate_costs`)."""
     from adaptfilt._version import __version__
-    from adaptfilt.experiment_registry import Experiment, get_experiment
-    from adaptfilt.particle_env import ParticleCountEnv  # here: `import adaptfilt` loads no particle filter
+    from adaptfilt.experiment_registry import resolve
 
-    exp = get_experiment(experiment_or_env) if isinstance(experiment_or_env, str) else experiment_or_env
-    if isinstance(exp, Experiment):
-        env = exp.make_env(seed=seed, n_steps=n_steps)
-        if policies is None:
-            policies = exp.baselines()
-    elif isinstance(exp, (FilterEnv, ParticleCountEnv)):
-        env, exp = exp, None
-        if n_steps is not None and n_steps != env.n_steps:
-            raise ValueError(f"n_steps={n_steps} for an environment with horizon {env.n_steps}: "
-                             "build the environment with the horizon you want (FilterEnv(..., n_steps=...))")
-        if policies is None:
+    target = resolve(experiment_or_env, seed=seed, n_steps=n_steps)
+    env, exp = target.env, target.experiment
+    if policies is None:
+        if exp is None:
             raise ValueError("give the policies to evaluate (an environment has no baselines; an Experiment has)")
-    else:
-        raise TypeError(f"expected an Experiment, an experiment name, a FilterEnv or a ParticleCountEnv, got {type(exp).__name__}")
+        policies = exp.baselines()
     policies = list(policies)
     if not policies:
         raise ValueError("no policies to evaluate")
@@ -395,14 +373,14 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
         if not given:
             traj = env.truth.simulate(M, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
         counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1]))
-    filt = env.filt
+    desc = env.describe()
     config = {
         "experiment": None if exp is None else exp.name,
         "description": "" if exp is None else exp.description,
-        "model": env.model.name, "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
-        "filter": repr(filt), "param_name": filt.rule.param_name, "default": filt.param,
-        "compute_unit": filt.rule.compute_unit,
-        "grid": env.grid.tolist(), "cost": None if env.cost is None else env.cost.name,
+        "model": desc["model"], "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
+        "filter": desc["filter"], "param_name": env.param_name, "default": env.default,
+        "compute_unit": env.compute_unit,
+        "grid": env.grid.tolist(), "cost": desc["cost"],
         "n_runs": M, "seed": int(seed), "n_boot": int(n_boot), "level": float(level),
         "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",
         "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
@@ -511,7 +489,7 @@ def _constant(pol) -> tuple | None:
     return (pol.value, pol.predict_param) if type(pol) is FixedPolicy else None
 
 
-def _evaluate(targets: list[tuple], env: FilterEnv, policies: list, traj, counts: np.ndarray | None,
+def _evaluate(targets: list[tuple], env: ParamEnv, policies: list, traj, counts: np.ndarray | None,
               level: float, progress) -> list[Results]:
     """Roll each policy out once in ``env`` and summarise it for every ``(cost, config)`` of ``targets``
     (the first cost is the environment's own); ``traj`` a :class:`_RunStore` (``counts`` None): chunk by

@@ -54,42 +54,128 @@ evaluation reports how many repairs happened.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from adaptfilt.costs import Cost, ParticleCost, StepCost
 from adaptfilt.gaf import SIF, UKF, GaussianAssumedFilter
-from adaptfilt.mdp import Cost, FilterEnv
+from adaptfilt.mdp import FilterEnv
 from adaptfilt.models import StateSpaceModel, coordinated_turn, ungm
-from adaptfilt.particle_env import PARTICLE_GRID, ESSTargetPolicy, KLDSamplingPolicy, ParticleCost, ParticleCountEnv
+from adaptfilt.paramenv import ParamEnv, missing_members
+from adaptfilt.particle_env import PARTICLE_GRID
 from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy, default_policy
 
-__all__ = ["Experiment", "EXPERIMENTS", "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment",
-           "describe_experiments", "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES",
-           "ESS_TARGETS", "KLD_BIN_SCALES", "SIF_EXPERIMENTS"]
+__all__ = ["Experiment", "EnvFactory", "RuleParameter", "ParticleCount", "Target", "resolve", "EXPERIMENTS",
+           "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment", "describe_experiments",
+           "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES", "ESS_TARGETS", "KLD_BIN_SCALES",
+           "SIF_EXPERIMENTS"]
 
 UNGM_KAPPA_GRID = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 3000.0, 10000.0)
 CTM_KAPPA_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 SIF_ITER_GRID = (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
 
 
+class EnvFactory(Protocol):
+    """A kind of parameter as an experiment uses it: it builds the experiment's environment (a
+    :class:`~adaptfilt.paramenv.ParamEnv`), knows the parameter's name and default, and the baselines
+    that choose it. A new kind of parameter is a new environment and one of these."""
+
+    param_name: str
+
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None,
+                 model: StateSpaceModel | None) -> ParamEnv: ...
+
+    def default_value(self, exp: "Experiment") -> float: ...
+
+    def baselines(self, exp: "Experiment", grid: np.ndarray, fixed: bool) -> list: ...
+
+
+@dataclass(frozen=True)
+class RuleParameter:
+    """The moment rule's parameter of a Gaussian-assumed filter (``filter_class``: :class:`~adaptfilt.gaf.UKF`
+    kappa, :class:`~adaptfilt.gaf.SIF` iterations), in a :class:`~adaptfilt.mdp.FilterEnv`. ``seeded``:
+    the filter draws random numbers (keyed by the environment's seed)."""
+
+    filter_class: type
+    param_name: str
+    seeded: bool = False
+
+    def make_filter(self, exp: "Experiment", seed: int = 0, model: StateSpaceModel | None = None) -> GaussianAssumedFilter:
+        model = exp.make_model() if model is None else model
+        seeds = {"seed": seed} if self.seeded else {}
+        return self.filter_class(model, **seeds, on_indefinite="clip", **exp.filter_options)
+
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None) -> FilterEnv:
+        return FilterEnv(self.make_filter(exp, seed, model), exp.grid, cost=exp.cost, n_steps=n_steps)
+
+    def default_value(self, exp: "Experiment") -> float:
+        return self.make_filter(exp).param
+
+    def baselines(self, exp: "Experiment", grid: np.ndarray, fixed: bool) -> list:
+        pols = [default_policy(self.default_value(exp), grid=grid)]
+        if fixed:
+            pols += [FixedPolicy(v, self.param_name, grid=grid) for v in exp.grid]
+            if exp.make_model().F is None:
+                pols += [FixedPolicy(v, self.param_name, grid=grid, both_steps=True) for v in exp.grid]
+        if exp.ml_baseline:
+            pols.append(MaxLikelihoodPolicy(grid=grid))
+        pols.append(GreedyPolicy(grid=grid))
+        return pols
+
+
+@dataclass(frozen=True)
+class ParticleCount:
+    """The particle count per step (:class:`~adaptfilt.particle_env.ParticleCountEnv`), ``default``
+    particles for the "default" policy; ``noise_std``: the process noise's standard deviation per state
+    dimension (the unit of KLD-sampling's bins)."""
+
+    default: int
+    noise_std: tuple[float, ...]
+    param_name: str = "n_particles"
+
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None) -> ParamEnv:
+        # here, not at the top: `import adaptfilt` loads no particle filter
+        from adaptfilt.particle_env import ParticleCountEnv
+
+        return ParticleCountEnv(exp.make_model() if model is None else model, exp.cost, exp.grid,
+                                default=self.default, seed=seed, n_steps=n_steps)
+
+    def default_value(self, exp: "Experiment") -> float:
+        return self.default
+
+    def baselines(self, exp: "Experiment", grid: np.ndarray, fixed: bool) -> list:
+        """``default``, every fixed count, KLD-sampling with bins of :data:`KLD_BIN_SCALES` times the process
+        noise's standard deviation (``kld-x<k>``), the ESS targets and greedy."""
+        from adaptfilt.particle_env import ESSTargetPolicy, KLDSamplingPolicy
+
+        pols = [default_policy(self.default, grid=grid)]
+        if fixed:
+            pols += [FixedPolicy(v, self.param_name, grid=grid) for v in exp.grid]
+        for k in KLD_BIN_SCALES:
+            pols.append(KLDSamplingPolicy(k * np.asarray(self.noise_std), grid=grid, name=f"kld-x{k}"))
+        pols += [ESSTargetPolicy(t, grid=grid) for t in ESS_TARGETS]
+        pols.append(GreedyPolicy(grid=grid))
+        return pols
+
+
 @dataclass(frozen=True)
 class Experiment:
-    """A named experiment: model, filter, grid, cost and horizon.
+    """A named experiment: model, kind of parameter (the environment's factory), grid, cost and horizon.
 
-    ``make_filter(seed)`` builds the filter (predict step and default at the
-    rule's default parameter), ``make_env(seed)`` the MDP environment and
-    ``baselines()`` the baseline policies in a fixed order.
+    ``make_env(seed)`` builds the MDP environment (through ``envs``, an :class:`EnvFactory`),
+    ``make_filter(seed)`` a Gaussian-assumed filter's experiment's filter (predict step and default at
+    the rule's default parameter) and ``baselines()`` the baseline policies in a fixed order.
     """
 
     name: str
     description: str
     model_factory: Callable[[], StateSpaceModel]
-    filter_kind: str  # "ukf", "sif" or "pf" (a particle filter whose count is the parameter)
+    #: the kind of parameter: builds the environment, knows the default and the baselines
+    envs: EnvFactory
     grid: tuple[float, ...]
-    cost: "Cost | ParticleCost"
+    cost: StepCost
     ml_baseline: bool = True
-    extra: dict = field(default_factory=dict)
     #: the information state learned policies see by default (:mod:`adaptfilt.features`): the paper's
     #: plus the model's phase on UNGM (its dynamics depend on k) and the bearing as (sin, cos) on the CTM
     features: str = "paper"
@@ -98,29 +184,23 @@ class Experiment:
 
     @property
     def param_name(self) -> str:
-        return {"ukf": "kappa", "sif": "n_iter", "pf": "n_particles"}[self.filter_kind]
+        return self.envs.param_name
 
     def make_model(self) -> StateSpaceModel:
         return self.model_factory()
 
     def make_filter(self, seed: int = 0, model: StateSpaceModel | None = None) -> GaussianAssumedFilter:
-        model = self.make_model() if model is None else model
-        if self.filter_kind == "pf":
-            return self.make_env(seed, model=model).filt
-        if self.filter_kind == "ukf":
-            return UKF(model, on_indefinite="clip", **self.filter_options)
-        return SIF(model, seed=seed, on_indefinite="clip", **self.filter_options)
+        if not isinstance(self.envs, RuleParameter):
+            raise TypeError(f"{self.name}'s parameter ({self.param_name}) is not a moment rule's: its environment "
+                            "owns its filter (make_env)")
+        return self.envs.make_filter(self, seed, model)
 
-    def make_env(self, seed: int = 0, n_steps: int | None = None,
-                 model: StateSpaceModel | None = None) -> "FilterEnv | ParticleCountEnv":
-        if self.filter_kind == "pf":
-            return ParticleCountEnv(self.make_model() if model is None else model, self.cost, self.grid,
-                                    default=self.extra["default"], seed=seed, n_steps=n_steps)
-        return FilterEnv(self.make_filter(seed, model), self.grid, cost=self.cost, n_steps=n_steps)
+    def make_env(self, seed: int = 0, n_steps: int | None = None, model: StateSpaceModel | None = None) -> ParamEnv:
+        return self.envs.make_env(self, seed, n_steps, model)
 
     @property
     def default_value(self) -> float:
-        return self.extra["default"] if self.filter_kind == "pf" else self.make_filter().param
+        return self.envs.default_value(self)
 
     def baselines(self, fixed: bool = True) -> list:
         """``default``, every fixed grid value, ``ml`` (UKF only: for the SIF
@@ -130,31 +210,11 @@ class Experiment:
         predict step does not use the parameter) every fixed value comes twice:
         in the update only (``fixed-kappa=v``, the paper's convention for
         adaptation) and in both steps (``fixed-both-kappa=v``, a UKF with one
-        constant kappa)."""
-        grid = np.asarray(self.grid)
-        if self.filter_kind == "pf":
-            return self._particle_baselines(grid, fixed)
-        pols = [default_policy(self.default_value, grid=grid)]
-        if fixed:
-            pols += [FixedPolicy(v, self.param_name, grid=grid) for v in self.grid]
-            if self.make_model().F is None:
-                pols += [FixedPolicy(v, self.param_name, grid=grid, both_steps=True) for v in self.grid]
-        if self.ml_baseline:
-            pols.append(MaxLikelihoodPolicy(grid=grid))
-        pols.append(GreedyPolicy(grid=grid))
-        return pols
+        constant kappa). The particle count's: :meth:`ParticleCount.baselines`."""
+        return self.envs.baselines(self, np.asarray(self.grid), fixed)
 
-    def _particle_baselines(self, grid: np.ndarray, fixed: bool) -> list:
-        """``default``, every fixed count, KLD-sampling with bins of :data:`KLD_BIN_SCALES` times the process
-        noise's standard deviation (``kld-x<k>``), the ESS targets and greedy."""
-        pols = [default_policy(self.default_value, grid=grid)]
-        if fixed:
-            pols += [FixedPolicy(v, self.param_name, grid=grid) for v in self.grid]
-        for k in KLD_BIN_SCALES:
-            pols.append(KLDSamplingPolicy(k * np.asarray(self.extra["noise_std"]), grid=grid, name=f"kld-x{k}"))
-        pols += [ESSTargetPolicy(t, grid=grid) for t in ESS_TARGETS]
-        pols.append(GreedyPolicy(grid=grid))
-        return pols
+
+_UKF, _SIF = RuleParameter(UKF, "kappa"), RuleParameter(SIF, "n_iter", seeded=True)
 
 
 #: Forms of the SIF (keyword options of :class:`~adaptfilt.gaf.SIF`): ``"reference"``, the form tested
@@ -170,24 +230,24 @@ _SIF_FEATURES = "paper+circ+innov@1"
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e
     for e in [
-        Experiment("ungm-ukf", "UKF kappa on UNGM, NIS cost (Figs 1-3)", ungm, "ukf", UNGM_KAPPA_GRID, Cost("nis"),
+        Experiment("ungm-ukf", "UKF kappa on UNGM, NIS cost (Figs 1-3)", ungm, _UKF, UNGM_KAPPA_GRID, Cost("nis"),
                    features="paper+time"),
-        Experiment("ctm-ukf", "UKF kappa on bearing-only CTM, NIS cost (Figs 4-6)", coordinated_turn, "ukf",
+        Experiment("ctm-ukf", "UKF kappa on bearing-only CTM, NIS cost (Figs 4-6)", coordinated_turn, _UKF,
                    CTM_KAPPA_GRID, Cost("nis"), features="paper+circ", filter_options={"form": "auto"}),
         Experiment("ctm-sif-stateinnov", "SIF n_iter on CTM, ||K innov|| + n_iter/50 (Table I)", coordinated_turn,
-                   "sif", SIF_ITER_GRID, Cost("stateinnov", 1 / 50), ml_baseline=False, features=_SIF_FEATURES,
+                   _SIF, SIF_ITER_GRID, Cost("stateinnov", 1 / 50), ml_baseline=False, features=_SIF_FEATURES,
                    filter_options=_SIF_OPTIONS),
         Experiment("ctm-sif-logmaxnis", "SIF n_iter on CTM, log(1+max(0,NIS-nz)) + n_iter/50 (Table I)",
-                   coordinated_turn, "sif", SIF_ITER_GRID, Cost("logmaxnis", 1 / 50), ml_baseline=False,
+                   coordinated_turn, _SIF, SIF_ITER_GRID, Cost("logmaxnis", 1 / 50), ml_baseline=False,
                    features=_SIF_FEATURES, filter_options=_SIF_OPTIONS),
-        Experiment("ctm-sif-nis", "SIF n_iter on CTM, (NIS-nz)^2 + n_iter/50 (Table I)", coordinated_turn, "sif",
+        Experiment("ctm-sif-nis", "SIF n_iter on CTM, (NIS-nz)^2 + n_iter/50 (Table I)", coordinated_turn, _SIF,
                    SIF_ITER_GRID, Cost("nis", 1 / 50), ml_baseline=False, features=_SIF_FEATURES,
                    filter_options=_SIF_OPTIONS),
     ]
 }
 
 #: The three SIF experiments of Table I (one filter, three costs), in the paper's column order.
-SIF_EXPERIMENTS: tuple[str, ...] = tuple(e.name for e in EXPERIMENTS.values() if e.filter_kind == "sif")
+SIF_EXPERIMENTS: tuple[str, ...] = tuple(e.name for e in EXPERIMENTS.values() if e.envs == _SIF)
 
 
 #: Variants of the paper's experiments, by name, for comparison (``adaptfilt evaluate/train`` take them;
@@ -195,7 +255,7 @@ SIF_EXPERIMENTS: tuple[str, ...] = tuple(e.name for e in EXPERIMENTS.values() if
 VARIANTS: dict[str, Experiment] = {
     f"{e.name}-onepass": replace(e, name=f"{e.name}-onepass", filter_options=SIF_FORMS["one-pass"],
                                  description=e.description + "; one-pass SIF (the experiments' form until 2026-11-25)")
-    for e in EXPERIMENTS.values() if e.filter_kind == "sif"
+    for e in EXPERIMENTS.values() if e.envs == _SIF
 }
 
 
@@ -220,9 +280,9 @@ def _ungm_short() -> StateSpaceModel:
 #: state only).
 PARTICLE_EXPERIMENTS: dict[str, Experiment] = {
     f"{m}-pf-{p}": Experiment(
-        f"{m}-pf-{p}", f"particle count on {label}, ||x_filt - x||^2 + {p} N (beyond the paper)", factory, "pf",
-        tuple(float(g) for g in PARTICLE_GRID), ParticleCost("sqerr", float(p)), ml_baseline=False,
-        extra={"default": 1000, "noise_std": tuple(float(v) for v in np.sqrt(np.diag(factory().Q)))})
+        f"{m}-pf-{p}", f"particle count on {label}, ||x_filt - x||^2 + {p} N (beyond the paper)", factory,
+        ParticleCount(1000, tuple(float(v) for v in np.sqrt(np.diag(factory().Q)))),
+        tuple(float(g) for g in PARTICLE_GRID), ParticleCost("sqerr", float(p)), ml_baseline=False)
     for m, label, factory in (("ungm", "UNGM (100 steps)", _ungm_short), ("ctm", "the bearing-only CTM", coordinated_turn))
     for p in PARTICLE_PRICES[m]
 }
@@ -234,6 +294,52 @@ def get_experiment(name: str) -> Experiment:
         if name in table:
             return table[name]
     raise KeyError(f"unknown experiment {name!r}; known: {', '.join([*EXPERIMENTS, *VARIANTS, *PARTICLE_EXPERIMENTS])}")
+
+
+@dataclass(frozen=True)
+class Target:
+    """What a name, an :class:`Experiment` or an environment of one's own resolves to (:func:`resolve`):
+    the environment, the experiment (None for an environment of one's own), its name (an environment may
+    carry one: ``env.experiment``, for a policy still "for" an experiment whose grid it cuts), the feature
+    set the experiment recommends (None for an environment: the caller's default) and a label for
+    progress bars and messages."""
+
+    env: ParamEnv
+    experiment: Experiment | None
+    name: str | None
+    features: str | None
+
+    @property
+    def label(self) -> str:
+        return self.name or getattr(getattr(self.env, "model", None), "name", None) or "env"
+
+
+def resolve(target: Any, seed: int = 0, n_steps: int | None = None) -> Target:
+    """The one reading of "a name, an :class:`Experiment` or an environment" that every entry point
+    (evaluation, the trainers, the Gymnasium wrapper, policy files, distillation) uses.
+
+    A name is looked up (:func:`get_experiment`, KeyError listing the known names); an experiment builds
+    its environment with ``seed`` and ``n_steps`` (default: the model's horizon); a :class:`Target` is
+    returned as it is (so that one resolved by a caller is not built again); an environment must meet
+    :class:`~adaptfilt.paramenv.ParamEnv` (TypeError naming the members it lacks) and is used as it is: its
+    horizon is its own, so an ``n_steps`` other than it is a ValueError.
+    """
+    if isinstance(target, Target):  # resolved already (a caller that passes it on): not built twice
+        if n_steps is not None and n_steps != target.env.n_steps:
+            raise ValueError(f"n_steps={n_steps} for a resolved target with horizon {target.env.n_steps}")
+        return target
+    if isinstance(target, str):
+        target = get_experiment(target)
+    if isinstance(target, Experiment):
+        return Target(target.make_env(seed=seed, n_steps=n_steps), target, target.name, target.features)
+    if not isinstance(target, ParamEnv):
+        lacks = missing_members(target)
+        raise TypeError(f"expected an experiment name, an Experiment or an environment (a ParamEnv), got "
+                        f"{type(target).__name__}" + (f", which lacks {', '.join(lacks)}" if lacks else ""))
+    if n_steps is not None and n_steps != target.n_steps:
+        raise ValueError(f"n_steps={n_steps} for an environment with horizon {target.n_steps}: "
+                         "build the environment with the horizon you want (FilterEnv(..., n_steps=...))")
+    return Target(target, None, getattr(target, "experiment", None), None)
 
 
 def describe_experiments() -> str:

@@ -22,7 +22,7 @@ In all three, an **observation** is the information state of a
 it (:func:`~adaptfilt.features.fit_scaler`, fitted on a seeded mix of grid
 values, ``asinh``), as float32. An **action** is an index into the parameter
 grid. The **reward** is minus the transformed one-step cost,
-``-log(1 + L)`` by default (:func:`adaptfilt.actor_critic.transform_cost`;
+``-log(1 + L)`` by default (:func:`adaptfilt.costs.transform_cost`;
 ``cost_transform="none"`` gives ``-L``). A non-finite cost (a diverged
 update) is replaced by the largest float before the transform, as in our
 trainer. ``reset(seed=s)`` simulates fresh trajectories from a generator
@@ -56,6 +56,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from adaptfilt.anchor import ANCHORS, Anchor, allowed_mask, greedy_onehot
+from adaptfilt.costs import transform_cost
+from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import OBS_LIMIT, FeatureScaler, FeatureSet, fit_scaler, observe
 
 __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vector_env", "make_env",
@@ -63,23 +65,8 @@ __all__ = ["FilterVectorEnv", "FilterGymEnv", "SB3VecEnv", "make_vec", "make_vec
 
 
 
-def _filter_env(env_or_experiment, seed: int, n_steps: int | None):
-    """A FilterEnv and its experiment name from a name, an Experiment or a FilterEnv."""
-    from adaptfilt.experiment_registry import Experiment, get_experiment
-
-    if isinstance(env_or_experiment, str):
-        env_or_experiment = get_experiment(env_or_experiment)
-    if isinstance(env_or_experiment, Experiment):
-        return env_or_experiment.make_env(seed=seed, n_steps=n_steps), env_or_experiment.name
-    if not hasattr(env_or_experiment, "grid") or not hasattr(env_or_experiment, "step"):
-        raise TypeError(f"expected an experiment name, an Experiment or a FilterEnv, got {type(env_or_experiment).__name__}")
-    return env_or_experiment, getattr(env_or_experiment, "experiment", None)
-
-
 def rewards(cost: np.ndarray, cost_transform: str = "log1p") -> np.ndarray:
     """Minus the transformed cost; a non-finite cost counts as the largest float."""
-    from adaptfilt.actor_critic import transform_cost
-
     cost = np.where(np.isfinite(cost), cost, np.finfo(float).max)
     return -transform_cost(cost, cost_transform)
 
@@ -167,7 +154,8 @@ class FilterVectorEnv(VectorEnv):
                  n_steps: int | None = None, repair_penalty: float = 0.0, anchor=None):
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.env, self.experiment = _filter_env(env_or_experiment, seed, n_steps)
+        target = resolve(env_or_experiment, seed, n_steps)
+        self.env, self.experiment = target.env, target.name
         if getattr(self.env, "cost", None) is None:
             raise ValueError("the environment needs a cost: the reward is minus the cost")
         self.cost_transform = cost_transform
@@ -444,9 +432,8 @@ def to_learned_policy(model, venv=None, gamma: float | None = None, name: str | 
                              "an anchored policy with the same shield")
         meta["anchor"] = Anchor(anchor, pol.strength, float(getattr(model, "ent_coef", 0.0)),
                                 venv_.observer.shield).to_dict()
-    from adaptfilt.learned import describe_env
 
-    meta = {**describe_env(venv_.env, venv_.features), **meta}
+    meta = {**venv_.env.describe(venv_.features), **meta}
     return LearnedPolicy(actor, venv_.scaler, venv_.grid, gamma=gamma, name=name, metadata=meta)
 
 

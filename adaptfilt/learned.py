@@ -49,12 +49,13 @@ import torch
 from torch import nn
 
 from adaptfilt.anchor import Anchor, allowed_mask, anchored_logits, greedy_onehot
+from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 from adaptfilt.files import atomic_path
-from adaptfilt.policies import _matches, grid_indices
+from adaptfilt.policies import grid_indices, grid_matches
 
 __all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
-           "POLICY_FORMAT", "check_compatible", "grid_indices"]
+           "POLICY_FORMAT", "check_compatible", "describe_target"]
 
 POLICY_FORMAT = "adaptfilt-policy/1"
 HIDDEN = (64, 64)
@@ -254,6 +255,11 @@ class LearnedPolicy:
         #: a policy anchored on greedy adds ``c * onehot(greedy's choice)`` to the actor's logits (:mod:`adaptfilt.anchor`)
         self.anchor = Anchor.from_dict(self.metadata.get("anchor"))
 
+    @property
+    def cost_blind(self) -> bool:
+        """Whether its choices cannot depend on the cost: no candidate costs in its information state."""
+        return not self.feature_set.candidates
+
     # --------------------------------------------------------- policy API
     def _logits(self, features: np.ndarray, anchor: np.ndarray | None, allowed: np.ndarray | None) -> torch.Tensor:
         s = torch.from_numpy(self.scaler.network_input(features))
@@ -340,42 +346,19 @@ class LearnedPolicy:
         return load_policy(path, experiment)
 
 
-def _describe_target(experiment, features=None) -> dict:
-    """What a policy must match: from an experiment name / Experiment / FilterEnv / dict."""
+def describe_target(experiment, features=None) -> dict:
+    """What a policy must match (:func:`check_compatible`): the fields of a dict as they are, or the
+    :meth:`~adaptfilt.paramenv.ParamEnv.describe` of what :func:`~adaptfilt.experiment_registry.resolve`
+    makes of a name, an Experiment or an environment (plus the experiment's name for an experiment)."""
     if experiment is None:
         return {}
     if isinstance(experiment, Mapping):
         return dict(experiment)
-    if isinstance(experiment, str):
-        from adaptfilt.experiment_registry import get_experiment
-
-        experiment = get_experiment(experiment)
-    if hasattr(experiment, "make_env"):  # an Experiment
-        env = experiment.make_env()
-        out = describe_env(env, features)
-        out["experiment"] = experiment.name
-        return out
-    return describe_env(experiment, features)
-
-
-def describe_env(env, features=None) -> dict:
-    """Model name, filter, rule parameter, grid, feature names (of feature set ``features``,
-    default the paper's) and cost of an environment. The filter (its ``repr``: rule and options,
-    e.g. the SIF's passes) tells a policy trained on one form of a filter from one trained on another."""
-    model = getattr(env, "model", None)
-    filt = getattr(env, "filt", None)
-    names = getattr(env, "feature_names", None)
-    if names is None and model is not None:
-        names = FeatureSet.parse(features).names(model, env.grid)
-    cost = getattr(env, "cost", None)
-    return {
-        "model": getattr(model, "name", getattr(env, "name", None)),
-        "filter": None if filt is None else repr(filt),
-        "param_name": getattr(getattr(filt, "rule", None), "param_name", getattr(env, "param_name", None)),
-        "grid": np.asarray(env.grid, float).tolist(),
-        "feature_names": list(names) if names is not None else None,
-        "cost": getattr(cost, "name", None),
-    }
+    target = resolve(experiment)
+    out = target.env.describe(features)
+    if target.experiment is not None:
+        out["experiment"] = target.experiment.name
+    return out
 
 
 def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> None:
@@ -386,7 +369,7 @@ def check_compatible(meta: Mapping, target: Mapping, what: str = "policy") -> No
         if want is None or (have is None and key != "experiment"):
             continue  # the experiment is strict: a policy trained on a bare env is not "for" any experiment
         if key == "grid":  # a policy may act on a subset of the grid (grid_indices)
-            same = _matches(have, want).any(axis=1).all()
+            same = grid_matches(have, want).any(axis=1).all()
         else:
             same = (list(want) == list(have)) if isinstance(want, (list, tuple)) else want == have
         if not same:
@@ -446,7 +429,7 @@ def load_policy(path: str | os.PathLike, experiment=None, name: str | None = Non
     """
     arrays, meta = read_npz(path)
     _check_policy_file(path, arrays, meta)
-    check_compatible(meta, _describe_target(experiment, meta.get("feature_set")), what=f"policy {Path(path).name}")
+    check_compatible(meta, describe_target(experiment, meta.get("feature_set")), what=f"policy {Path(path).name}")
     a = meta["actor"]
     actor = Actor(a["in_dim"], a["n_actions"], a["hidden"], a.get("activation", "relu"))
     try:

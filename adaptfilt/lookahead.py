@@ -126,7 +126,7 @@ from typing import Literal
 import numpy as np
 
 from adaptfilt.linalg import chol, mv, sym
-from adaptfilt.mdp import _PREDICT, Decision
+from adaptfilt.mdp import PREDICT, Decision
 
 __all__ = ["RolloutPolicy", "TwoStepPolicy", "FilterLookahead", "lookahead_model"]
 
@@ -213,7 +213,7 @@ class FilterLookahead:
         K = tile
         if h == 1:
             # the predict the environment makes after the decision (its random numbers), once per branch
-            mp, Pp = filt.predict_rl(Y.m, Y.P, t - 1, rng=filt.rng(_PREDICT, t - 1, self.stream), tile=K)
+            mp, Pp = filt.predict_rl(Y.m, Y.P, t - 1, rng=filt.rng(PREDICT, t - 1, self.stream), tile=K)
             idx = (np.arange(K)[:, None, None] * m + np.arange(m)[None, None, :] + np.zeros((1, S, 1), int)).ravel()
             mp, Pp, Y = mp[..., idx], Pp[..., idx], self.take(Y, idx)
             r_upd = rng

@@ -20,69 +20,32 @@ that is stored with a trained policy.
 **Costs** (Section VI-D), all functions of the update under the chosen parameter:
 ``L_NIS = (NIS - nz)^2``, ``L_logmaxNIS = log(1 + max(0, NIS - nz))``,
 ``L_stateInnov = ||K z~||``, plus an optional computational term
-``weight * n_iter`` (the paper uses ``1/50``).
+``weight * n_iter`` (the paper uses ``1/50``): :class:`~adaptfilt.costs.Cost`, in
+:mod:`adaptfilt.costs` with every other cost (this module's ``Cost`` is that one).
+
+:class:`FilterEnv` meets :class:`~adaptfilt.paramenv.ParamEnv`, the interface every parameter MDP
+declares (:func:`~adaptfilt.paramenv.check_env` checks it).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from dataclasses import dataclass, field, fields
+from typing import Sequence
 
 import numpy as np
 
+from adaptfilt.costs import Cost, StepCost
 from adaptfilt.features import PAPER, FeatureScaler, FeatureSet, feature_names, fit_scaler
-from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter, _UpdateRL
+from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
+from adaptfilt.paramenv import ParamEnv
 
 __all__ = ["Cost", "FeatureScaler", "FeatureSet", "Decision", "FilterEnv", "feature_names", "fit_scaler",
-           "grid_actions", "rollout", "run_policy"]
+           "grid_actions", "rollout", "run_policy", "PREDICT", "UPDATE"]
 
-_PREDICT, _UPDATE = 0, 1
-
-
-# ------------------------------------------------------------------- costs
-@dataclass(frozen=True)
-class Cost:
-    """One-step cost ``L(s, z, theta)`` of Section VI-D.
-
-    ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
-    (``log(1 + max(0, NIS - nz))``) or ``"stateinnov"`` (``||K z~||``);
-    ``compute_weight`` adds ``weight * theta`` (the iteration count of the SIF).
-
-    >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name
-    ('nis', 'stateinnov+n_iter/50')
-    """
-
-    kind: Literal["nis", "logmaxnis", "stateinnov"] = "nis"
-    compute_weight: float = 0.0
-
-    def __post_init__(self):
-        if self.kind not in ("nis", "logmaxnis", "stateinnov"):
-            raise ValueError(f"unknown cost {self.kind!r}: choose 'nis', 'logmaxnis' or 'stateinnov'")
-        if not (np.isfinite(self.compute_weight) and self.compute_weight >= 0):
-            raise ValueError(f"compute_weight must be finite and >= 0, got {self.compute_weight}")
-
-    @property
-    def name(self) -> str:
-        if self.compute_weight == 0:
-            return self.kind
-        inv = 1.0 / self.compute_weight
-        w = f"n_iter/{inv:g}" if abs(inv - round(inv)) < 1e-9 else f"{self.compute_weight:g}*n_iter"
-        return f"{self.kind}+{w}"
-
-    def estimation_cost(self, nis: np.ndarray, K: np.ndarray | None, innovation: np.ndarray | None, nz: int) -> np.ndarray:
-        """The estimation part of the cost, per run; ``K (nx, nz, M)``, ``innovation (nz, M)`` run-last."""
-        if self.kind == "nis":
-            return (nis - nz) ** 2
-        if self.kind == "logmaxnis":
-            return np.log1p(np.maximum(0.0, nis - nz))
-        dx = np.einsum("ijM,jM->iM", K, innovation)
-        return np.sqrt((dx * dx).sum(axis=0))
-
-    def __call__(self, u: _UpdateRL, theta: np.ndarray, nz: int) -> np.ndarray:
-        """Cost per run of update ``u`` made with parameter(s) ``theta``."""
-        c = self.estimation_cost(u.nis, u.K, u.innovation, nz)
-        return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
+#: Keys of the two steps' random streams (``filt.rng(PREDICT, t, stream)``): a look-ahead that simulates
+#: the filter's next steps draws what the environment would (:mod:`adaptfilt.lookahead`).
+PREDICT, UPDATE = 0, 1
 
 
 def grid_actions(actions, n_runs: int, grid_size: int) -> np.ndarray:
@@ -277,7 +240,7 @@ class FilterEnv:
     def _innovation(self, m, P, z, t: int, stream: int | None, param: float) -> np.ndarray:
         """The innovation ``z - z_pred(param)`` ``(nz, M)``, with the chosen update's random numbers."""
         P, _ = self._repaired(P, t)
-        return self.filt.update_rl(m, P, z, t, param, rng=self.filt.rng(_UPDATE, t, stream)).innovation
+        return self.filt.update_rl(m, P, z, t, param, rng=self.filt.rng(UPDATE, t, stream)).innovation
 
     def _observe(self, d: "Decision", fs: FeatureSet) -> np.ndarray:
         """The raw information state of decision ``d`` for feature set ``fs`` (see :mod:`adaptfilt.features`)."""
@@ -322,7 +285,7 @@ class FilterEnv:
         (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt._chol(sym(P), "P_pred", t))
         theta = np.repeat(self.grid, M)
         u, flags = self._logging_repairs(
-            G * M, lambda: self.filt.update_candidates_rl(m, P, z, t, self.grid, rng=self.filt.rng(_UPDATE, t, stream)))
+            G * M, lambda: self.filt.update_candidates_rl(m, P, z, t, self.grid, rng=self.filt.rng(UPDATE, t, stream)))
         out = {"update": u, "theta": theta, "repaired": flags.reshape(G, M) | pred_flags[None],
                "nis": u.nis.reshape(G, M), "loglik": u.loglik.reshape(G, M), "cost": None}
         if self.cost is not None:
@@ -335,6 +298,31 @@ class FilterEnv:
         return self._decision
 
     # --------------------------------------------------------------- API
+    @property
+    def default(self) -> float:
+        """The default parameter value (the filter's own): ``grid[default_index]``."""
+        return self.filt.param
+
+    @property
+    def param_name(self) -> str:
+        return self.filt.rule.param_name
+
+    @property
+    def compute_unit(self) -> str:
+        return self.filt.rule.compute_unit
+
+    def spent(self, theta) -> np.ndarray:
+        """Compute of one update per run at ``theta``, in :attr:`compute_unit` (the rule's count)."""
+        return self.filt.rule.spent(theta)
+
+    def describe(self, features: "str | FeatureSet | None" = None) -> dict:
+        """What a policy file records and must match: the model, the filter (its ``repr``: rule and options,
+        e.g. the SIF's passes), the parameter, the grid, the names of feature set ``features`` (default the
+        paper's) and the cost."""
+        return {"model": self.model.name, "filter": repr(self.filt), "param_name": self.param_name,
+                "grid": self.grid.tolist(), "feature_names": FeatureSet.parse(features).names(self.model, self.grid),
+                "cost": None if self.cost is None else self.cost.name}
+
     def reset(self, n_runs: int | None = None, rng: np.random.Generator | int | None = None,
               traj: Trajectory | None = None, stream: int | None = None) -> Decision:
         """Start an episode: simulate ``n_runs`` trajectories with ``rng`` (or
@@ -389,12 +377,12 @@ class FilterEnv:
         if d._cand is not None:
             idx = a * M + np.arange(M)  # the chosen candidate of each run
             cu = d._cand["update"]
-            u = _UpdateRL(*(getattr(cu, f)[..., idx] for f in _UpdateRL.__dataclass_fields__))
+            u = type(cu)(*(getattr(cu, f.name)[..., idx] for f in fields(cu)))
             cost = None if d._cand["cost"] is None else d._cand["cost"][a, np.arange(M)]
             repaired = d._cand["repaired"][a, np.arange(M)]
         else:
             u, repaired = self._logging_repairs(M, lambda: self.filt.update_rl(
-                self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(_UPDATE, t, self.stream)))
+                self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(UPDATE, t, self.stream)))
             cost = None if self.cost is None else self.cost(u, theta, self.nz)
         info = {"t": t, "theta": theta, "update": u, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
                 "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0),
@@ -408,7 +396,7 @@ class FilterEnv:
             return None, cost, True, info
         # the update's factor of P_filt (None after a repair, or for a chosen candidate): one Cholesky less
         (self._m, self._P), pred_repaired = self._logging_repairs(M, lambda: self.filt.predict_rl(
-            u.x_filt, u.P_filt, t, rng=self.filt.rng(_PREDICT, t, self.stream), param=predict_param, L=u.L_filt))
+            u.x_filt, u.P_filt, t, rng=self.filt.rng(PREDICT, t, self.stream), param=predict_param, L=u.L_filt))
         info["repaired"] = repaired | pred_repaired
         self._t = t + 1
         self._z_t = self._zs[self._t]
@@ -419,9 +407,9 @@ class FilterEnv:
         return self._new_decision(), cost, False, info
 
 
-def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int | None = None,
+def rollout(env: ParamEnv, policy, traj: Trajectory | None = None, n_runs: int | None = None,
             rng=None, stream: int | None = None, keep_pred: bool = False, progress: bool = False,
-            extra_costs: Sequence[Cost] = ()) -> tuple[FilterRun, np.ndarray | None]:
+            extra_costs: Sequence[StepCost] = ()) -> tuple[FilterRun, np.ndarray | None]:
     """Run ``policy`` through ``env`` for a whole episode.
 
     Returns the filter run (moments, NIS, log-likelihood, parameters chosen)
@@ -457,7 +445,7 @@ def rollout(env: FilterEnv, policy, traj: Trajectory | None = None, n_runs: int 
     for t in steps:
         d, c, done, info = env.step(policy.act(d), predict_param=predict_param)
         extra_spent += info["extra_spent"]
-        spent += env.filt.rule.spent(info["theta"])
+        spent += env.spent(info["theta"])
         n_repairs += int(np.count_nonzero(info["repaired"]))
         for buf, cost_fn in zip(extra, extra_costs):
             buf[t] = cost_fn(info["update"], info["theta"], env.nz)

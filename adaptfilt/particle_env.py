@@ -12,7 +12,7 @@ them, and the step pays
 .. math::
     L(s_t, z_t, N_t) = L_\mathrm{est} + \lambda N_t,
 
-with ``L_est`` one of the paper's costs computed from the particles (:class:`ParticleCost`) and
+with ``L_est`` one of the paper's costs computed from the particles (:class:`~adaptfilt.costs.ParticleCost`) and
 ``lambda`` a price per particle (the computation term, as ``n_iter/50`` for the SIF).
 
 **Information state** (:data:`FEATURES`, ``nx + 4 + 2 nz + 1`` numbers, plus the model's time features):
@@ -32,7 +32,8 @@ beyond it (``extra_spent``): greedy weighs every grid count, i.e. ``max(grid)`` 
 Example
 -------
 >>> import numpy as np, adaptfilt as af
->>> from adaptfilt.particle_env import ParticleCountEnv, ParticleCost, KLDSamplingPolicy
+>>> from adaptfilt.costs import ParticleCost
+>>> from adaptfilt.particle_env import ParticleCountEnv, KLDSamplingPolicy
 >>> env = ParticleCountEnv(af.models.ungm(), ParticleCost("logmaxnis", price=1e-4), n_steps=20)
 >>> run, cost = af.mdp.rollout(env, KLDSamplingPolicy(bin_size=1.0), n_runs=4, rng=0)
 >>> cost.shape, bool(np.isin(run.params, env.grid).all())
@@ -42,74 +43,25 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Sequence
 
 import numpy as np
 
+from adaptfilt.costs import Cost, StepCost
+from adaptfilt.features import FeatureSet
 from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
-from adaptfilt.particles import ParticleCountFilter, kld_bound, kld_counts
 
-__all__ = ["PARTICLE_GRID", "ParticleCost", "ParticleUpdate", "ParticleDecision", "ParticleCountEnv",
+__all__ = ["PARTICLE_GRID", "ParticleUpdate", "check_counts", "FILTER_DESCRIPTION", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
 
 #: Counts a policy chooses from: 50 to 5000 in 13 steps of at most 1.67x (as many values as the kappa grid).
 PARTICLE_GRID = (50, 75, 100, 150, 200, 300, 500, 750, 1000, 1500, 2000, 3000, 5000)
 
 
-@dataclass(frozen=True)
-class ParticleCost:
-    r"""One-step cost of a particle filter's update with ``N`` particles, plus ``price * N``.
-
-    From the ``N`` predicted particles, the predicted measurement is fitted by a Gaussian
-    (:math:`\tilde z = \overline{z - h(x_j)}`, :math:`S = \mathrm{cov}(z - h(x_j)) + R`) so that the
-    paper's costs read as for a Gaussian filter: ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"``
-    ``log(1 + max(0, NIS - nz))``, ``"stateinnov"`` the update's move of the mean
-    ``||x_filt - x_pred||`` (the particle form of ``||K z~||``). ``"sqerr"`` is
-    ``||x_filt - x||^2`` against the true state: a cost only a simulation can pay (training in
-    simulation knows the truth; the policy still sees only the information state).
-
-    >>> ParticleCost("logmaxnis", price=1e-4).name
-    'logmaxnis+1e-04*N'
-    """
-
-    kind: Literal["nis", "logmaxnis", "stateinnov", "sqerr"] = "logmaxnis"
-    price: float = 0.0
-
-    def __post_init__(self):
-        if self.kind not in ("nis", "logmaxnis", "stateinnov", "sqerr"):
-            raise ValueError(f"unknown cost {self.kind!r}: choose 'nis', 'logmaxnis', 'stateinnov' or 'sqerr'")
-        if not (np.isfinite(self.price) and self.price >= 0):
-            raise ValueError(f"price must be finite and >= 0, got {self.price}")
-
-    @property
-    def compute_weight(self) -> float:
-        """The price of one particle: what :func:`~adaptfilt.evaluation.evaluate` charges ``extra_spent`` at."""
-        return self.price
-
-    @property
-    def name(self) -> str:
-        return self.kind if self.price == 0 else f"{self.kind}+{self.price:.0e}*N"
-
-    def estimation_cost(self, u: "ParticleUpdate", nz: int) -> np.ndarray:
-        if self.kind == "nis":
-            return (u.nis - nz) ** 2
-        if self.kind == "logmaxnis":
-            return np.log1p(np.maximum(0.0, u.nis - nz))
-        if self.kind == "stateinnov":
-            return np.sqrt((u.dx * u.dx).sum(axis=1))
-        if not np.all(np.isfinite(u.err)):
-            raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
-        return (u.err * u.err).sum(axis=1)
-
-    def __call__(self, u: "ParticleUpdate", theta: np.ndarray, nz: int) -> np.ndarray:
-        c = self.estimation_cost(u, nz)
-        return c + self.price * np.asarray(theta, dtype=float) if self.price else c
-
-
 @dataclass
 class ParticleUpdate:
-    """What a :class:`ParticleCost` reads of one update, per run: ``nis (M,)``, ``dx = x_filt - x_pred
+    """What a :class:`~adaptfilt.costs.ParticleCost` reads of one update, per run: ``nis (M,)``, ``dx = x_filt - x_pred
     (M, nx)``, ``err = x_filt - x (M, nx)`` (NaN where the truth is unknown)."""
 
     nis: np.ndarray
@@ -117,37 +69,18 @@ class ParticleUpdate:
     err: np.ndarray
 
 
-class _CountRule:
-    """What :func:`~adaptfilt.mdp.rollout` and the evaluation ask of a filter's parameter."""
-
-    param_name = "n_particles"
-    compute_unit = "particles"
-
-    @staticmethod
-    def spent(theta) -> np.ndarray:
-        return np.asarray(theta, dtype=float)
-
-    @staticmethod
-    def check_param(grid, nx: int) -> None:
-        g = np.asarray(grid, dtype=float)
-        if not (np.isfinite(g).all() and (g >= 1).all() and (g == np.round(g)).all()):
-            raise ValueError(f"particle counts must be integers >= 1, got {g.tolist()}")
-        if np.any(np.diff(g) <= 0):
-            raise ValueError(f"the grid of counts must increase, got {g.tolist()}")
+def check_counts(grid) -> None:
+    """ValueError unless ``grid`` is an increasing sequence of integer counts >= 1."""
+    g = np.asarray(grid, dtype=float)
+    if not (np.isfinite(g).all() and (g >= 1).all() and (g == np.round(g)).all()):
+        raise ValueError(f"particle counts must be integers >= 1, got {g.tolist()}")
+    if np.any(np.diff(g) <= 0):
+        raise ValueError(f"the grid of counts must increase, got {g.tolist()}")
 
 
-class _Filter:
-    """The environment's filter as the evaluation sees it: the rule, the default count, a repr."""
-
-    rule = _CountRule()
-
-    def __init__(self, pf: ParticleCountFilter, param: int):
-        self.pf, self.param, self.model = pf, int(param), pf.model
-
-    def __repr__(self) -> str:
-        # the form of the filter, not its seed (which keys random streams): a policy trained with one seed
-        # acts in an environment with another (learned.check_compatible compares this)
-        return "ParticleCountFilter(bootstrap, multinomial resampling)"
+#: The filter as policy files record it: its form, not its seed (which keys random streams; a policy
+#: trained with one seed acts in an environment with another, learned.check_compatible compares this).
+FILTER_DESCRIPTION = "ParticleCountFilter(bootstrap, multinomial resampling)"
 
 
 def particle_feature_names(model: StateSpaceModel) -> list[str]:
@@ -226,27 +159,36 @@ class ParticleDecision:
 class ParticleCountEnv:
     """The particle count per step as a Markov decision problem (see the module docstring).
 
-    ``model``: a model with additive Gaussian noise; ``cost``: a :class:`ParticleCost` (or None: no cost);
+    ``model``: a model with additive Gaussian noise; ``cost``: a :class:`~adaptfilt.costs.ParticleCost`
+    (or another :class:`~adaptfilt.costs.StepCost` of a :class:`ParticleUpdate`; None: no cost);
     ``grid``: the counts (default :data:`PARTICLE_GRID`), ``default``: the count of the "default"
     policy (1000); ``seed`` keys the particles' random streams (run ``i`` of episode ``stream``: key
     ``(seed, stream * 2**32 + i)``). The same interface as :class:`~adaptfilt.mdp.FilterEnv`:
     ``reset(n_runs, rng, traj, stream)``, ``step(actions)``.
     """
 
-    def __init__(self, model: StateSpaceModel, cost: ParticleCost | None = None, grid: Sequence[int] = PARTICLE_GRID,
+    param_name = "n_particles"
+    compute_unit = "particles"
+
+    def __init__(self, model: StateSpaceModel, cost: StepCost | None = None, grid: Sequence[int] = PARTICLE_GRID,
                  default: int = 1000, seed: int = 0, n_steps: int | None = None):
-        if cost is not None and not isinstance(cost, ParticleCost):
-            raise TypeError(f"cost must be a ParticleCost (or None), got {type(cost).__name__}")
+        # Here, not at the top: `import adaptfilt` (which imports the registry, and so this module) loads no
+        # particle filter, and through it no numba, until a particle environment is built.
+        from adaptfilt.particles import ParticleCountFilter
+
+        if cost is not None and (not isinstance(cost, StepCost) or isinstance(cost, Cost)):
+            raise TypeError(f"cost must be a ParticleCost, another StepCost of a particle update (or None), "
+                            f"got {type(cost).__name__}")
         self.model = self.truth = model
         grid = np.asarray(grid, dtype=float)
         if grid.ndim != 1 or grid.size < 1:
             raise ValueError(f"grid must be a non-empty 1-D sequence of counts, got shape {grid.shape}")
-        _CountRule.check_param(grid, model.nx)
+        check_counts(grid)
         matches = np.flatnonzero(grid == default)
         if matches.size == 0:
             raise ValueError(f"the grid {grid.astype(int).tolist()} must contain the default count {default}")
         self.grid, self.default_index, self.cost = grid, int(matches[0]), cost
-        self.filt = _Filter(ParticleCountFilter(model, seed), default)
+        self.pf = ParticleCountFilter(model, seed)
         self.n_steps = model.n_steps if n_steps is None else int(n_steps)
         if self.n_steps is None or self.n_steps < 1:
             raise ValueError("n_steps must be given (the model has no default horizon)")
@@ -262,9 +204,26 @@ class ParticleCountEnv:
         return (f"ParticleCountEnv({self.model.name}, cost={None if self.cost is None else self.cost.name}, "
                 f"grid={self.grid.astype(int).tolist()}, n_steps={self.n_steps})")
 
+    @property
+    def default(self) -> int:
+        """The count of the "default" policy: ``grid[default_index]``, an integer (as results record it)."""
+        return int(self.grid[self.default_index])
+
+    @staticmethod
+    def spent(theta) -> np.ndarray:
+        """Particles per run of one step at counts ``theta``."""
+        return np.asarray(theta, dtype=float)
+
+    def describe(self, features: "str | FeatureSet | None" = None) -> dict:
+        """What a policy file records and must match (:meth:`FilterEnv.describe <adaptfilt.mdp.FilterEnv.describe>`);
+        the information state is this environment's own, whatever ``features`` says."""
+        return {"model": self.model.name, "filter": FILTER_DESCRIPTION, "param_name": self.param_name,
+                "grid": self.grid.tolist(), "feature_names": list(self.feature_names),
+                "cost": None if self.cost is None else self.cost.name}
+
     # ----------------------------------------------------------- helpers
     def _predict(self, state: dict, t: int, n: np.ndarray) -> np.ndarray:
-        return self.filt.pf.predict(state["x"], state["w"], state["n"], t, n.astype(np.int64), self._ids)
+        return self.pf.predict(state["x"], state["w"], state["n"], t, n.astype(np.int64), self._ids)
 
     def _features(self, d: ParticleDecision) -> np.ndarray:
         s, model = d._state, self.model
@@ -288,7 +247,7 @@ class ParticleCountEnv:
                 r: np.ndarray | None = None) -> tuple[dict, ParticleUpdate]:
         """Weigh the first ``n`` of ``x``; the posterior and what a cost reads. ``logl``, ``r``: the particles'
         log-likelihoods and measurement residuals, when the caller has them already (greedy's candidates)."""
-        post = self.filt.pf.weigh(x, n, z, t, self._ids, logl=logl)
+        post = self.pf.weigh(x, n, z, t, self._ids, logl=logl)
         valid = np.arange(x.shape[1])[None, :] < n[:, None]
         x_pred = (x * valid[..., None]).sum(axis=1) / n[:, None]
         dp = (x - x_pred[:, None, :]) * valid[..., None]
@@ -312,7 +271,7 @@ class ParticleCountEnv:
         G, M, cap = self.grid.size, d.n_runs, int(self.grid.max())
         x = d.predicted(cap)
         # every count's particles are a prefix of these: their likelihoods and residuals once, sliced per count
-        logl = self.filt.pf.loglik_particles(x, d.z, d.t)
+        logl = self.pf.loglik_particles(x, d.z, d.t)
         r = self.model.diff_z(d.z[:, None, :], self.model.h(x, d.t + 1))
         nis, cost = np.empty((G, M)), np.empty((G, M))
         for g, n in enumerate(self.grid.astype(np.int64)):
@@ -338,7 +297,7 @@ class ParticleCountEnv:
             traj = self.truth.simulate(n_runs, self.n_steps + 1, rng=rng)
         if traj.z.ndim != 3 or traj.z.shape[1] < self.n_steps or traj.z.shape[2] != self.nz:
             raise ValueError(f"traj.z must have shape (M, >= {self.n_steps}, {self.nz}), got {traj.z.shape}")
-        self.filt.pf.check_z(traj.z)
+        self.pf.check_z(traj.z)
         M = traj.z.shape[0]
         # run i's key is stream * 2**32 + i, an int64: a stream beyond 2**31 (or negative) would not fit
         if stream is not None and (isinstance(stream, (bool, np.bool_)) or not isinstance(stream, numbers.Integral)
@@ -346,7 +305,7 @@ class ParticleCountEnv:
             raise ValueError(f"stream must be an integer in [0, 2**31) (run i of the episode draws from the "
                              f"particle streams of run id stream * 2**32 + i), got {stream!r}")
         # every run's max(grid) predicted particles are held at once (greedy's candidates weigh them all)
-        self.filt.pf.check_memory(int(self.grid.max()), M, label=f"the grid's n_particles = {int(self.grid.max())}")
+        self.pf.check_memory(int(self.grid.max()), M, label=f"the grid's n_particles = {int(self.grid.max())}")
         self.traj, self.stream = traj, stream
         self._ids = np.arange(M, dtype=np.int64) + (0 if stream is None else int(stream) << 32)
         self._zs = np.ascontiguousarray(np.moveaxis(traj.z, 1, 0))  # (T, M, nz)
@@ -410,6 +369,8 @@ class KLDSamplingPolicy:
     least ``n_min`` particles, Fox's usual values). The particles it examines are the first ones of
     the count it keeps, so it spends only that count."""
 
+    cost_blind = True
+
     def __init__(self, bin_size: float | Sequence[float], epsilon: float = 0.05, delta: float = 0.01,
                  n_min: int = 50, grid=None, name: str = "kld"):
         self.name = name
@@ -418,6 +379,8 @@ class KLDSamplingPolicy:
             raise ValueError(f"bin_size must be a scalar or one per state dimension, got shape {self.bin_size.shape}")
         if not (np.isfinite(self.bin_size).all() and (self.bin_size > 0).all()):
             raise ValueError(f"bin_size must be finite and > 0, got {self.bin_size.tolist()}")
+        from adaptfilt.particles import kld_bound  # the particle filter loads with its first use
+
         kld_bound(1, epsilon, delta)  # names a bad epsilon or delta now, not at the first step
         if isinstance(n_min, (bool, np.bool_)) or not isinstance(n_min, numbers.Integral) or n_min < 1:
             raise ValueError(f"n_min must be an integer >= 1, got {n_min!r}")
@@ -426,6 +389,8 @@ class KLDSamplingPolicy:
 
     def counts(self, decision) -> np.ndarray:
         """The stopping count of every run, ``(M,)`` (before rounding up to the grid)."""
+        from adaptfilt.particles import kld_counts  # the particle filter loads with its first use
+
         cap = int(decision.grid.max())
         x = decision.predicted(cap)
         return kld_counts(x, self.bin_size, self.epsilon, self.delta, self.n_min)
@@ -439,6 +404,8 @@ class ESSTargetPolicy:
     r"""Keep the effective sample size near a target: ``N_t`` is the smallest grid count at or above
     ``target * N_{t-1} / ESS_{t-1}`` (the count that, at the last step's weight degeneracy, would
     leave ``target`` effective particles), the default count at the first step."""
+
+    cost_blind = True
 
     def __init__(self, target: float = 200.0, grid=None):
         if not (np.isfinite(target) and target >= 1):

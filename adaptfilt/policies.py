@@ -27,13 +27,16 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Policy", "FixedPolicy", "default_policy", "MaxLikelihoodPolicy", "GreedyPolicy", "RandomPolicy",
+__all__ = ["grid_matches", "Policy", "FixedPolicy", "default_policy", "MaxLikelihoodPolicy", "GreedyPolicy", "RandomPolicy",
            "grid_indices"]
 
 
 @runtime_checkable
 class Policy(Protocol):
-    """What the environment and ``evaluate`` need from a policy."""
+    """What the environment and ``evaluate`` need from a policy. A policy may also declare
+    ``cost_blind = True``: its choices cannot depend on the environment's cost, so
+    :func:`~adaptfilt.evaluation.evaluate_costs` may charge one rollout of it several costs (undeclared:
+    it may choose by the cost, and is evaluated per cost)."""
 
     name: str
 
@@ -54,6 +57,8 @@ class FixedPolicy:
     >>> FixedPolicy(2.0, param_name="kappa").name, FixedPolicy(2.0, "kappa", both_steps=True).name
     ('fixed-kappa=2', 'fixed-both-kappa=2')
     """
+
+    cost_blind = True
 
     def __init__(self, value: float, param_name: str = "param", name: str | None = None, grid=None,
                  both_steps: bool = False):
@@ -79,6 +84,7 @@ class MaxLikelihoodPolicy:
     """``argmax_theta log N(z; z_pred(theta), Pzz(theta))`` at every step."""
 
     name = "ml"
+    cost_blind = True
 
     def __init__(self, grid=None):
         self.grid = None if grid is None else np.asarray(grid, dtype=float)
@@ -95,6 +101,7 @@ class GreedyPolicy:
     """
 
     name = "greedy"
+    cost_blind = False
 
     def __init__(self, grid=None):
         self.grid = None if grid is None else np.asarray(grid, dtype=float)
@@ -110,6 +117,7 @@ class RandomPolicy:
     """Uniformly random grid indices (a sanity baseline), seeded."""
 
     name = "random"
+    cost_blind = True
 
     def __init__(self, rng: np.random.Generator | int | None = 0, grid=None):
         self.rng = np.random.default_rng(rng)
@@ -126,13 +134,13 @@ def grid_indices(own: np.ndarray, env_grid, name: str = "policy") -> np.ndarray:
     env_grid = np.asarray(env_grid, dtype=float)
     if own.shape == env_grid.shape and np.allclose(own, env_grid):
         return np.arange(own.size)
-    hit = _matches(own, env_grid)
+    hit = grid_matches(own, env_grid)
     if not hit.any(axis=1).all():
         raise ValueError(f"policy {name!r} was trained on the grid {own.tolist()}, which is not a subset of the "
                          f"environment's grid {env_grid.tolist()}")
     return hit.argmax(axis=1)
 
 
-def _matches(own, env_grid) -> np.ndarray:
+def grid_matches(own, env_grid) -> np.ndarray:
     """``(len(own), len(env_grid))``: which environment value each of a policy's grid values is."""
     return np.isclose(np.asarray(own, dtype=float)[:, None], np.asarray(env_grid, dtype=float)[None, :])

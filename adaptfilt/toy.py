@@ -12,7 +12,8 @@ policies are known: they test (and teach) the actor-critic without a filter.
   0 is better; with gamma = 0.5, ``Q(good, 0) = 0 + 0.5 * 1/(1 - 0.5) = 1``
   against ``Q(good, 1) = 0.25 / (1 - 0.5) = 0.5``: action 1 is better.
 
-Both are batched over ``n_runs`` like the filter environment:
+Both are batched over ``n_runs`` like the filter environment and meet the same interface,
+:class:`~adaptfilt.paramenv.ParamEnv` (the parameter is the action itself):
 ``reset(n_runs, rng, traj=None, stream=None) -> ToyDecision``,
 ``step(actions) -> (decision | None, cost (M,), done, info)``.
 
@@ -29,6 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from adaptfilt.mdp import grid_actions
 
 __all__ = ["ToyDecision", "ToyCost", "BanditEnv", "TrapEnv"]
 
@@ -65,13 +68,22 @@ class ToyDecision:
 
 @dataclass(frozen=True)
 class ToyCost:
+    """The toys' cost, by name: the environment computes it (a :class:`~adaptfilt.costs.StepCost` that
+    charges nothing for compute)."""
+
     name: str
+    compute_weight: float = 0.0
+
+    def __call__(self, update, theta, nz) -> np.ndarray:
+        raise TypeError(f"the {self.name} cost is the environment's own: read it from step()")
 
 
 class _ToyEnv:
     name = "toy"
     param_name = "action"
+    compute_unit = "step"
     n_actions = 3
+    feature_names: tuple[str, ...] = ()
 
     def __init__(self, n_steps: int = 10):
         self.n_steps = int(n_steps)
@@ -80,26 +92,53 @@ class _ToyEnv:
         self.cost = ToyCost(self.name)
         self.model = None
         self._rng = None
+        self._M = None
+        self._done = True
+
+    @property
+    def default(self) -> float:
+        return float(self.grid[self.default_index])
+
+    def spent(self, theta) -> np.ndarray:
+        """One step per run, whatever the action."""
+        return np.ones(np.shape(theta))
+
+    def describe(self, features=None) -> dict:
+        """What a policy file records and must match (no filter: the toy's name stands for the model)."""
+        return {"model": self.name, "filter": None, "param_name": self.param_name, "grid": self.grid.tolist(),
+                "feature_names": list(self.feature_names), "cost": self.cost.name}
 
     def _decision(self) -> ToyDecision:
         return ToyDecision(self._t, self._features(), self.grid, self.default_index, self)
 
     def reset(self, n_runs=None, rng=None, traj=None, stream=None) -> ToyDecision:
+        if n_runs is None or int(n_runs) < 1:
+            raise ValueError(f"reset needs n_runs >= 1 (a toy simulates its runs), got {n_runs!r}")
         self._rng = np.random.default_rng(rng)
         self._M = int(n_runs)
         self._t = 0
+        self._done = False
         self._reset_state()
         return self._decision()
 
-    def step(self, actions):
-        a = np.asarray(actions, dtype=np.int64)
-        if a.shape != (self._M,) or (a < 0).any() or (a >= self.n_actions).any():
-            raise ValueError(f"actions must be {self._M} indices in 0..{self.n_actions - 1}")
+    def check_actions(self, actions) -> np.ndarray:
+        """Actions as indices ``(M,)``; ValueError naming what is wrong."""
+        if self._M is None:
+            raise RuntimeError("call reset() before step()")
+        return grid_actions(actions, self._M, self.n_actions)
+
+    def step(self, actions, predict_param=None):
+        if self._done:
+            raise RuntimeError("call reset() before step() (the episode has ended)" if self._M else
+                               "call reset() before step()")
+        if predict_param is not None:
+            raise ValueError("a toy has no separate predict parameter")
+        a = self.check_actions(actions)
         cost = self._transition(a)
         info = {"t": self._t, "theta": self.grid[a]}
         self._t += 1
-        done = self._t >= self.n_steps
-        return (None if done else self._decision()), cost, done, info
+        self._done = self._t >= self.n_steps
+        return (None if self._done else self._decision()), cost, self._done, info
 
 
 class BanditEnv(_ToyEnv):

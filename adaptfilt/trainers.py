@@ -59,6 +59,8 @@ from typing import Any
 
 import numpy as np
 
+from adaptfilt.experiment_registry import resolve
+
 __all__ = ["ALGOS", "SB3Config", "FAST", "A2C_FAST", "PPO_DEFAULTS", "train_policy", "train_sb3", "seed_path"]
 
 ALGOS = ("faithful", "batched", "fast", "a2c", "ppo")
@@ -158,14 +160,14 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     if config.algo not in classes:
         raise ValueError(f"unknown SB3 algorithm {config.algo!r}; choose one of {sorted(classes)}")
     _check(gamma, episodes)
-    target, label, recommended = _target(experiment, n_steps)
-    features = features or recommended
+    target = resolve(experiment, seed, n_steps)  # an environment's horizon is its own
+    label, features = target.label, features or target.features or "paper"
     anchor = _anchor(anchor)
     if anchor is not None and config.kwargs.get("ent_coef", 0.0):
         raise ValueError("an anchored policy's KL term takes the place of PPO's entropy term: set the "
                          "anchor's kl instead of ent_coef")
     if actions is not None:
-        target, n_steps = _restricted(target, actions, seed, n_steps), None
+        target, n_steps = _restricted(target.experiment, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
                     repair_penalty=repair_penalty, cost_transform=cost_transform,
                     anchor=anchor)
@@ -223,10 +225,9 @@ def _anchor(anchor):
 
 def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None):
     """The experiment's environment with its grid cut to ``actions`` (ValueError naming what is wrong)."""
-    from adaptfilt.experiment_registry import Experiment
     from adaptfilt.mdp import FilterEnv
 
-    if not isinstance(target, Experiment):
+    if target is None:
         raise ValueError("actions= restricts a named experiment's grid; for an environment of your own, "
                          "build it with the grid you want")
     a = np.asarray(actions, dtype=float).ravel()
@@ -237,24 +238,6 @@ def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None
     env = FilterEnv(target.make_filter(seed), np.unique(a), cost=target.cost, n_steps=n_steps)
     env.experiment = target.name  # the policy is still "for" the experiment (it acts on a subset of its grid)
     return env
-
-
-def _target(experiment, n_steps: int | None):
-    """(what the MDP is built from, a label, the recommended feature set) for a name, an
-    Experiment or an environment of one's own (whose horizon is its own)."""
-    from adaptfilt.experiment_registry import Experiment, get_experiment
-
-    if isinstance(experiment, str):
-        experiment = get_experiment(experiment)
-    if isinstance(experiment, Experiment):
-        return experiment, experiment.name, experiment.features
-    if not (hasattr(experiment, "grid") and hasattr(experiment, "step") and hasattr(experiment, "reset")):
-        raise TypeError(f"expected an experiment name, an Experiment or a FilterEnv, got {type(experiment).__name__}")
-    if n_steps is not None and n_steps != experiment.n_steps:
-        raise ValueError(f"n_steps={n_steps} for an environment with horizon {experiment.n_steps}: "
-                         "build the environment with the horizon you want (FilterEnv(..., n_steps=...))")
-    model = getattr(experiment, "model", None)
-    return experiment, getattr(model, "name", None) or "env", "paper"
 
 
 def _frac(c: np.ndarray, last: int) -> float:
@@ -370,8 +353,6 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         if out is None:
             from adaptfilt.actor_critic import train
 
-            if not isinstance(experiment, str):
-                _target(experiment, n_steps)  # an environment's horizon is its own
             return train(experiment, gamma=gamma, episodes=episodes, parallel=B, seed=seed, progress=progress,
                          command=command, name=name, **kw)[0]
         return train_experiment(experiment, out=out, gamma=gamma, episodes=episodes, parallel=B, seed=seed,

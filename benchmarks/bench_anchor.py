@@ -115,7 +115,7 @@ def agreement(exp, pol, runs: int, seed: int, n_steps: int | None) -> float:
     import numpy as np
 
     from adaptfilt.anchor import greedy_index
-    from adaptfilt.learned import grid_indices
+    from adaptfilt.policies import grid_indices
 
     env = exp.make_env(n_steps=n_steps)
     d, same, n = env.reset(n_runs=runs, rng=np.random.default_rng([0xA9, seed]), stream=seed), 0, 0

@@ -7,9 +7,10 @@ import pytest
 import adaptfilt as af
 from adaptfilt import metrics
 from adaptfilt.cli import main
-from adaptfilt.evaluation import Results, evaluate
+from adaptfilt.evaluation import evaluate
 from adaptfilt.experiments.evaluate import evaluate_experiment
 from adaptfilt.experiment_registry import get_experiment
+from adaptfilt.results import Results
 from adaptfilt.mdp import Cost, FilterEnv
 from adaptfilt.policies import FixedPolicy, GreedyPolicy
 
@@ -229,9 +230,9 @@ def test_a_learned_policy_sees_the_features_sb3_trained_on():
 def test_a_policy_records_its_filter_and_is_refused_by_another_form():
     """The SIF form is part of what a policy was trained for: a file made on the one-pass SIF is refused by
     the experiment that runs the reference (two-pass) form, naming the filter."""
-    from adaptfilt.learned import _describe_target, check_compatible
+    from adaptfilt.learned import check_compatible, describe_target
 
-    ref, one = _describe_target("ctm-sif-nis"), _describe_target("ctm-sif-nis-onepass")
+    ref, one = describe_target("ctm-sif-nis"), describe_target("ctm-sif-nis-onepass")
     assert "passes=2" in ref["filter"] and "passes" not in one["filter"]
     with pytest.raises(ValueError, match="mismatch in filter"):
         check_compatible({**ref, "filter": one["filter"]}, ref)

@@ -6,7 +6,7 @@ gymnasium = pytest.importorskip("gymnasium")
 sb3 = pytest.importorskip("stable_baselines3")
 
 import adaptfilt.gym as afg  # noqa: E402
-from adaptfilt.actor_critic import transform_cost  # noqa: E402
+from adaptfilt.costs import transform_cost  # noqa: E402
 from adaptfilt.evaluation import evaluate  # noqa: E402
 from adaptfilt.experiment_registry import get_experiment  # noqa: E402
 

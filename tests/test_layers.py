@@ -9,7 +9,13 @@ Every ``import`` of an ``adaptfilt`` module counts, the lazy ones inside functio
   ``adaptfilt/cli.py``, ``adaptfilt/__main__.py``: the command line, which may import every layer);
   the package face itself imports the library only, eagerly or through its lazy list (``_LAZY``), and
   no other module imports by a computed name (``importlib.import_module``);
-* the graph has no circle.
+* the graph has no circle;
+* inside the library, four sub-layers (:data:`SUBLAYERS`): **core** (models, filters, rules, metrics, costs)
+  imports none of the others; **decision** (the parameter MDP, its environments, features, policies, the
+  registry) imports the core only; **evaluation** (the Monte-Carlo engine, results, seed statistics,
+  figures) and **learning** (policy files, the trainers, the Gymnasium wrapper: torch) import the core and
+  the decision layer, never each other (evaluation does not load torch);
+* ``import adaptfilt`` loads no heavy dependency (torch, matplotlib, numba, the particle filter).
 """
 import ast
 import sys
@@ -23,6 +29,18 @@ LIBRARY, PIPELINE, COURSE, FACE = 0, 1, 2, 3
 LAYER_NAMES = {LIBRARY: "library", PIPELINE: "pipeline (adaptfilt.experiments)", COURSE: "course (adaptfilt.course)",
                FACE: "command line"}
 CLI = {"adaptfilt.cli", "adaptfilt.__main__"}
+
+#: The library's sub-layers by module (``adaptfilt.<name>``; a package stands for its modules).
+SUBLAYERS = {
+    "core": ("_version", "linalg", "models", "rules", "gaf", "metrics", "exact", "particles", "particle_kernels",
+             "files", "style", "costs"),
+    "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
+    "evaluation": ("evaluation", "results", "seed_stats", "plots"),
+    "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet"),
+}
+#: What each sub-layer never imports.
+NEVER = {"core": {"decision", "evaluation", "learning"}, "decision": {"evaluation", "learning"},
+         "evaluation": {"learning"}, "learning": {"evaluation"}}
 
 
 def modules() -> dict[str, Path]:
@@ -195,3 +213,75 @@ def test_the_check_sees_an_upward_import(tmp_path, monkeypatch, source, expected
     monkeypatch.setattr(sys.modules[__name__], "PKG", fake)
     bad = [b for b in upward_imports() if "zz_probe" in b]
     assert len(bad) == 1 and expected in bad[0]
+
+
+def sublayer(module: str) -> str | None:
+    name = module.split(".")[1] if module.count(".") else None
+    return next((k for k, names in SUBLAYERS.items() if name in names), None)
+
+
+def sublayer_breaches() -> list[str]:
+    """Every import inside the library that breaks a sub-layer's "never", as ``file:line: a (x) -> b (y)``."""
+    bad, mods = [], modules()
+    for m, targets in graph().items():
+        if layer(m) != LIBRARY or m == "adaptfilt" or m in CLI:
+            continue
+        for t, line in sorted(targets.items()):
+            if t in mods and layer(t) == LIBRARY and sublayer(t) in NEVER.get(sublayer(m), ()):
+                bad.append(f"{mods[m].relative_to(PKG.parent)}:{line}: {m} ({sublayer(m)}) -> {t} ({sublayer(t)})")
+    return bad
+
+
+def test_every_library_module_has_a_sublayer():
+    mods = modules()
+    lost = sorted(m for m in mods if layer(m) == LIBRARY and m != "adaptfilt" and m not in CLI and sublayer(m) is None)
+    assert not lost, f"add {lost} to SUBLAYERS (and to the library's map in docs/ARCHITECTURE.md)"
+
+
+def test_the_library_sublayers_hold():
+    bad = sublayer_breaches()
+    assert not bad, f"{len(bad)} imports against the library's sub-layers:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("probe, source, expected", [
+    ("gaf", "def f():\n    from adaptfilt.mdp import FilterEnv\n", "(core) -> adaptfilt.mdp (decision)"),
+    ("evaluation", "from adaptfilt.learned import load_policy\n", "(evaluation) -> adaptfilt.learned (learning)"),
+    ("learned", "from adaptfilt.results import Results\n", "(learning) -> adaptfilt.results (evaluation)"),
+])
+def test_the_check_sees_a_sublayer_breach(tmp_path, monkeypatch, probe, source, expected):
+    fake = tmp_path / "adaptfilt"
+    for p in PKG.rglob("*.py"):
+        q = fake / p.relative_to(PKG)
+        q.parent.mkdir(parents=True, exist_ok=True)
+        q.write_text(p.read_text())
+    (fake / f"{probe}.py").write_text((fake / f"{probe}.py").read_text() + "\n" + source)
+    monkeypatch.setattr(sys.modules[__name__], "PKG", fake)
+    bad = [b for b in sublayer_breaches() if b.startswith(f"adaptfilt/{probe}.py")]
+    assert len(bad) == 1 and expected in bad[0], bad
+
+
+def _imports_of(path: Path) -> set[str]:
+    return {t for t, _ in imports(path, modules())}
+
+
+def test_filter_does_not_import_the_mdp():
+    """The filter registers nothing from the MDP built on it (the MDP registers its episode loop with the filter)."""
+    assert not any(i.startswith("adaptfilt.mdp") for i in _imports_of(PKG / "gaf.py"))
+    for rules in sorted((PKG / "rules").glob("*.py")):
+        assert not any(i.startswith(("adaptfilt.mdp", "adaptfilt.gaf")) for i in _imports_of(rules))
+
+
+def test_import_adaptfilt_loads_no_heavy_dependency():
+    """``import adaptfilt`` (every command-line run, every worker) loads numpy, scipy's linear algebra, the
+    Gaussian-assumed filters and the parameter MDP; torch, matplotlib, scipy.stats (about a second of import
+    time on a 2-core machine) and the particle filter with its compiled kernels (numba) load when first used."""
+    import subprocess
+
+    heavy = ("torch", "matplotlib", "numba", "scipy.stats", "adaptfilt.particles", "adaptfilt.particle_kernels")
+    code = f"import sys, adaptfilt; print(' '.join(m for m in {heavy!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
+    # and the particle filter does load where it is used
+    code = ("import sys, adaptfilt; adaptfilt.experiment_registry.get_experiment('ungm-pf-1e-3').make_env(); "
+            "print('adaptfilt.particles' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"

@@ -9,7 +9,8 @@ import adaptfilt as af
 from adaptfilt.evaluation import evaluate
 from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.mdp import rollout
-from adaptfilt.particle_env import (PARTICLE_GRID, ESSTargetPolicy, KLDSamplingPolicy, ParticleCost, ParticleCountEnv,
+from adaptfilt.costs import ParticleCost
+from adaptfilt.particle_env import (PARTICLE_GRID, ESSTargetPolicy, KLDSamplingPolicy, ParticleCountEnv,
                                     particle_feature_names)
 from adaptfilt.particles import ParticleCountFilter, kld_count
 from adaptfilt.policies import FixedPolicy, GreedyPolicy

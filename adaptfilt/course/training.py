@@ -114,7 +114,7 @@ def candidate_cost_range(env, n_runs: int = 200, seed: int = 0) -> dict:
     Returns ``{"decisions", "median", "max", "max_log1p", "share_above_1e3"}`` over all
     candidate costs: the range of the TD targets a critic would regress on, raw and
     as ``log(1 + L)``."""
-    from adaptfilt.actor_critic import transform_cost
+    from adaptfilt.costs import transform_cost
 
     d = env.reset(n_runs=n_runs, rng=np.random.default_rng(seed))
     costs, n = [], 0

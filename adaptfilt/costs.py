@@ -1,0 +1,196 @@
+r"""One-step costs ``L(s_t, z_t, theta_t)`` of the parameter MDPs, and the transform a learner sees.
+
+A cost is anything that meets :class:`StepCost`: a ``name`` (what results and policy files record),
+a ``compute_weight`` (the price of one unit of the parameter's compute, what an evaluation charges a
+policy's extra computation at) and ``cost(update, theta, nz) -> (M,)``, where ``update`` is what the
+environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
+around a function; an environment takes any of them.
+
+The costs of Section VI-D, as NIS-type estimates written once (:func:`nis_cost`, :func:`logmaxnis_cost`)
+and read by both families:
+
+* :class:`Cost`, for a Gaussian-assumed filter's update (:class:`~adaptfilt.mdp.FilterEnv`):
+  ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"`` ``log(1 + max(0, NIS - nz))``, ``"stateinnov"``
+  ``||K z~||``, plus ``compute_weight * theta`` (the paper's ``n_iter / 50``);
+* :class:`ParticleCost`, for a particle filter's update with ``N`` particles
+  (:class:`~adaptfilt.particle_env.ParticleCountEnv`): the same NIS-type costs of the Gaussian fit of
+  the predicted measurement, ``"stateinnov"`` as the update's move of the mean, ``"sqerr"``
+  ``||x_filt - x||^2`` against the truth, plus ``price * N``.
+
+:func:`transform_cost` is the cost a learner's networks see (``sign(L) log(1 + |L|)``).
+
+>>> import numpy as np
+>>> nis_cost(np.array([1.0, 4.0]), nz=1).tolist(), Cost("stateinnov", 1 / 50).name
+([0.0, 9.0], 'stateinnov+n_iter/50')
+>>> isinstance(FunctionCost("abs-nis", lambda u, nz: abs(u.nis - nz)), StepCost)
+True
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "NIS_COSTS",
+           "transform_cost"]
+
+
+@runtime_checkable
+class StepCost(Protocol):
+    """What an environment asks of its cost (:class:`~adaptfilt.paramenv.ParamEnv`'s ``cost``)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def compute_weight(self) -> float: ...
+
+    def __call__(self, update: Any, theta: np.ndarray, nz: int) -> np.ndarray: ...
+
+
+def nis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
+    """``L_NIS = (NIS - nz)^2``: how far the normalised innovation squared is from its mean."""
+    return (nis - nz) ** 2
+
+
+def logmaxnis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
+    """``L_logmaxNIS = log(1 + max(0, NIS - nz))``: overconfidence only, compressed."""
+    return np.log1p(np.maximum(0.0, nis - nz))
+
+
+#: The NIS-type estimation costs by kind: both cost families read them from here.
+NIS_COSTS: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {"nis": nis_cost, "logmaxnis": logmaxnis_cost}
+
+
+def _check_weight(label: str, w: float) -> None:
+    if not (np.isfinite(w) and w >= 0):
+        raise ValueError(f"{label} must be finite and >= 0, got {w}")
+
+
+def _check_kind(kind: str, kinds: tuple[str, ...]) -> None:
+    if kind not in kinds:
+        raise ValueError(f"unknown cost {kind!r}: choose {', '.join(repr(k) for k in kinds[:-1])} or {kinds[-1]!r}")
+
+
+@dataclass(frozen=True)
+class Cost:
+    """One-step cost ``L(s, z, theta)`` of Section VI-D for a Gaussian-assumed filter's update.
+
+    ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
+    (``log(1 + max(0, NIS - nz))``) or ``"stateinnov"`` (``||K z~||``);
+    ``compute_weight`` adds ``weight * theta`` (the iteration count of the SIF).
+
+    >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name
+    ('nis', 'stateinnov+n_iter/50')
+    """
+
+    kind: Literal["nis", "logmaxnis", "stateinnov"] = "nis"
+    compute_weight: float = 0.0
+
+    KINDS = ("nis", "logmaxnis", "stateinnov")
+
+    def __post_init__(self):
+        _check_kind(self.kind, self.KINDS)
+        _check_weight("compute_weight", self.compute_weight)
+
+    @property
+    def name(self) -> str:
+        if self.compute_weight == 0:
+            return self.kind
+        inv = 1.0 / self.compute_weight
+        w = f"n_iter/{inv:g}" if abs(inv - round(inv)) < 1e-9 else f"{self.compute_weight:g}*n_iter"
+        return f"{self.kind}+{w}"
+
+    def estimation_cost(self, u, nz: int) -> np.ndarray:
+        """The estimation part of the cost, per run, of an update ``u`` (run-last: ``nis (M,)``,
+        ``K (nx, nz, M)``, ``innovation (nz, M)``)."""
+        if self.kind in NIS_COSTS:
+            return NIS_COSTS[self.kind](u.nis, nz)
+        dx = np.einsum("ijM,jM->iM", u.K, u.innovation)
+        return np.sqrt((dx * dx).sum(axis=0))
+
+    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+        """Cost per run of update ``u`` made with parameter(s) ``theta``."""
+        c = self.estimation_cost(u, nz)
+        return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
+
+
+@dataclass(frozen=True)
+class ParticleCost:
+    r"""One-step cost of a particle filter's update with ``N`` particles, plus ``price * N``.
+
+    From the ``N`` predicted particles, the predicted measurement is fitted by a Gaussian
+    (:math:`\tilde z = \overline{z - h(x_j)}`, :math:`S = \mathrm{cov}(z - h(x_j)) + R`) so that the
+    paper's costs read as for a Gaussian filter: ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"``
+    ``log(1 + max(0, NIS - nz))``, ``"stateinnov"`` the update's move of the mean
+    ``||x_filt - x_pred||`` (the particle form of ``||K z~||``). ``"sqerr"`` is
+    ``||x_filt - x||^2`` against the true state: a cost only a simulation can pay (training in
+    simulation knows the truth; the policy still sees only the information state). The update ``u``
+    is a :class:`~adaptfilt.particle_env.ParticleUpdate` (run-first: ``nis (M,)``, ``dx``, ``err (M, nx)``).
+
+    >>> ParticleCost("logmaxnis", price=1e-4).name
+    'logmaxnis+1e-04*N'
+    """
+
+    kind: Literal["nis", "logmaxnis", "stateinnov", "sqerr"] = "logmaxnis"
+    price: float = 0.0
+
+    KINDS = ("nis", "logmaxnis", "stateinnov", "sqerr")
+
+    def __post_init__(self):
+        _check_kind(self.kind, self.KINDS)
+        _check_weight("price", self.price)
+
+    @property
+    def compute_weight(self) -> float:
+        """The price of one particle: what :func:`~adaptfilt.evaluation.evaluate` charges ``extra_spent`` at."""
+        return self.price
+
+    @property
+    def name(self) -> str:
+        return self.kind if self.price == 0 else f"{self.kind}+{self.price:.0e}*N"
+
+    def estimation_cost(self, u, nz: int) -> np.ndarray:
+        if self.kind in NIS_COSTS:
+            return NIS_COSTS[self.kind](u.nis, nz)
+        if self.kind == "stateinnov":
+            return np.sqrt((u.dx * u.dx).sum(axis=1))
+        if not np.all(np.isfinite(u.err)):
+            raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
+        return (u.err * u.err).sum(axis=1)
+
+    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+        c = self.estimation_cost(u, nz)
+        return c + self.price * np.asarray(theta, dtype=float) if self.price else c
+
+
+@dataclass(frozen=True)
+class FunctionCost:
+    """A cost of one's own from a function ``fn(update, nz) -> (M,)`` of the step's update (what the
+    environment's ``info["update"]`` holds), plus ``compute_weight * theta``. ``name`` is what results
+    and policy files record, so give each function its own."""
+
+    name: str
+    fn: Callable[[Any, int], np.ndarray]
+    compute_weight: float = 0.0
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"a FunctionCost needs a non-empty name, got {self.name!r}")
+        if not callable(self.fn):
+            raise TypeError(f"fn must be callable (update, nz) -> cost per run, got {type(self.fn).__name__}")
+        _check_weight("compute_weight", self.compute_weight)
+
+    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+        c = np.asarray(self.fn(u, nz), dtype=float)
+        return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
+
+
+def transform_cost(cost: np.ndarray, kind: str) -> np.ndarray:
+    """The cost the networks learn from: ``sign(L) log(1 + |L|)`` or ``L``."""
+    if kind == "log1p":
+        return np.sign(cost) * np.log1p(np.abs(cost))
+    if kind == "none":
+        return cost
+    raise ValueError(f"unknown cost_transform {kind!r}: choose 'log1p' or 'none'")
