@@ -361,7 +361,7 @@ def notebook_to_markdown(
                 parts.append(_fenced(code, lang))
             if "remove-output" not in tags:
                 outputs = cell.get("outputs") or []
-                alts = _figure_alts(source, outputs, before)
+                alts = _figure_alts(source, outputs, before, (cell.get("metadata") or {}).get("alt"))
                 for j, output in enumerate(outputs):
                     parts.append(_render_output(output, f"{figure_prefix}-cell{i}-{j}", files, alts.get(j, "")))
         # raw cells are for other converters (LaTeX, reST): not shown
@@ -383,9 +383,12 @@ def notebook_title(nb: Mapping[str, Any], fallback: str) -> str:
 # ---------------------------------------------------------------- figure alt text
 
 
-def _figure_alts(source: str, outputs: Sequence[Mapping[str, Any]], before: str) -> dict[int, str]:
+def _figure_alts(source: str, outputs: Sequence[Mapping[str, Any]], before: str,
+                 given: str | Sequence[str] | None = None) -> dict[int, str]:
     """Alt text for each figure output of a code cell (output index -> text).
 
+    ``given``: the cell's own alt text (metadata ``alt``: one text, or one per figure), which says what
+    the figure shows; it wins over everything below.
     The figure's titles from the cell's code (:func:`figure_titles`): one figure gets them all (the axes'
     titles and the suptitle), several figures get one title each when the counts agree. Otherwise a
     caption from the Markdown cell before (its last paragraph's first sentence). Empty: the image
@@ -394,6 +397,9 @@ def _figure_alts(source: str, outputs: Sequence[Mapping[str, Any]], before: str)
     figures = [j for j, o in enumerate(outputs) if any(m in _IMAGE_EXT for m in (o.get("data") or {}))]
     if not figures:
         return {}
+    if given:
+        texts = [given] * len(figures) if isinstance(given, str) else list(given)
+        return {j: plain_text(t) for j, t in zip(figures, texts)}
     titles = figure_titles(source)
     if titles and len(figures) > 1 and len(titles) == len(figures):
         return {j: f"Figure: {t}" for j, t in zip(figures, titles)}
