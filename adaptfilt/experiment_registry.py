@@ -334,7 +334,8 @@ def resolve(target: Any, seed: int = 0, n_steps: int | None = None) -> Target:
         return Target(target.make_env(seed=seed, n_steps=n_steps), target, target.name, target.features)
     if not isinstance(target, ParamEnv):
         lacks = missing_members(target)
-        raise TypeError(f"expected an experiment name, an Experiment or an environment (a ParamEnv), got "
+        raise TypeError(f"expected an experiment name, an Experiment or an environment (a ParamEnv such as a "
+                        f"FilterEnv), got "
                         f"{type(target).__name__}" + (f", which lacks {', '.join(lacks)}" if lacks else ""))
     if n_steps is not None and n_steps != target.n_steps:
         raise ValueError(f"n_steps={n_steps} for an environment with horizon {target.n_steps}: "

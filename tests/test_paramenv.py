@@ -133,7 +133,7 @@ def test_resolve_reads_names_experiments_targets_and_envs_one_way():
         resolve(env, n_steps=9)
     with pytest.raises(KeyError, match="unknown experiment 'nope'"):
         resolve("nope")
-    with pytest.raises(TypeError, match="got dict, which lacks check_actions"):
+    with pytest.raises(TypeError, match="FilterEnv\), got dict, which lacks check_actions"):
         resolve({"grid": [1.0]})
 
 
