@@ -104,6 +104,7 @@ import copy
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -533,7 +534,9 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     loss: Literal["supervised", "unsupervised"] = "supervised", tbptt: int | None = None,
                     clip: float | None = None, seed: int = 0, data_seed: int | None = None,
                     train: Trajectory | None = None, val: Trajectory | None = None, progress: bool = True,
-                    calibration: float = 1.0, init: KalmanNet | None = None, **options) -> KalmanNet:
+                    calibration: float = 1.0, init: KalmanNet | None = None,
+                    on_diverged: Literal["raise", "restore"] = "raise", max_restores: int = 5,
+                    **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
     Parameters
@@ -564,6 +567,13 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         :class:`KalmanNet`'s options (``feature_norm``, ``in_mult``, ``out_mult``, ``dropout``,
         ``n_samples``, ``model_grad``).
 
+    on_diverged : "raise" or "restore"
+        What a non-finite training loss, gradient or validation loss does: ``"raise"`` (default)
+        :class:`TrainingDiverged` naming the epoch and optimiser step; ``"restore"`` (a documented
+        fallback, never silent) warns, goes back to the best weights so far, halves the learning
+        rate with a fresh Adam state, skips the rest of that minibatch and records the event in
+        ``history["restores"]``; more than ``max_restores`` such events raise.
+
     Returns the filter with the best validation loss; ``knet.history`` holds the per-epoch training
     and validation losses, the best epoch and the training CPU seconds. Raises
     :class:`TrainingDiverged` on a non-finite loss or gradient, naming epoch and step.
@@ -579,6 +589,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         raise ValueError(f"tbptt must be a positive window length or None, got {tbptt}")
     if clip is not None and not float(clip) > 0:
         raise ValueError(f"clip must be a positive gradient norm or None, got {clip}")
+    if on_diverged not in ("raise", "restore"):
+        raise ValueError(f"on_diverged must be 'raise' or 'restore', got {on_diverged!r}")
     if not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be positive, got {lr}")
     cpu0 = time.process_time()
@@ -603,7 +615,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     hist = {"train_loss": [], "val_loss": [], "best_epoch": 0, "loss": loss, "epochs": int(epochs),
             "batch_size": int(batch_size), "lr": lr, "weight_decay": weight_decay, "tbptt": tbptt, "clip": clip,
             "n_train": train.n_runs, "n_val": val.n_runs, "n_steps": train.n_steps, "data_seed": ds,
-            "calibration": calibration}
+            "calibration": calibration, "on_diverged": on_diverged, "restores": []}
     M, Tn = train.n_runs, train.n_steps
     L = Tn if tbptt is None else int(tbptt)
     z_prev_all = knet._z_prev(train.z)
@@ -612,7 +624,21 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         from tqdm.auto import tqdm
 
         bar = tqdm(bar, desc=f"train {knet!r}", leave=False)
-    with one_torch_thread(), torch.random.fork_rng(devices=[]):
+    def diverged(what: str, epoch: int, step: int, state: dict, opt: torch.optim.Optimizer) -> torch.optim.Optimizer:
+        """Raise, or restore the best weights with half the learning rate (``on_diverged``)."""
+        msg = f"KalmanNet training: {what}"
+        if on_diverged == "raise" or len(hist["restores"]) >= int(max_restores):
+            extra = f" after {len(hist['restores'])} restores" if on_diverged == "restore" else ""
+            raise TrainingDiverged(msg + extra + "; try clip=..., a smaller lr, tbptt=... or another feature_norm")
+        lr_now = opt.param_groups[0]["lr"] * 0.5
+        warnings.warn(msg + f"; restored the best weights so far, learning rate halved to {lr_now:.3g}",
+                      RuntimeWarning, stacklevel=3)
+        hist["restores"].append({"epoch": epoch, "step": step, "what": what, "lr": lr_now})
+        knet.net.load_state_dict(state)
+        return torch.optim.Adam(knet.net.parameters(), lr=lr_now, weight_decay=weight_decay)
+
+    with one_torch_thread(), torch.random.fork_rng(devices=[]), np.errstate(over="ignore", invalid="ignore"):
+        # numpy's overflow warnings of a diverging estimate are replaced by the check of the loss
         torch.manual_seed(int(seed) + 1)
         best = _evaluate(knet, val, loss, calibration)
         if not math.isfinite(best):  # an untrained filter that diverges on validation: any finite epoch beats it
@@ -635,9 +661,9 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     ell = _loss(knet, out, x[:, t0:t1], loss, calibration)
                     step += 1
                     if not torch.isfinite(ell):
-                        raise TrainingDiverged(f"KalmanNet training: non-finite loss at epoch {epoch}, optimiser step "
-                                               f"{step} (steps {t0}..{t1 - 1}); try clip=..., a smaller lr or "
-                                               f"another feature_norm")
+                        opt = diverged(f"non-finite loss at epoch {epoch}, optimiser step {step} (steps {t0}..{t1 - 1})",
+                                       epoch, step, best_state, opt)
+                        break
                     opt.zero_grad()
                     ell.backward()
                     if clip is not None:
@@ -645,16 +671,18 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     else:
                         gnorm = torch.sqrt(sum((p.grad ** 2).sum() for p in knet.net.parameters() if p.grad is not None))
                     if not torch.isfinite(gnorm):
-                        raise TrainingDiverged(f"KalmanNet training: non-finite gradient at epoch {epoch}, optimiser "
-                                               f"step {step} (steps {t0}..{t1 - 1}); try clip=... or a smaller lr")
+                        opt = diverged(f"non-finite gradient at epoch {epoch}, optimiser step {step} "
+                                       f"(steps {t0}..{t1 - 1})", epoch, step, best_state, opt)
+                        break
                     opt.step()
                     carry = carry.detach()
                     losses.append(float(ell.detach()))
-            hist["train_loss"].append(float(np.mean(losses)))
+            hist["train_loss"].append(float(np.mean(losses)) if losses else math.nan)
             v = _evaluate(knet, val, loss, calibration)
-            if not math.isfinite(v):
-                raise TrainingDiverged(f"KalmanNet training: non-finite validation loss after epoch {epoch}")
             hist["val_loss"].append(v)
+            if not math.isfinite(v):
+                opt = diverged(f"non-finite validation loss after epoch {epoch}", epoch, step, best_state, opt)
+                continue
             if v < best:
                 best, hist["best_epoch"] = v, epoch
                 best_state = copy.deepcopy(knet.net.state_dict())

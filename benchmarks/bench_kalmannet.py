@@ -55,7 +55,8 @@ def main() -> None:
     for name, opts in (("KalmanNet", {}), (f"Bayesian J={a.samples}", dict(dropout=0.2, n_samples=a.samples))):
         c0 = time.process_time()
         knet = train_kalmannet(model, n_train=a.n_train, n_val=a.n_val, n_steps=a.steps, epochs=a.epochs,
-                               batch_size=a.batch, tbptt=a.tbptt, clip=10.0, seed=0, progress=False, **opts)
+                               batch_size=a.batch, tbptt=a.tbptt, clip=10.0, seed=0, progress=False,
+                               on_diverged="restore", **opts)
         train_cpu = time.process_time() - c0
         h = knet.history
         per_epoch = train_cpu / a.epochs
@@ -66,12 +67,12 @@ def main() -> None:
         run_cpu, run_wall = time.process_time() - c0, time.perf_counter() - w0
         rmse = af.metrics.rmse_time_average(af.metrics.squared_error(test.x, run.mean))
         rows.append((name, knet.n_parameters(), per_epoch, per_step, per_traj_step * 1e6, a.runs * a.steps / run_cpu,
-                     a.runs * a.steps / run_wall, rmse, h["val_loss"][0], h["best_val_loss"]))
+                     a.runs * a.steps / run_wall, rmse, h["val_loss"][0], h["best_val_loss"], len(h["restores"])))
     print(f"{'filter':<16} {'params':>6} {'CPU-s/epoch':>11} {'CPU-s/opt step':>14} {'us/traj-step':>12} "
-          f"{'run-steps/s cpu':>15} {'(wall)':>9} {'RMSE':>7} {'val MSE 0 -> best':>18}")
+          f"{'run-steps/s cpu':>15} {'(wall)':>9} {'RMSE':>7} {'val MSE 0 -> best':>18} restores")
     for r in rows:
         print(f"{r[0]:<16} {r[1]:>6d} {r[2]:>11.2f} {r[3]:>14.3f} {r[4]:>12.1f} {r[5]:>15.0f} {r[6]:>9.0f} {r[7]:>7.2f} "
-              f"{r[8]:>8.3g} -> {r[9]:<8.3g}")
+              f"{r[8]:>8.3g} -> {r[9]:<8.3g} {r[10]}")
 
 
 if __name__ == "__main__":

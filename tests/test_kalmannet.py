@@ -229,5 +229,14 @@ def test_non_finite_training_loss_is_an_error_naming_epoch_and_step():
         train_kalmannet(model, train=traj, val=traj, epochs=1, progress=False, feature_norm="none")
 
 
+def test_restore_fallback_warns_records_and_gives_up():
+    model = af.models.linear_gaussian(F=[[1e3]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[1.0], P0=[[1.0]], name="unstable")
+    traj = af.Trajectory(x=np.zeros((2, 200, 1)), z=np.zeros((2, 200, 1)))
+    with pytest.warns(RuntimeWarning, match="restored the best weights"), \
+            pytest.raises(TrainingDiverged, match="after 2 restores"):
+        train_kalmannet(model, train=traj, val=traj, epochs=5, progress=False, feature_norm="none",
+                        on_diverged="restore", max_restores=2)
+
+
 def test_lazy_export():
     assert af.kalmannet.KalmanNet is KalmanNet
