@@ -104,7 +104,8 @@ from adaptfilt.models import Trajectory
 from adaptfilt.paramenv import ParamEnv
 from adaptfilt.results import PolicyResult, Results
 
-__all__ = ["evaluate", "evaluate_costs", "learned_name", "learned_names", "TRAJ_SEED_KEY"]
+__all__ = ["evaluate", "evaluate_costs", "setup_evaluation", "summarise_rollout", "learned_name", "learned_names",
+           "TRAJ_SEED_KEY"]
 
 #: Trajectories of an evaluation with seed ``s`` come from ``default_rng([TRAJ_SEED_KEY, s])``, so
 #: that they are not the trajectories a training run with the same seed simulates.
@@ -120,9 +121,11 @@ CHUNK_SIZE = 10_000
 _CHUNK_STREAM = 2**30
 
 
-def _summarise(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
-               counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
-    """Reduce one rollout to the :class:`PolicyResult` fields (wall time excluded)."""
+def summarise_rollout(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
+                      counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
+    """Reduce one rollout to the :class:`~adaptfilt.results.PolicyResult` fields (wall time excluded): what
+    :func:`evaluate` stores for a policy, for a filter run made outside an environment (a reference filter on
+    the evaluation's runs, :func:`setup_evaluation`'s trajectories and bootstrap ``counts``)."""
     M, T = run.nis.shape
     se = metrics.squared_error(x, run.mean)  # (M, T)
     # a clipped filter stores the rare indefinite P_filt before repairing it: see metrics.nees
@@ -308,7 +311,7 @@ def evaluate_costs(
         # runs by construction (same truth, seed and horizon: checked below), so only their configs are needed
         setups = [stack.enter_context(_runs(experiments[0], policies, n_runs, seed, n_boot, None, level, command,
                                             n_steps, chunk_size))]
-        setups += [_setup(e, policies, n_runs, seed, n_boot, None, level, command, n_steps, chunk_size, simulate=False)
+        setups += [setup_evaluation(e, policies, n_runs, seed, n_boot, None, level, command, n_steps, chunk_size, simulate=False)
                    for e in experiments[1:]]
         return _evaluate_costs(setups, level, progress)
 
@@ -334,9 +337,13 @@ def _evaluate_costs(setups: list, level: float, progress) -> dict[str, Results]:
     return dict(zip(names, out))
 
 
-def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps=None,
-           chunk_size: int | None = None, simulate: bool = True, store_dir: Path | None = None):
-    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation.
+def setup_evaluation(experiment_or_env, policies: Sequence | None, n_runs: int, seed: int, n_boot: int,
+                     traj: Trajectory | None, level: float, command: str | None, n_steps: int | None = None,
+                     chunk_size: int | None = None, simulate: bool = True,
+                     store_dir: Path | None = None) -> tuple[ParamEnv, list, "Trajectory | _RunStore | None",
+                                                             np.ndarray | None, dict]:
+    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation, as
+    :func:`evaluate` makes them (for a study that adds rows of its own to an evaluation's results).
 
     ``chunk_size`` None or at least the number of runs: the trajectories and the counts ``(n_boot, M)``
     in memory, as always. More runs than ``chunk_size``: a :class:`_RunStore` in ``store_dir`` in place of
@@ -391,13 +398,17 @@ def _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, comma
     return env, policies, traj, counts, config
 
 
+# The names experiments/particles_study.py still imports (another change moves it to the public ones).
+_setup, _summarise = setup_evaluation, summarise_rollout
+
+
 @contextlib.contextmanager
 def _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps, chunk_size):
-    """:func:`_setup` with a checked ``chunk_size``, the streamed runs' folder removed at the end."""
+    """:func:`setup_evaluation` with a checked ``chunk_size``, the streamed runs' folder removed at the end."""
     if isinstance(chunk_size, (bool, np.bool_)) or not isinstance(chunk_size, numbers.Integral) or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer (runs filtered at a time), got {chunk_size!r}")
     with tempfile.TemporaryDirectory(prefix="adaptfilt-evaluate-") as tmp:
-        yield _setup(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
+        yield setup_evaluation(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
                      int(chunk_size), store_dir=Path(tmp))
 
 
@@ -518,7 +529,7 @@ def _evaluate(targets: list[tuple], env: ParamEnv, policies: list, traj, counts:
         else:
             run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
             costs = [cost] + run.info["extra_costs"]
-            summs = [_summarise(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs,
+            summs = [summarise_rollout(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs,
                                 level, compute_weight=w) for cost_k, w in zip(costs, weights)]
             del run, cost, costs  # the (M, T, nx, nx) covariances go here
         for res, summ in zip(results, summs):
@@ -529,7 +540,7 @@ def _evaluate(targets: list[tuple], env: ParamEnv, policies: list, traj, counts:
 
 
 def _streamed(env, pol, store: _RunStore, extra: list, weights: list[float], level: float, progress) -> list[dict]:
-    """:func:`_summarise` of ``pol``'s rollout over all the store's runs, for each cost (the environment's,
+    """:func:`summarise_rollout` of ``pol``'s rollout over all the store's runs, for each cost (the environment's,
     then ``extra``), one chunk of runs at a time: per run and per step only sums (and the per-run values
     the results keep) stay, and each cost's one-step values go to a file for their quantiles."""
     M, T, B, G = store.n_runs, env.n_steps, store.n_boot, env.grid.size
@@ -553,7 +564,7 @@ def _streamed(env, pol, store: _RunStore, extra: list, weights: list[float], lev
 
 
 class _ChunkSums:
-    """The cost-free summaries of :func:`_summarise`, summed over chunks of runs.
+    """The cost-free summaries of :func:`summarise_rollout`, summed over chunks of runs.
 
     Per run (the values a one-pass evaluation computes, bit for bit where the rollout's are), integer
     counts (usage, choices, repairs, divergent runs: exact) and maxima are exact; what is a mean over runs
@@ -629,7 +640,7 @@ class _ChunkSums:
 
 
 class _CostSums:
-    """The cost summaries of :func:`_summarise`, summed over chunks of runs (see :class:`_ChunkSums`); the
+    """The cost summaries of :func:`summarise_rollout`, summed over chunks of runs (see :class:`_ChunkSums`); the
     one-step costs themselves go to ``path`` for their exact quantiles (:func:`_file_quantiles`)."""
 
     def __init__(self, M: int, T: int, B: int, weight: float, path: Path):
@@ -658,7 +669,7 @@ class _CostSums:
     def finish(self, level: float, extra_mean: float) -> dict:
         M, T, B = self.M, self.T, self.boot_cost.size
         nan = float("nan")
-        if not self.used:  # no cost: what _summarise reports then
+        if not self.used:  # no cost: what summarise_rollout reports then
             return dict(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
                         boot_cost=np.full(B, nan), run_cost=np.full(M, nan), objective=nan, objective_ci=(nan, nan),
                         boot_objective=np.full(B, nan), cost_charged=nan, cost_charged_ci=(nan, nan),
