@@ -1,4 +1,6 @@
-"""Every decimal number the course's prose states is one its code printed (adaptfilt.course.prose_numbers).
+"""Every decimal number the course's prose states is one its code printed (adaptfilt.course.prose_numbers),
+and so is every integer that states a result: a percentage, a time, a count of runs, seeds or episodes
+(a count must be one the code sets or prints *as a count of the same thing*).
 
 The chapters are checked whole (every Markdown cell, the Summaries and the verdict paragraphs
 included); a number taken from another chapter is declared (``<!-- from 08: ... -->``) and checked
@@ -32,10 +34,40 @@ def test_every_number_in_the_prose_is_one_the_chapter_printed(path):
                     "or declare where it comes from):\n" + "\n".join(map(str, bad))
 
 
+#: Chapters whose integers the check does not yet pass: notebooks 01-06 belong to the helper rewriting
+#: them (issue 37, items 3 and 6), who adds the declarations; strict, so the mark goes when they pass.
+INTEGERS_PENDING = {"01", "02", "03", "04", "05", "06"}
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.xfail(
+    strict=True, reason="issue 37: the helper who owns notebooks 01-06 declares or prints their counts"))
+    if p.name[:2] in INTEGERS_PENDING else p for p in NOTEBOOKS], ids=lambda p: p.stem)
+def test_every_integer_result_in_the_prose_is_one_the_chapter_set_or_printed(path):
+    bad = unmatched(CHAPTERS[path.name[:2]], chapters=CHAPTERS, integers=True)
+    assert not bad, f"{path.name}: counts, percentages or times in the prose that no output or setting shows " \
+                    "(fix the prose, print the value, or declare it):\n" + "\n".join(map(str, bad))
+
+
+def test_the_integer_check_catches_a_count_of_runs_no_output_states():
+    """Issue 37 A1: chapter 14 said "500 runs" where its study stored 250, while 500 was printed as a
+    grid value and a particle count: a count is matched only by a count of the same thing."""
+    out = {"cell_type": "code", "source": "print(protocol)", "outputs": [{"output_type": "stream", "text":
+           "ungm-pf-1e-4: evaluated on 250 runs; 8 learned seeds\n| bpf-500 | 0.647 | 500 | 3.60% |\n"
+           "(7 of 8 seeds below alone)\n"}]}
+    nb = {"cells": [out, {"cell_type": "markdown", "source":
+                          "The study measures both forms at every count on 500 runs, seven seeds of eight."}]}
+    assert [m.number for m in unmatched(nb, integers=True)] == ["500"]
+    nb["cells"][1]["source"] = "Evaluated on the same 250 runs, 8 seeds, 4 % <!-- quoted: 4 -->, in 12 s."
+    assert [m.number for m in unmatched(nb, integers=True)] == ["12"]
+    nb["cells"][1]["source"] = "In 95 % of resamples (a two-level 95 % CI), $M = 250$ runs."
+    assert [m.number for m in unmatched(nb, integers=True)] == ["95"]
+
+
 def test_the_readme_states_only_numbers_the_chapters_printed():
     readme = {"cells": [{"cell_type": "markdown", "source": (ROOT / "README.md").read_text(encoding="utf-8")}]}
     # the README prints nothing: every number it states must be declared as taken from a chapter (or quoted)
-    bad = unmatched(readme, printed=[], chapters=CHAPTERS)
+    bad = unmatched(readme, printed=[], chapters=CHAPTERS) + unmatched(readme, printed=[], chapters=CHAPTERS,
+                                                                       integers=True)
     assert not bad, "README.md:\n" + "\n".join(map(str, bad))
 
 
@@ -80,3 +112,5 @@ def test_the_check_reads_declarations_against_the_named_chapter():
     ranged = {"cell_type": "code", "source": "", "outputs": [{"output_type": "stream", "text": "RMSE 2.50..4.07\n"}]}
     assert (2.5, 2) in output_numbers([ranged]) and (4.07, 2) in output_numbers([ranged])
     assert [m.number for m in unmatched(nb, printed=printed)] == ["0.07"]
+    nb["cells"][0]["source"] = "*Figure 13.2: the gain*, as Figures 8.1 and 8.2 show, and 0.0462."
+    assert unmatched(nb, printed=printed) == []
