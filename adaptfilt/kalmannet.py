@@ -105,7 +105,7 @@ import math
 import os
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -482,6 +482,9 @@ def load_kalmannet(path: str | os.PathLike, model: StateSpaceModel) -> KalmanNet
     if have != want:
         raise ValueError(f"{path}: KalmanNet file made for model {have[0]!r} (nx={have[1]}, nz={have[2]}), "
                          f"not for model {want[0]!r} (nx={want[1]}, nz={want[2]})")
+    missing = [k for k in ("options", "seed") if k not in meta]
+    if missing or not isinstance(meta.get("options"), dict):
+        raise ValueError(f"{path}: not an adaptfilt KalmanNet file (missing or malformed {', '.join(missing) or 'options'})")
     scales = meta.get("scales")
     knet = KalmanNet(model, seed=meta["seed"], scales=None if scales is None else np.asarray(scales), **meta["options"])
     try:
