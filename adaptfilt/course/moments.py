@@ -351,7 +351,9 @@ def check_unscented(my_unscented: Callable) -> None:
                                         ("the covariance", np.atleast_2d(out[1]), cov)))
     if problems:
         print("not yet:\n  " + "\n  ".join(problems))
-        print("hints: the points are m and m +- sqrt(n + kappa) L[:, j] with L = np.linalg.cholesky(P); the centre "
+        print("hints: the points are m and m +- sqrt(n + kappa) L[:, j] with L = np.linalg.cholesky(P), the lower "
+              "Cholesky factor (another square root of P, e.g. a symmetric sqrtm, gives other points, equally "
+              "valid, which this check does not accept: the library's are Cholesky's); the centre "
               "weighs kappa / (n + kappa), every other point 1 / (2 (n + kappa)); the covariance sums "
               "w_i (f(X_i) - mean)(f(X_i) - mean)^T over all 2n + 1 points, the centre included")
         return
