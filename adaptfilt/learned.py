@@ -346,7 +346,7 @@ class LearnedPolicy:
         return load_policy(path, experiment)
 
 
-def describe_target(experiment, features=None) -> dict:
+def describe_target(experiment: Any, features: "str | FeatureSet | None" = None) -> dict:
     """What a policy must match (:func:`check_compatible`): the fields of a dict as they are, or the
     :meth:`~adaptfilt.paramenv.ParamEnv.describe` of what :func:`~adaptfilt.experiment_registry.resolve`
     makes of a name, an Experiment or an environment (plus the experiment's name for an experiment)."""

@@ -311,7 +311,7 @@ class FilterEnv:
     def compute_unit(self) -> str:
         return self.filt.rule.compute_unit
 
-    def spent(self, theta) -> np.ndarray:
+    def spent(self, theta: np.ndarray) -> np.ndarray:
         """Compute of one update per run at ``theta``, in :attr:`compute_unit` (the rule's count)."""
         return self.filt.rule.spent(theta)
 
@@ -410,7 +410,9 @@ class FilterEnv:
 def rollout(env: ParamEnv, policy, traj: Trajectory | None = None, n_runs: int | None = None,
             rng=None, stream: int | None = None, keep_pred: bool = False, progress: bool = False,
             extra_costs: Sequence[StepCost] = ()) -> tuple[FilterRun, np.ndarray | None]:
-    """Run ``policy`` through ``env`` for a whole episode.
+    """Run ``policy`` through ``env`` for a whole episode. ``env``: a :class:`~adaptfilt.paramenv.ParamEnv`
+    that filters (its step reports :data:`~adaptfilt.paramenv.FILTER_INFO`): a :class:`FilterEnv`, a
+    :class:`~adaptfilt.particle_env.ParticleCountEnv`.
 
     Returns the filter run (moments, NIS, log-likelihood, parameters chosen)
     and the cost ``(M, T)`` (None when the env has no cost). ``extra_costs``:

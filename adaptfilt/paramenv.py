@@ -29,6 +29,12 @@ predict_param)``          ``t`` and ``theta`` (``grid[actions]``)
 A decision (:class:`ParamDecision`) carries ``t``, ``grid``, ``default_index``, ``n_runs``,
 ``features (M, d)`` and ``extra_spent`` (what deciding computed beyond the chosen update).
 
+An environment that filters (``model`` not None: what :func:`~adaptfilt.mdp.rollout` and
+:func:`~adaptfilt.evaluation.evaluate` run) also has ``nx``, ``nz``, the ``truth`` it simulates from, and
+its step's ``info`` holds :data:`FILTER_INFO`: the update's ``x_filt (M, nx)``, ``P_filt (M, nx, nx)``,
+``nis``, ``loglik``, ``extra_spent``, ``repaired (M,)`` and ``update`` (what the cost reads). A toy
+(``model`` None) is for learners only.
+
 >>> from adaptfilt.toy import TrapEnv
 >>> check_env(TrapEnv(n_steps=3))
 >>> isinstance(TrapEnv(), ParamEnv)
@@ -40,10 +46,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["ParamEnv", "ParamDecision", "EnvCheckError", "check_env", "missing_members", "DESCRIBE_KEYS"]
+__all__ = ["ParamEnv", "ParamDecision", "EnvCheckError", "check_env", "missing_members", "DESCRIBE_KEYS",
+           "FILTER_INFO"]
 
 #: What :meth:`ParamEnv.describe` returns (and a policy file records and is checked against).
 DESCRIBE_KEYS = ("model", "filter", "param_name", "grid", "feature_names", "cost")
+#: What the step of an environment that filters reports in ``info`` (read by :func:`~adaptfilt.mdp.rollout`).
+FILTER_INFO = ("x_filt", "P_filt", "nis", "loglik", "extra_spent", "repaired", "update")
 
 
 @runtime_checkable
@@ -70,6 +79,7 @@ class ParamEnv(Protocol):
     default_index: int
     n_steps: int
     cost: Any
+    model: Any
 
     @property
     def default(self) -> float: ...
@@ -157,6 +167,13 @@ def check_env(env: Any, n_runs: int = 3, seed: int = 0) -> None:
     if not isinstance(desc, dict) or set(desc) != set(DESCRIBE_KEYS):
         raise fail(f"describe() must return a dict with the keys {', '.join(DESCRIBE_KEYS)}, got "
                    f"{sorted(desc) if isinstance(desc, dict) else type(desc).__name__}")
+    if env.model is not None:
+        for attr in ("nx", "nz"):
+            v = getattr(env, attr, None)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise fail(f"an environment that filters (model {env.model!r:.40}) needs {attr}, an integer >= 1; got {v!r}")
+        if not callable(getattr(getattr(env, "truth", None), "simulate", None)):
+            raise fail("an environment that filters needs truth, the model its reset simulates (truth.simulate)")
     want = {"grid": grid.tolist(), "param_name": env.param_name, "cost": None if env.cost is None else env.cost.name}
     for k, v in want.items():
         if desc[k] != v:
@@ -189,6 +206,8 @@ def _episode(env: Any, M: int, seed: int, act, fail, check_actions: bool = False
             raise fail(f"step's info must be a dict with 't' and 'theta', got {info!r:.80}")
         if info["t"] != t:
             raise fail(f"step's info['t'] = {info['t']!r} at step {t}")
+        if env.model is not None:
+            _check_filter_info(env, info, M, fail)
         theta = np.asarray(info["theta"])
         if theta.shape != (M,) or not np.array_equal(theta, env.grid[a]):
             raise fail(f"step's info['theta'] must be grid[actions] {env.grid[a].tolist()}, got {theta.tolist()}")
@@ -218,6 +237,16 @@ def _episode(env: Any, M: int, seed: int, act, fail, check_actions: bool = False
     else:
         raise fail("a step after the episode's last must be a RuntimeError (call reset())")
     return costs
+
+
+def _check_filter_info(env: Any, info: dict, M: int, fail) -> None:
+    lacks = [k for k in FILTER_INFO if k not in info]
+    if lacks:
+        raise fail(f"step's info lacks {', '.join(lacks)} (an environment that filters reports its update)")
+    shapes = {"x_filt": (M, env.nx), "P_filt": (M, env.nx, env.nx), "nis": (M,), "loglik": (M,), "repaired": (M,)}
+    for k, shape in shapes.items():
+        if np.shape(info[k]) != shape:
+            raise fail(f"step's info[{k!r}] must have shape {shape}, got {np.shape(info[k])}")
 
 
 def _check_decision(env: Any, d: Any, t: int, M: int, width: int | None, fail) -> int:

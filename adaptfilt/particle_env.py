@@ -210,7 +210,7 @@ class ParticleCountEnv:
         return int(self.grid[self.default_index])
 
     @staticmethod
-    def spent(theta) -> np.ndarray:
+    def spent(theta: np.ndarray) -> np.ndarray:
         """Particles per run of one step at counts ``theta``."""
         return np.asarray(theta, dtype=float)
 

@@ -86,6 +86,12 @@ class _WrongTheta(_Wrap):
         return d, c, done, {**info, "theta": info["theta"] + 1}
 
 
+class _NoFilterInfo(_Wrap):
+    def step(self, actions, predict_param=None):
+        d, c, done, info = self._env.step(actions, predict_param)
+        return d, c, done, {k: v for k, v in info.items() if k != "x_filt"}
+
+
 class _DescribesAnotherGrid(_Wrap):
     def describe(self, features=None):
         return {**self._env.describe(features), "grid": [0.0]}
@@ -100,12 +106,15 @@ class _DescribesAnotherGrid(_Wrap):
     (_Unseeded, "an episode must be a function of its seed"),
     (_WrongTheta, "info['theta'] must be grid[actions]"),
     (_DescribesAnotherGrid, "describe()['grid'] = [0.0]"),
+    (_NoFilterInfo, "step's info lacks x_filt"),
 ], ids=lambda v: v.__name__ if isinstance(v, type) else "")
 @pytest.mark.parametrize("base", ["trap", "ungm-ukf"])
 def test_the_check_names_what_a_broken_env_gets_wrong(broken, why, base):
     env = TrapEnv(n_steps=3) if base == "trap" else EXPERIMENTS[base].make_env(n_steps=3)
     if broken is _Unseeded and base == "trap":
         pytest.skip("the trap is deterministic: an unseeded reset replays it")
+    if broken is _NoFilterInfo and base == "trap":
+        pytest.skip("a toy does not filter: its info has no update")
     with pytest.raises(EnvCheckError) as e:
         check_env(broken(env))
     assert why in str(e.value)
