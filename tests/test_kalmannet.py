@@ -5,12 +5,17 @@ Kalman filter is the MMSE filter, so no gain can beat it; its steady-state gain 
 constant gain off by 0.1 costs about 0.2 dB of MSE (0.4 or 0.8 about 0.7-0.9 dB, from the Riccati
 recursion of a fixed-gain filter). Hence the margins:
 
-* MSE within 0.3 dB of the Kalman filter's on 2000 test runs (the untrained network is several dB
-  away; measured after training: about 0.03-0.05 dB);
-* the time-averaged gain within 0.1 of the Kalman gain (measured: 0.02-0.04 off).
+* MSE within 0.3 dB of the Kalman filter's on 2000 test runs (the untrained network is 7 dB
+  away; measured after training: 0.01-0.03 dB over seeds 0-4);
+* the time-averaged gain within 0.1 of the Kalman gain (measured: at most 0.02 off).
 
-Training is CI-sized (40 trajectories of 30 steps, 40 optimiser steps): one core, float64,
-``torch.set_num_threads(1)`` (the library's training runs on one thread anyway).
+Training is CI-sized (40 trajectories of 30 steps, 10 epochs): one core, float64,
+``torch.set_num_threads(1)`` (the library's training runs on one thread anyway). The filter compared
+with the KF is trained with truncated back-propagation (windows of 10 steps: 120 optimiser steps);
+measured on seeds 0-4 it came within 0.01-0.03 dB of the KF and 0.02 of its gain. With whole-sequence
+back-propagation and the same 10 epochs (40 optimiser steps) seeds 0 and 1 reach 0.04 and 0.01 dB but
+seed 2 stops at 1.07 dB (gain 0.38): at this size whole sequences need more steps, and the seed
+matters, as KalmanNet's users report. Whole-sequence training is exercised by the other tests.
 """
 import numpy as np
 import pytest
@@ -42,7 +47,7 @@ def lin():
     model = linear_model()
     test = model.simulate(2000, 30, rng=12345)  # test runs: a stream the trainer never draws
     kf = af.KalmanFilter(model).run(test.z)
-    knet = train_kalmannet(model, epochs=10, seed=0, **TRAIN)
+    knet = train_kalmannet(model, epochs=10, seed=0, tbptt=10, **TRAIN)
     return model, test, kf, knet
 
 
