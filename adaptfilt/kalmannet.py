@@ -78,7 +78,7 @@ minibatches of whole trajectories, back-propagation through the whole sequence o
 windows (``tbptt``: the estimate and GRU states carry over, detached), optional gradient-norm
 clipping (``clip``), the model with the best validation loss kept (validated once per epoch). Losses:
 ``"supervised"`` (the paper: MSE of ``x_{t|t}`` against the true state) or ``"unsupervised"``
-(Revach et al., "Unsupervised learned Kalman filtering", EUSIPCO 2022: the squared error of the
+(Revach et al., "Unsupervised learned Kalman filtering", arXiv 2110.09005, EUSIPCO 2022: the squared error of the
 predicted measurement, ``|z_t - h(x_{t|t-1})|^2``, no true state used). A non-finite loss or
 gradient stops training with :class:`TrainingDiverged` naming the epoch and step.
 

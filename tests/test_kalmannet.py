@@ -157,6 +157,19 @@ def test_saved_model_reloads_to_the_same_numbers(lin, tmp_path):
         load_kalmannet(tmp_path / "junk.npz", model)
 
 
+def test_feature_norms_l2_is_the_sign_in_one_dimension_and_scale_reloads(tmp_path):
+    model = linear_model()
+    knet = KalmanNet(model)
+    F = torch.tensor([[-3.0], [0.2], [0.0]], dtype=torch.float64)
+    assert knet._norm(F, slice(0, 1)).flatten().tolist() == [-1.0, 1.0, 0.0]  # only the sign is left
+    scaled = KalmanNet(model, feature_norm="scale", seed=2)
+    assert scaled.scales.shape == (4,) and (scaled.scales > 0).all()
+    z = model.simulate(5, 12, rng=3).z
+    again = load_kalmannet(scaled.save(tmp_path / "s.npz"), model)
+    assert np.array_equal(again.scales, scaled.scales) and np.array_equal(again.run(z).mean, scaled.run(z).mean)
+    assert not np.array_equal(KalmanNet(model, feature_norm="none", seed=2).run(z).mean, scaled.run(z).mean)
+
+
 def test_training_is_reproducible_by_seed():
     model = linear_model()
     kw = dict(TRAIN, epochs=2, n_train=20, n_val=10, n_steps=15)
