@@ -415,7 +415,11 @@ class KalmanNet:
         Bayesian variant, else NaN (no covariance: :func:`adaptfilt.metrics.nees` raises on it);
         ``nis``, ``loglik`` and ``params`` are NaN (read-only broadcasts). ``info["K"] (M, T, nx,
         nz)`` holds the gains when ``keep_gain``. ``seed`` draws the dropout masks of the
-        Bayesian variant (default: the filter's seed). Runs are filtered in chunks of ``chunk``.
+        Bayesian variant (default: the filter's seed), in the order of the runs and chunks, so a
+        run's masks depend on its place in ``z``. Runs are filtered in chunks of ``chunk``. A run
+        whose estimate overflows (a learned gain can make the recursion unstable, e.g. on UNGM)
+        keeps its non-finite values, with numpy's overflow warning: count it with
+        :func:`adaptfilt.metrics.divergent` (``mean=``) or ``~np.isfinite(run.mean)``.
         """
         z = self.check_z(z)
         M, T, _ = z.shape
@@ -539,6 +543,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     train: Trajectory | None = None, val: Trajectory | None = None, progress: bool = True,
                     calibration: float = 1.0, init: KalmanNet | None = None,
                     on_diverged: Literal["raise", "restore"] = "raise", max_restores: int = 5,
+                    max_cpu_s: float | None = None,
                     **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
@@ -570,6 +575,10 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         :class:`KalmanNet`'s options (``feature_norm``, ``in_mult``, ``out_mult``, ``dropout``,
         ``n_samples``, ``model_grad``).
 
+    max_cpu_s : float, optional
+        A training budget in process CPU seconds (everything since the call: simulation,
+        validation): training stops after the optimiser step that spends it, validates once more
+        and keeps the best model (``history["stopped_by_budget"]``). For budget-matched studies.
     on_diverged : "raise" or "restore"
         What a non-finite training loss, gradient or validation loss does: ``"raise"`` (default)
         :class:`TrainingDiverged` naming the epoch and optimiser step; ``"restore"`` (a documented
@@ -592,6 +601,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         raise ValueError(f"tbptt must be a positive window length or None, got {tbptt}")
     if clip is not None and not float(clip) > 0:
         raise ValueError(f"clip must be a positive gradient norm or None, got {clip}")
+    if max_cpu_s is not None and not float(max_cpu_s) > 0:
+        raise ValueError(f"max_cpu_s must be a positive number of CPU seconds or None, got {max_cpu_s}")
     if on_diverged not in ("raise", "restore"):
         raise ValueError(f"on_diverged must be 'raise' or 'restore', got {on_diverged!r}")
     if not (math.isfinite(lr) and lr > 0):
@@ -618,7 +629,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     hist = {"train_loss": [], "val_loss": [], "best_epoch": 0, "loss": loss, "epochs": int(epochs),
             "batch_size": int(batch_size), "lr": lr, "weight_decay": weight_decay, "tbptt": tbptt, "clip": clip,
             "n_train": train.n_runs, "n_val": val.n_runs, "n_steps": train.n_steps, "data_seed": ds,
-            "calibration": calibration, "on_diverged": on_diverged, "restores": []}
+            "calibration": calibration, "on_diverged": on_diverged, "restores": [], "max_cpu_s": max_cpu_s,
+            "stopped_by_budget": False}
     M, Tn = train.n_runs, train.n_steps
     L = Tn if tbptt is None else int(tbptt)
     z_prev_all = knet._z_prev(train.z)
@@ -680,6 +692,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     opt.step()
                     carry = carry.detach()
                     losses.append(float(ell.detach()))
+                    if max_cpu_s is not None and time.process_time() - cpu0 >= max_cpu_s:
+                        hist["stopped_by_budget"] = True
+                        break
+                if hist["stopped_by_budget"]:
+                    break
             hist["train_loss"].append(float(np.mean(losses)) if losses else math.nan)
             v = _evaluate(knet, val, loss, calibration)
             hist["val_loss"].append(v)
@@ -691,6 +708,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                 best_state = copy.deepcopy(knet.net.state_dict())
             if progress:
                 bar.set_postfix(train=f"{hist['train_loss'][-1]:.4g}", val=f"{v:.4g}")
+            if hist["stopped_by_budget"]:
+                break
     knet.net.load_state_dict(best_state)
     knet.net.eval()
     hist["best_val_loss"] = best

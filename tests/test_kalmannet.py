@@ -182,6 +182,13 @@ def test_training_is_reproducible_by_seed():
     assert not np.array_equal(a.run(z).mean, c.run(z).mean)
 
 
+def test_cpu_budget_stops_training():
+    model = linear_model()
+    knet = train_kalmannet(model, epochs=1000, seed=0, max_cpu_s=1.0, **TRAIN)
+    h = knet.history
+    assert h["stopped_by_budget"] and len(h["val_loss"]) < 1000 and 1.0 <= h["cpu_s"] < 10.0
+
+
 def test_tbptt_and_clipping_are_options_that_train():
     model = linear_model()
     knet = train_kalmannet(model, tbptt=10, clip=1.0, epochs=3, seed=0, **TRAIN)
