@@ -9,7 +9,9 @@ budgets of the learned-gain study (issue 38, item 2).
   epoch). Reported: process CPU seconds per epoch (torch on one thread, as the trainer runs it),
   per optimiser step and per trajectory-step (forward + backward).
 * Filtering: ``--runs`` runs x 500 steps with the trained network, no gradients; reported as
-  run-steps per second (one filter step of one Monte-Carlo run), CPU time.
+  run-steps per second (one filter step of one Monte-Carlo run), CPU time, and the RMSE over the
+  runs whose estimate stayed finite, with the number of diverged runs (a short training on UNGM
+  leaves an unstable gain on some runs).
 
 Both for the plain filter and the Bayesian variant (J = ``--samples`` dropout copies, which costs
 about J times more per run-step). UNGM's f and h are numpy: training back-propagates through them
@@ -63,16 +65,18 @@ def main() -> None:
         per_step = train_cpu / h["optimiser_steps"]
         per_traj_step = train_cpu / (a.epochs * (a.n_train + a.n_val) * a.steps)
         c0, w0 = time.process_time(), time.perf_counter()
-        run = knet.run(test.z)
+        with np.errstate(over="ignore", invalid="ignore"):  # diverged runs are counted below
+            run = knet.run(test.z)
         run_cpu, run_wall = time.process_time() - c0, time.perf_counter() - w0
-        rmse = af.metrics.rmse_time_average(af.metrics.squared_error(test.x, run.mean))
+        ok = np.isfinite(run.mean).all(axis=(1, 2))
+        rmse = af.metrics.rmse_time_average(af.metrics.squared_error(test.x[ok], run.mean[ok]))
         rows.append((name, knet.n_parameters(), per_epoch, per_step, per_traj_step * 1e6, a.runs * a.steps / run_cpu,
-                     a.runs * a.steps / run_wall, rmse, h["val_loss"][0], h["best_val_loss"], len(h["restores"])))
+                     a.runs * a.steps / run_wall, rmse, h["val_loss"][0], h["best_val_loss"], len(h["restores"]), int((~ok).sum())))
     print(f"{'filter':<16} {'params':>6} {'CPU-s/epoch':>11} {'CPU-s/opt step':>14} {'us/traj-step':>12} "
-          f"{'run-steps/s cpu':>15} {'(wall)':>9} {'RMSE':>7} {'val MSE 0 -> best':>18} restores")
+          f"{'run-steps/s cpu':>15} {'(wall)':>9} {'RMSE':>7} {'val MSE 0 -> best':>18} restores  diverged runs")
     for r in rows:
         print(f"{r[0]:<16} {r[1]:>6d} {r[2]:>11.2f} {r[3]:>14.3f} {r[4]:>12.1f} {r[5]:>15.0f} {r[6]:>9.0f} {r[7]:>7.2f} "
-              f"{r[8]:>8.3g} -> {r[9]:<8.3g} {r[10]}")
+              f"{r[8]:>8.3g} -> {r[9]:<8.3g} {r[10]:>8d}  {r[11]}")
 
 
 if __name__ == "__main__":
