@@ -49,13 +49,13 @@ def _verdict(problems: list[str], right: str, hint: str) -> bool:
 # ======================================================================== chapter 1
 def _bayes_cases():
     """``(name, model, grid, prev, z, t)``: UNGM at three steps and a linear-Gaussian model."""
-    import adaptfilt as af
+    from adaptfilt.models import linear_gaussian, ungm as ungm_model
 
     grid = np.linspace(-45, 45, 901)
-    ungm = af.models.ungm()
+    ungm = ungm_model()
     prior = np.exp(-0.5 * grid ** 2 / 5) / np.sqrt(2 * np.pi * 5)
     bimodal = 0.5 * (np.exp(-0.5 * (grid - 6) ** 2) + np.exp(-0.5 * (grid + 6) ** 2)) / np.sqrt(2 * np.pi)
-    lin = af.models.linear_gaussian(F=[[0.9]], H=[[0.5]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[5.0]])
+    lin = linear_gaussian(F=[[0.9]], H=[[0.5]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[5.0]])
     return [("UNGM from the prior, z = 1, t = 1", ungm, grid, prior, 1.0, 1),
             ("UNGM from a two-peaked density, z = 3, t = 40", ungm, grid, bimodal, 3.0, 40),
             ("UNGM from a two-peaked density, z = 0.2, t = 7", ungm, grid, bimodal, 0.2, 7),
