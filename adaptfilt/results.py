@@ -151,6 +151,30 @@ class Results:
             return min(fixed, key=lambda n: abs(np.log(self[n].anees / self.config["nx"])))
         return min(fixed, key=lambda n: getattr(self[n], metric))
 
+    @classmethod
+    def merge(cls, parts: Sequence["Results"], ignore: Sequence[str] = ()) -> "Results":
+        """One evaluation from its parts, jobs that simulated the same runs (same seed, runs, horizon:
+        an evaluation's trajectories, filter draws and bootstrap resamples depend on its seed only, so the
+        merge is exact), policies in the order of the parts. Their configurations must agree but for
+        ``"policies"`` and the keys in ``ignore`` (RuntimeError otherwise). The first part is the one
+        returned, extended in place: the parts are a job's values, not kept.
+
+        >>> a = Results({"n_runs": 2, "policies": ["x"]}, {"x": None}); b = Results({"n_runs": 2}, {"y": None})
+        >>> Results.merge([a, b]).config["policies"]
+        ['x', 'y']
+        """
+        skip = {"policies", *ignore}
+        first = parts[0]
+        mine = {k: v for k, v in first.config.items() if k not in skip}
+        for other in parts[1:]:
+            theirs = {k: v for k, v in other.config.items() if k not in skip}
+            if theirs != mine:
+                diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+                raise RuntimeError(f"parts of the {mine.get('experiment', '')} evaluation disagree on {', '.join(diff)}")
+            first.policies.update(other.policies)
+        first.config["policies"] = list(first.policies)
+        return first
+
     # ----------------------------------------------------------- tables
     def summary(self) -> dict:
         """``{name: {"rmse", "anees", "cost", "rmse_ci", "anees_ci", ...}}`` (what ``summary.json`` holds)."""

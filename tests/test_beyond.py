@@ -103,7 +103,9 @@ def test_committed_beyond_studies_match_their_manifest_and_summary():
     import shlex
 
     from adaptfilt.experiments import artefacts
-    from adaptfilt.experiments.beyond import CAND_EXPERIMENTS, PENALTY, SELECTION_SEED, SIF_EXPERIMENTS, study_rows
+    from adaptfilt.experiments.studies.cand import CAND_EXPERIMENTS
+    from adaptfilt.experiments.studies.sif import PENALTY, SELECTION_SEED, SIF_EXPERIMENTS
+    from adaptfilt.experiments.study import study_rows
     from adaptfilt.seed_stats import aggregate, difference, iqm, seed_groups
     from adaptfilt.learned import load_policy
 
@@ -239,7 +241,8 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     outside the set chosen on the selection runs (usage in the evaluation), the cheapest fixed value of
     that set is reported with its charged cost, divergence is a rate with an interval, and a later study
     run adds to the same summary and manifest instead of replacing them."""
-    from adaptfilt.experiments.beyond import SELECTION_SEED, run, select_safe_actions, summary_md
+    from adaptfilt.experiments.beyond import run, summary_md
+    from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions
     from adaptfilt.seed_stats import seed_groups
     from adaptfilt.evaluation import Results
 
@@ -304,7 +307,8 @@ def test_quick_anchor_and_look_studies(tmp_path):
     paired runs, and the two-step look-ahead equals rollout with H = 1 (the same computation, the same
     samples), while looking further costs more compute."""
     from adaptfilt.evaluation import Results
-    from adaptfilt.experiments.beyond import ANCHOR_EVAL_SEED, run, summary_md
+    from adaptfilt.experiments.beyond import run, summary_md
+    from adaptfilt.experiments.studies.anchor import ANCHOR_EVAL_SEED
     from adaptfilt.learned import load_policy
 
     summary = run(tmp_path, quick=True, workers=1, studies=("anchor", "look"), progress=False)
@@ -348,33 +352,21 @@ def test_look_gain_figure_cuts_far_values_at_the_edge():
     assert ax is not fig.axes[0] and fig.axes[0].get_ylim()[0] < -21.4
 
 
-def _beyond_policy_command(rel: str, root: str, selection: dict) -> str:
-    """What the pipeline builds today for the policy file ``rel`` of a full-scale ``adaptfilt beyond --out ROOT``."""
-    from adaptfilt.experiments import beyond
-    from adaptfilt.experiments.particles_study import PARTICLE_FULL
+def _beyond_policy_commands(root: str, selection: dict) -> dict[str, str]:
+    """What every study builds for its policy files in a full-scale ``adaptfilt beyond --out ROOT``: path -> command."""
+    from pathlib import Path
 
-    stem, seed = rel[len("policies/"):-len(".npz")].rsplit("-s", 1)
-    kinds = ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw",
-             "adaptive-anchored", "adaptive")
-    kind = next(k for k in kinds if stem.endswith("-" + k))
-    e, s, out = stem[:-len(kind) - 1], int(seed), f"{root}/beyond/{rel}"
-    sc = beyond.FULL
-    args = {"adaptive-cand": (0.5, sc, beyond.CAND_EXPERIMENTS.get(e), beyond.CAND_ALGO, 0.0),
-            "myopic-cand": (0.0, sc, beyond.CAND_EXPERIMENTS.get(e), beyond.CAND_ALGO, 0.0),
-            "adaptive-penalised": (0.5, sc, None, "fast", beyond.PENALTY),
-            "adaptive-safe": (0.5, sc, None, "fast", 0.0, tuple(selection["safe"])),
-            "adaptive-raw": (0.5, sc, None, "fast", 0.0, None, "none"),
-            "adaptive-anchored": (0.5, sc, beyond.CAND_EXPERIMENTS.get(e), "fast", 0.0, None, "log1p", beyond.ANCHOR),
-            "adaptive": (0.5, beyond.BeyondScale("full", PARTICLE_FULL.episodes, sc.seeds, PARTICLE_FULL.n_steps,
-                                                  PARTICLE_FULL.eval_runs, 0), None, "fast", 0.0)}[kind]
-    g, scale, *rest = args
-    return beyond._train_command(e, kind, g, s, out, scale, *rest)
+    from adaptfilt.experiments.studies import ALL
+    from adaptfilt.experiments.study import FULL, Run
+
+    run = Run(Path(root) / "beyond", Path(root), FULL, False, "", journal=None)
+    return {rel: t.command for s in ALL for rel, t in s.policies(run, {"sif-selection": selection})}
 
 
 def _beyond_run_command(root: str, studies: tuple[str, ...]) -> str:
-    from adaptfilt.experiments.beyond import STUDIES
+    from adaptfilt.experiments.beyond import command
 
-    return f"adaptfilt beyond --out {root}" + ("" if set(studies) == set(STUDIES) else f" --studies {','.join(studies)}")
+    return command(root, False, studies)
 
 
 @pytest.mark.crosscpu
@@ -392,12 +384,15 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
     man = json.loads((beyond_dir / "manifest.json").read_text())
     selection = json.loads((beyond_dir / "summary.json").read_text())["sif-selection"]
     assert man["scale"] == "full" and selection["seed"] == 1
+    built = {}  # by the root the record names
     for entry in man["files"]:
         rel, cmd = entry["path"], entry["command"]
         if rel.startswith("policies/"):
             m = re.fullmatch(r"adaptfilt train .* --out (/\S+)/beyond/" + re.escape(rel), cmd)
             assert m, (rel, cmd)
-            assert cmd == _beyond_policy_command(rel, m.group(1), selection), rel
+            root = m.group(1)
+            built.setdefault(root, _beyond_policy_commands(root, selection))
+            assert cmd == built[root][rel], rel
             continue
         m = re.fullmatch(r"adaptfilt beyond --out (\S+)(?: --studies (\S+))?", cmd)
         assert m, (rel, cmd)
@@ -407,3 +402,36 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
             rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
         assert study is None or study in studies, rel
     assert len(man["files"]) == 190 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 144
+    # and the studies train nothing the manifest lacks
+    assert set(next(iter(built.values()))) == {f["path"] for f in man["files"] if f["path"].startswith("policies/")}
+
+
+def test_every_study_is_one_file_with_a_word_on_the_command_line():
+    """``--studies`` takes exactly the studies that have a file in adaptfilt/experiments/studies, and each
+    file implements the whole interface (what it trains, evaluates, its rows, figures and tables)."""
+    import inspect
+    from pathlib import Path
+
+    from adaptfilt.experiments import studies
+    from adaptfilt.experiments.beyond import STUDIES
+    from adaptfilt.experiments.study import Study
+
+    files = {p.stem for p in Path(studies.__file__).parent.glob("*.py")} - {"__init__"}
+    assert set(STUDIES) == set(studies.BY_NAME) == files
+    wanted = {n for n, _ in inspect.getmembers(Study, inspect.isfunction) if not n.startswith("_")}
+    assert wanted == {"prepare", "policies", "evaluations", "rows", "figures", "markdown"}
+    for s in studies.ALL:
+        assert all(callable(getattr(s, n, None)) for n in wanted), s.NAME
+        assert s.markdown({}) == "" and s.NAME == Path(s.__file__).stem
+
+
+def test_merged_evaluation_parts_keep_their_order_and_must_agree():
+    from adaptfilt.results import Results
+
+    a, b = Results({"n_runs": 5, "experiment": "x"}, {"p": 1, "q": 2}), Results({"n_runs": 5, "experiment": "x"}, {"r": 3})
+    merged = Results.merge([a, b])
+    assert merged.names == ["p", "q", "r"] == merged.config["policies"]
+    with pytest.raises(RuntimeError, match="parts of the x evaluation disagree on n_runs"):
+        Results.merge([Results({"n_runs": 5, "experiment": "x"}, {}), Results({"n_runs": 6, "experiment": "x"}, {})])
+    assert Results.merge([Results({"command": "a"}, {"p": 1}), Results({"command": "b"}, {"q": 1})],
+                         ignore=("command",)).names == ["p", "q"]

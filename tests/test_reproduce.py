@@ -389,7 +389,7 @@ def test_choices_are_made_on_selection_seeds_not_on_the_evaluation_runs():
     import importlib.util
     from pathlib import Path
 
-    from adaptfilt.experiments.beyond import SELECTION_SEED
+    from adaptfilt.experiments.studies.sif import SELECTION_SEED
     from adaptfilt.experiments.reproduce import SEED
 
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fast_tuning.py"

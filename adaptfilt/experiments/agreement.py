@@ -15,6 +15,8 @@ claims when ``data/`` holds a full-scale reproduction.
 """
 from __future__ import annotations
 
+from adaptfilt.experiments.report import md_table
+
 __all__ = ["agreement", "agreement_md"]
 
 
@@ -47,8 +49,8 @@ def agreement(claims: dict, reference: dict) -> dict:
 def agreement_md(agr: dict, here: str = "this run", reference: str = "reference") -> str:
     """The comparison as markdown: a count, then one row per comparison (differing verdicts in bold)."""
     lines = [f"{agr['n_same']} of {agr['n']} seed-level verdicts are the same in {here} and in {reference}.", "",
-             f"| claim | experiment | comparison | metric | {here}: difference [95% CI] | {reference}: difference "
-             "[95% CI] | verdicts |", "|---|---|---|---|---|---|---|"]
+             *md_table(["claim", "experiment", "comparison", "metric", f"{here}: difference [95% CI]",
+                        f"{reference}: difference [95% CI]", "verdicts"])]
     for r in agr["rows"]:
         v = (r["verdict"] if r["same"] else f"**{r['verdict']}** vs **{r['ref_verdict']}**")
         lines.append(f"| {r['claim']} | {r['experiment']} | {r['a']} - {r['b']} | {r['metric']} | "

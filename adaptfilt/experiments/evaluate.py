@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Iterable
 
 from adaptfilt.evaluation import CHUNK_SIZE, evaluate, learned_names
+from adaptfilt.experiments.jobs import evaluate_command
 from adaptfilt.results import Results
 from adaptfilt.files import atomic_write
 
@@ -68,10 +69,8 @@ def evaluate_experiment(
         policies += [load_policy(p, experiment=exp, name=n) for p, n in zip(policy_files, names)]
     out = Path(out_dir)
     chunk_size = CHUNK_SIZE if chunk_size is None else int(chunk_size)
-    command = (f"adaptfilt evaluate {name} --runs {n_runs} --seed {seed}"
-               + ("" if n_steps is None else f" --horizon {n_steps}")
-               + ("" if chunk_size == CHUNK_SIZE else f" --chunk-size {chunk_size}") + f" --out {out}"
-               + "".join(f" --policy {p}" for p in policy_files))
+    command = evaluate_command(name, n_runs, seed, out, policy_files, horizon=n_steps,
+                              chunk_size=None if chunk_size == CHUNK_SIZE else chunk_size)
     target = exp if n_steps is None else exp.make_env(seed=seed, n_steps=n_steps)
     res = evaluate(target, policies, n_runs=n_runs, seed=seed, progress=progress, command=command,
                    chunk_size=chunk_size)

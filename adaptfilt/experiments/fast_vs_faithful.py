@@ -14,6 +14,7 @@ or lies below it) is kept beside it. The objective both optimise (mean
 from __future__ import annotations
 
 from adaptfilt.experiments.claims import members
+from adaptfilt.experiments.report import md_table
 from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
 
 __all__ = ["comparison", "comparison_md", "METRICS"]
@@ -56,9 +57,8 @@ def comparison(results: dict, train_times: dict | None = None, fast: str = "adap
 
 
 def comparison_md(comp: dict) -> str:
-    lines = ["| experiment | metric | fast, IQM [95% CI] (range) | faithful, IQM [95% CI] (range) | "
-             "fast - faithful, IQM [seed-level 95% CI] | margin | verdict | without a margin |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = md_table(["experiment", "metric", "fast, IQM [95% CI] (range)", "faithful, IQM [95% CI] (range)",
+                      "fast - faithful, IQM [seed-level 95% CI]", "margin", "verdict", "without a margin"])
     for e, d in comp.items():
         for r in d["rows"]:
             f, g, (x, lo, hi) = r["fast"], r["faithful"], r["diff_iqm"]

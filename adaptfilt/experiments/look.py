@@ -9,7 +9,7 @@ default, every update-only constant and the learned groups (the reproduction's a
 candidate-aware and the greedy-anchored ones of ``beyond``) on the same paired runs.
 
 Each (experiment, policy family) is one job of the same evaluation (same seed, same runs, same
-bootstrap resamples), merged into one :class:`~adaptfilt.evaluation.Results`:
+bootstrap resamples), merged into one :class:`~adaptfilt.results.Results` (:meth:`~adaptfilt.results.Results.merge`):
 ``("base",)`` the baselines and learned files, ``("rollout", H, S)``, ``("twostep", S)``.
 
 :func:`look_summary` gives, per experiment, each reference's paired difference to greedy (run level:
@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "merge_parts", "look_summary", "plot_look_gain",
-           "look_md"]
+from adaptfilt.experiments.report import md_table
+
+__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "plot_look_gain", "look_md", "look_files"]
 
 #: experiment -> (paired runs, ((H, S), ...)): the rollout references; UNGM also gets the two-step cross-check.
 #: Sized by ``benchmarks/bench_lookahead.py`` (rollout H = 1, S = 4 costs 36x greedy's time on UNGM, 59x on
@@ -51,15 +52,14 @@ def look_specs(experiment: str, grid_hs, quick: bool = False) -> list[tuple]:
 
 
 def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
-    from adaptfilt.evaluation import learned_name
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.learned import load_policy
+    from adaptfilt.experiments.jobs import load_learned
     from adaptfilt.lookahead import RolloutPolicy, TwoStepPolicy
 
     exp = get_experiment(experiment)
     if spec[0] == "base":
         base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
-        return base + [load_policy(f, experiment=exp, name=learned_name(f, experiment)) for f in files]
+        return base + load_learned(exp, files)
     if spec[0] == "rollout":
         return [RolloutPolicy(exp.grid, horizon=spec[1], samples=spec[2], gamma=GAMMA, seed=0)]
     return [TwoStepPolicy(exp.grid, samples=spec[1], gamma=GAMMA, seed=0)]
@@ -74,19 +74,6 @@ def look_job(experiment: str, spec: tuple, files: list[str], n_runs: int, n_step
                    progress=False, n_steps=n_steps)
     res.config.update(experiment=experiment)
     return res
-
-
-def merge_parts(parts: list):
-    """One Results from parts evaluated on the same runs (their configurations must agree)."""
-    first = parts[0]
-    for other in parts[1:]:
-        mine = {k: v for k, v in first.config.items() if k != "policies"}
-        theirs = {k: v for k, v in other.config.items() if k != "policies"}
-        if mine != theirs:
-            raise RuntimeError(f"parts of the {first.config.get('experiment')} look-ahead evaluation disagree")
-        first.policies.update(other.policies)
-    first.config["policies"] = list(first.policies)
-    return first
 
 
 def _verdict_cost(res) -> str:
@@ -229,8 +216,8 @@ def look_md(look: dict) -> str:
              "level for a single policy, seed level (IQM over seeds, two-level bootstrap) for a learned group; "
              "cost: the experiment's verdict cost, charged for what a policy computes where the cost charges "
              "compute; compute per step in UKF updates or SIF iterations)", "",
-             "| experiment | policy | cost | cost - greedy | RMSE - greedy | ANEES - greedy | compute per step | "
-             "improves on greedy? |", "|---|---|---|---|---|---|---|---|"]
+             *md_table(["experiment", "policy", "cost", "cost - greedy", "RMSE - greedy", "ANEES - greedy",
+                        "compute per step", "improves on greedy?"])]
     for e, s in look.items():
         c = s["verdict_cost"]
         g = s["baselines"]["greedy"]

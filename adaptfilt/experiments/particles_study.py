@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from adaptfilt.experiments.report import md_table
+
 __all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "EVAL_PARTS", "evaluate_model_job",
            "merge_model_parts", "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
 
@@ -60,9 +62,9 @@ def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: Pa
     every price (:func:`~adaptfilt.evaluation.evaluate_costs`), greedy and each experiment's learned
     ``files`` per experiment: bit for bit what one :func:`~adaptfilt.evaluation.evaluate` per experiment
     gives (but for wall times)."""
-    from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
+    from adaptfilt.evaluation import evaluate, evaluate_costs
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.learned import load_policy
+    from adaptfilt.experiments.jobs import load_learned
     from adaptfilt.particle_env import ESSTargetPolicy, KLDSamplingPolicy
 
     unknown = set(parts) - set(EVAL_PARTS)
@@ -86,7 +88,7 @@ def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: Pa
             got = []
             for exp, fs in zip(exps, files):
                 pols = [p for p in exp.baselines() if p.name == "greedy"]
-                pols += [load_policy(f, experiment=exp, name=learned_name(f, exp.name)) for f in fs]
+                pols += load_learned(exp, fs)
                 got.append(evaluate(exp, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps))
         for o, r in zip(out, got):
             o.append(r)
@@ -96,12 +98,12 @@ def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: Pa
 def merge_model_parts(parts: list):
     """One experiment's :class:`~adaptfilt.results.Results` from its parts (same runs), in the order given;
     the reference filter's failures (``config["reference_failed"]``) carried over."""
-    from adaptfilt.experiments.look import merge_parts
+    from adaptfilt.results import Results
 
     failed: dict = {}
     for p in parts:
         failed.update(p.config.pop("reference_failed", {}))
-    res = merge_parts(parts)
+    res = Results.merge(parts)
     res.config["reference_failed"] = failed
     return res
 
@@ -218,9 +220,8 @@ def particles_md(particles: dict) -> str:
     lines = ["**The particle count** (cost = squared error + price x particles, i.e. compared at equal price; "
              "learned: IQM over seeds [two-level 95 % CI], differences paired; `bpf-N`: the reference filter, "
              "systematic resampling when ESS < N/2)", "",
-             "| experiment | policy | cost | RMSE | particles per step | divergent runs | cost - best KLD "
-             "| cost - best fixed | cost - best bpf |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             *md_table(["experiment", "policy", "cost", "RMSE", "particles per step", "divergent runs",
+                        "cost - best KLD", "cost - best fixed", "cost - best bpf"])]
     for e, rows in particles.items():
         for n in (rows["best kld"], rows["best fixed"], rows.get("best reference"), "greedy", "default"):
             b = rows["baselines"].get(n) if n else None

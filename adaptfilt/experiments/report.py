@@ -93,8 +93,19 @@ def verdict_text(row: dict) -> str:
     return v
 
 
+def md_table(head: list[str], rows: list[list] = ()) -> list[str]:
+    """A Markdown table's lines: the header, its rule, and ``rows`` (cells already formatted). Every table of
+    the pipeline's reports starts here.
+
+    >>> md_table(["a", "b"], [[1, 2]])
+    ['| a | b |', '|---|---|', '| 1 | 2 |']
+    """
+    return (["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+            + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows])
+
+
 def table1_md(t1: dict) -> str:
-    lines = ["| cost | metric | policy | paper | ours [95% CI] | per seed |", "|---|---|---|---|---|---|"]
+    lines = md_table(["cost", "metric", "policy", "paper", "ours [95% CI]", "per seed"])
     for e, d in t1.items():
         for m, label in (("rmse", "time-avg RMSE"), ("anees", "time-avg ANEES"),
                          ("cost_charged", "time-avg cost, compute charged (the verdict)"),
@@ -169,8 +180,8 @@ def table1_compute_md(t1: dict, experiments=None) -> str:
 
 
 def claims_md(cl: dict) -> str:
-    head = ["| claim | experiment | comparison | metric | ours a / b (IQM) | a - b, IQM [seed-level 95% CI] | "
-            "mean difference [CI] | seeds holding alone | verdict |", "|---|---|---|---|---|---|---|---|---|"]
+    head = md_table(["claim", "experiment", "comparison", "metric", "ours a / b (IQM)",
+                     "a - b, IQM [seed-level 95% CI]", "mean difference [CI]", "seeds holding alone", "verdict"])
     rows = []
     for k in ("C1", "C2", "C3a", "C3b", "C4", "C5", "C6"):
         for r in cl.get(k, []):
@@ -256,8 +267,8 @@ def claims_subset_md(cl: dict, keys=CLAIM_KEYS, experiments=None, metrics=None, 
 
 
 def recon_md(rec: dict) -> str:
-    rows = ["| variant | filter | T | RMSE full | per component | position | velocity | median run RMSE | "
-            "RMSE k>50 | ANEES |", "|---|---|---|---|---|---|---|---|---|---|"]
+    rows = md_table(["variant", "filter", "T", "RMSE full", "per component", "position", "velocity",
+                     "median run RMSE", "RMSE k>50", "ANEES"])
     for r in rec["rows"]:
         rows.append(f"| {r['description']} | {r['filter']} | {r['n_steps']} | {r['rmse']:.3g} | "
                     f"{r['rmse_per_component']:.3g} | {r['rmse_pos']:.3g} | {r['rmse_vel']:.3g} | "
@@ -267,7 +278,7 @@ def recon_md(rec: dict) -> str:
 
 
 def timings_md(timings: dict) -> str:
-    rows = ["| stage | wall time (s) | CPU time (s) | note |", "|---|---|---|---|"]
+    rows = md_table(["stage", "wall time (s)", "CPU time (s)", "note"])
     for k, v in timings.items():
         rows.append(f"| {k} | {v.get('wall_time_s', float('nan')):.0f} | {v.get('cpu_time_s', float('nan')):.0f} "
                     f"| {v.get('note', '')} |")

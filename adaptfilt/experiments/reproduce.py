@@ -58,12 +58,13 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
+from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, train
 from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
@@ -128,44 +129,39 @@ def _episodes(kind: str, scale: Scale) -> int:
     return scale.faithful_episodes if ALGO[kind] == "faithful" and scale.faithful_episodes else scale.episodes
 
 
+def policy_spec(experiment: str, kind: str, seed: int, scale: Scale = FULL, out: str | Path | None = None,
+                prefix: str = "data") -> TrainSpec:
+    """The training of ``policies/{experiment}-{kind}-s{seed}.npz`` into ``out``; its command records
+    ``--out {prefix}/policies/...`` wherever the file is written."""
+    rel = policy_rel(experiment, kind, seed)
+    return TrainSpec(experiment, GAMMA[kind], _episodes(kind, scale), seed, str(out or f"{prefix}/{rel}"),
+                     algo=ALGO[kind], horizon=scale.train_steps, recorded_out=f"{prefix}/{rel}")
+
+
 def policy_command(experiment: str, kind: str, seed: int, scale: Scale = FULL, prefix: str = "data") -> str:
     """The one command that makes ``policies/{experiment}-{kind}-s{seed}.npz``."""
-    steps = "" if scale.train_steps is None else f" --horizon {scale.train_steps}"
-    return (f"adaptfilt train {experiment} --algo {ALGO[kind]} --gamma {GAMMA[kind]:g} --episodes {_episodes(kind, scale)} "
-            f"--seed {seed}{steps} --out {prefix}/{policy_rel(experiment, kind, seed)}")
+    return policy_spec(experiment, kind, seed, scale, prefix=prefix).command
 
 
 def evaluate_command(experiment: str, policy_rels: list[str], scale: Scale = FULL, prefix: str = "data") -> str:
-    steps = "" if scale.eval_steps is None else f" --horizon {scale.eval_steps}"
-    pol = "".join(f" --policy {prefix}/{p}" for p in policy_rels)
-    return (f"adaptfilt evaluate {experiment} --runs {scale.eval_runs} --seed {SEED}{steps} "
-            f"--out {prefix}/results/{experiment}{pol}")
+    """The command recorded for an experiment's evaluation of the policies ``policy_rels``."""
+    return _evaluate_line(experiment, scale.eval_runs, SEED, f"{prefix}/results/{experiment}",
+                          [f"{prefix}/{p}" for p in policy_rels], horizon=scale.eval_steps)
 
 
 # ------------------------------------------------------------------ jobs (module level: they run in workers)
-def _train_job(experiment: str, kind: str, seed: int, out: str, scale: Scale) -> dict:
-    from adaptfilt.trainers import train_policy
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    train_policy(experiment, ALGO[kind], GAMMA[kind], _episodes(kind, scale), seed, n_steps=scale.train_steps,
-                 progress=False, out=out, command=policy_command(experiment, kind, seed, scale))
-    return {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
-
-
 def _evaluate_job(experiments: tuple[str, ...], baselines: list[str], policy_files: list[str], scale: Scale):
     """Evaluate the named baselines and the policy files on the experiment's runs (a part of one
     evaluation: every part simulates the same runs and resamples them the same way); one part per
     experiment. Several experiments differ in their cost only (the SIF ones): they share the
     rollouts of their baselines (:func:`adaptfilt.evaluation.evaluate_costs`)."""
-    from adaptfilt.evaluation import evaluate, evaluate_costs, learned_name
+    from adaptfilt.evaluation import evaluate, evaluate_costs
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.learned import load_policy
 
     t0, c0 = time.perf_counter(), time.process_time()
     exp = get_experiment(experiments[0])
     by_name = {p.name: p for p in exp.baselines()}
-    policies = [by_name[n] for n in baselines]
-    policies += [load_policy(p, experiment=exp, name=learned_name(p, exp.name)) for p in policy_files]
+    policies = [by_name[n] for n in baselines] + load_learned(exp, policy_files)
     kw = dict(n_runs=scale.eval_runs, seed=SEED, progress=False, n_steps=scale.eval_steps)
     parts = (list(evaluate_costs(list(experiments), policies, **kw).values()) if len(experiments) > 1
              else [evaluate(exp, policies, **kw)])
@@ -181,9 +177,7 @@ def _evaluate_job(experiments: tuple[str, ...], baselines: list[str], policy_fil
 
 def _cheap_and_heavy(experiment: str) -> tuple[list[str], list[str]]:
     """The experiment's baselines: the cheap ones, and greedy and ML (they try every grid value)."""
-    from adaptfilt.experiment_registry import get_experiment
-
-    names = [p.name for p in get_experiment(experiment).baselines()]
+    names = [p.name for p in _baselines(experiment)]
     heavy = [n for n in names if n in ("greedy", "ml")]
     return [n for n in names if n not in heavy], heavy
 
@@ -202,19 +196,13 @@ def _evaluation_jobs(experiment: str, policy_paths: list[str], scale: Scale, che
 def _merge(parts: list, experiment: str, command: str):
     """One Results from the parts of one evaluation, in the experiment's order of policies."""
     from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.results import Results
 
-    first = parts[0]
-    for other in parts[1:]:
-        same = {k: v for k, v in other.config.items() if k not in ("policies", "command")}
-        mine = {k: v for k, v in first.config.items() if k not in ("policies", "command")}
-        if same != mine:
-            raise RuntimeError(f"parts of the {experiment} evaluation disagree on their configuration")
-        first.policies.update(other.policies)
-    first.config["policies"] = list(first.policies)
-    first.config["command"] = command
+    res = Results.merge(parts, ignore=("command",))
     exp = get_experiment(experiment)
-    first.config.update(experiment=exp.name, description=exp.description)
-    return first
+    res.config["command"] = command
+    res.config.update(experiment=exp.name, description=exp.description)
+    return res
 
 
 # ------------------------------------------------------------------ driver
@@ -231,6 +219,77 @@ def _reusable(data: Path, rel: str, man: dict) -> dict | None:
     return None
 
 
+@dataclass
+class _Run:
+    """One reproduction under way: its scale and folders, what it may reuse, and what it has recorded."""
+
+    out: Path
+    data: Path
+    found: Path | None
+    scale: Scale
+    retrain: bool
+    workers: int
+    cluster: object
+    progress: bool
+    journal: Journal
+    kept: dict                # data/'s manifest (the paper-faithful policies are reused from it even on --retrain)
+    dman: dict                # what may be reused of the rest
+    entries: dict[str, dict] = field(default_factory=dict)
+    timings: dict[str, dict] = field(default_factory=dict)
+    job_times: dict[str, dict] = field(default_factory=dict)
+
+    @property
+    def quick(self) -> bool:
+        return self.scale is QUICK
+
+    @property
+    def full(self) -> bool:
+        return self.scale is FULL
+
+    @property
+    def same(self) -> bool:
+        return self.found is not None and self.out == self.data
+
+    @property
+    def engine(self) -> str:
+        return f"cluster {self.cluster}" if self.cluster is not None else f"{self.workers} local workers"
+
+    def say(self, *a) -> None:
+        if self.progress:
+            print(*a, flush=True)
+
+    def jobs(self, fn, jobs, keys, desc: str, **kw) -> list:
+        return self.journal.run(fn, jobs, keys, workers=self.workers, cluster=self.cluster, progress=self.progress,
+                                desc=desc, **kw)
+
+    def reuse(self, rel: str, man: dict | None = None) -> bool:
+        """Take ``rel`` from data/ where its manifest lists it unchanged."""
+        e = _reusable(self.data, rel, self.dman if man is None else man)
+        if e is None:
+            return False
+        if not self.same:
+            (self.out / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(self.data / rel, self.out / rel)
+        self.entries[rel] = dict(e)
+        return True
+
+    def adopt(self, rel: str, command: str, keep: bool = False) -> bool:
+        """A policy file in data/ that no manifest lists yet, made by the expected command."""
+        from adaptfilt.learned import read_npz
+
+        if self.quick or self.found is None or (self.retrain and not keep) or not (self.data / rel).exists():
+            return False
+        meta = read_npz(self.data / rel)[1]
+        recorded = " ".join(w for w in str(meta.get("command", "")).split() if w != "--no-progress")
+        if recorded != command:
+            return False
+        if not self.same:
+            shutil.copy2(self.data / rel, self.out / rel)
+        # the training seed is the file's own, not the evaluation seed; its time was not recorded
+        self.entries[rel] = {"command": command, "seed": int(meta["seed"]), "wall_time_s": None, "cpu_time_s": None}
+        return True
+
+
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
               workers: int | None = None, cluster=None, experiments: tuple[str, ...] | None = None,
               faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None,
@@ -245,12 +304,24 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     ``data``: the stored artefacts to reuse (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``).
     Returns ``{"timings", "table1", "claims", "figures"}``.
     """
-    from adaptfilt._version import __version__
-    from adaptfilt.experiments.artefacts import find_data
-    from adaptfilt.results import Results
     from adaptfilt.experiment_registry import EXPERIMENTS
+    from adaptfilt.results import Results
+
+    exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
+    r = _start(out_dir, quick, retrain, progress, workers if workers is not None else jobs, cluster, scale, data, exps)
+    T0 = time.perf_counter()
+    learned = _train_stage(r, exps, faithful)
+    _evaluate_stage(r, exps, learned)
+    results = {e: Results.load(r.out / f"results/{e}") for e in exps}
+    floor, rec = _reference_stage(r, exps)
+    return _report_stage(r, results, floor, rec, T0)
+
+
+def _start(out_dir, quick: bool, retrain: bool, progress: bool, workers: int | None, cluster, scale, data,
+           exps: tuple[str, ...]) -> _Run:
+    """The run's scale, folders and what it may reuse (errors before anything is written)."""
+    from adaptfilt.experiments.artefacts import find_data
     from adaptfilt.experiments.sweep import default_workers
-    from adaptfilt.learned import read_npz
 
     if quick and scale not in (None, "quick", QUICK):
         raise ValueError(f"quick=True and scale={scale!r}: give one of them")
@@ -258,220 +329,212 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
         if (scale or "full") not in SCALES:
             raise ValueError(f"unknown scale {scale!r}; one of {', '.join(SCALES)}")
         scale = QUICK if quick else SCALES[scale or "full"]
-    quick, full = scale is QUICK, scale is FULL
-    workers = workers if workers is not None else (jobs if jobs is not None else default_workers())
+    full = scale is FULL
     out = Path(out_dir).resolve()
-    exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
     need = None if (retrain or not full) else (f"or add --retrain to train the {len(exps) * len(KINDS) * len(scale.seeds)} "
                                                f"fast-mode policies and evaluate everything here ({RETRAIN_COST})")
     found = find_data(data, required=need)
     data = found.resolve() if found is not None else out
-    same = found is not None and out == data
-    if same and not full:
+    if found is not None and out == data and not full:
         raise ValueError(f"--scale {scale.name} into {out} would overwrite the full-scale reproduction there; "
                          "give another --out")
     for sub in ("policies", "results"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     # --retrain retrains the fast-mode policies; the paper-faithful ones (hours) are still reused
-    kept = {"files": []} if (quick or found is None) else _load_manifest(data)
-    dman = {"files": []} if (retrain or not full) else kept
-    entries: dict[str, dict] = {}
-    timings: dict[str, dict] = {}
-    job_times: dict[str, dict] = {}
-    say = (lambda *a: print(*a, flush=True)) if progress else (lambda *a: None)
-    engine = f"cluster {cluster}" if cluster is not None else f"{workers} local workers"
-    say(f"reproduce ({scale.name} scale, {len(scale.seeds)} seeds) into {out}; {engine}; retrain={retrain}; "
-        + (f"stored artefacts: {data}" if found is not None else "no stored artefacts"))
-    journal = Journal(out / JOURNAL)
-    T0 = time.perf_counter()
+    kept = {"files": []} if (scale is QUICK or found is None) else _load_manifest(data)
+    r = _Run(out, data, found, scale, retrain, workers if workers is not None else default_workers(), cluster,
+             progress, Journal(out / JOURNAL), kept, {"files": []} if (retrain or not full) else kept)
+    r.say(f"reproduce ({scale.name} scale, {len(scale.seeds)} seeds) into {out}; {r.engine}; retrain={retrain}; "
+          + (f"stored artefacts: {data}" if found is not None else "no stored artefacts"))
+    return r
 
-    def reuse(rel: str, man: dict | None = None) -> bool:
-        e = _reusable(data, rel, dman if man is None else man)
-        if e is None:
-            return False
-        if not same:
-            (out / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(data / rel, out / rel)
-        entries[rel] = dict(e)
-        return True
 
-    def adopt(rel: str, command: str, keep: bool = False) -> bool:
-        """A policy file in data/ that no manifest lists yet, made by the expected command."""
-        if quick or found is None or (retrain and not keep) or not (data / rel).exists():
-            return False
-        meta = read_npz(data / rel)[1]
-        recorded = " ".join(w for w in str(meta.get("command", "")).split() if w != "--no-progress")
-        if recorded != command:
-            return False
-        if not same:
-            shutil.copy2(data / rel, out / rel)
-        # the training seed is the file's own, not the evaluation seed; its time was not recorded
-        entries[rel] = {"command": command, "seed": int(meta["seed"]), "wall_time_s": None, "cpu_time_s": None}
-        return True
-
-    # ---- 1. train
-    t0 = time.perf_counter()
+def _train_stage(r: _Run, exps: tuple[str, ...], faithful: bool) -> dict[str, list[str]]:
+    """1. train what cannot be reused; returns each experiment's policy files (relative paths)."""
+    t0, scale = time.perf_counter(), r.scale
     todo, learned, n_reused = [], {e: [] for e in exps}, 0
     wanted = [(e, k) for e in exps for k in KINDS] + [(e, k) for k, (_, es) in FAITHFUL.items() for e in es if e in exps]
     for e, k in wanted:
         for s in scale.seeds:
             rel = policy_rel(e, k, s)
-            cmd = policy_command(e, k, s, scale)
+            spec = policy_spec(e, k, s, scale, out=r.out / rel)
             keep = k in FAITHFUL  # hours each: reused even by --retrain
-            if reuse(rel, kept if keep else None) or adopt(rel, cmd, keep):
+            if r.reuse(rel, r.kept if keep else None) or r.adopt(rel, spec.command, keep):
                 n_reused += 1
                 learned[e].append(rel)
             elif k in KINDS or faithful:
-                todo.append((e, k, s, str(out / rel), scale))
+                todo.append((rel, spec))
                 learned[e].append(rel)
     # the slow ones first, so that they do not finish last on a worker of their own
-    todo.sort(key=lambda a: (ALGO[a[1]] != "faithful", a[0] not in SIF_EXPERIMENTS))
-    keys = [(policy_command(e, k, s, scale), s) for e, k, s, _, _ in todo]
-    resumed = journal.count(keys)
-    say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
-        f"{n_reused} reused")
-    res_jobs = journal.run(_train_job, todo, keys, files=[[a[3]] for a in todo], workers=workers, cluster=cluster,
-                           progress=progress, desc="train")
-    for (e, k, s, _, _), r in zip(todo, res_jobs):
-        rel = policy_rel(e, k, s)
-        entries[rel] = {"command": policy_command(e, k, s, scale), "seed": s, **r}
-        job_times[rel] = r
-    timings["train"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": sum(r["cpu_time_s"] for r in res_jobs),
-                        "note": f"{len(todo) - resumed} trained ({scale.episodes} episodes each), {resumed} by an earlier "
-                                f"run (journal), {n_reused} reused; {engine}"}
+    todo.sort(key=lambda a: (a[1].algo != "faithful", a[1].experiment not in SIF_EXPERIMENTS))
+    keys = [spec.key for _, spec in todo]
+    resumed = r.journal.count(keys)
+    r.say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
+          f"{n_reused} reused")
+    res_jobs = r.jobs(train, [(spec,) for _, spec in todo], keys, "train", files=[[spec.out] for _, spec in todo])
+    for (rel, spec), t in zip(todo, res_jobs):
+        t = {k: v for k, v in t.items() if k != "command"}
+        r.entries[rel] = {"command": spec.command, "seed": spec.seed, **t}
+        r.job_times[rel] = t
+    r.timings["train"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": sum(t["cpu_time_s"] for t in res_jobs),
+                          "note": f"{len(todo) - resumed} trained ({scale.episodes} episodes each), {resumed} by an "
+                                  f"earlier run (journal), {n_reused} reused; {r.engine}"}
+    return learned
 
-    # ---- 2. evaluate
-    t0 = time.perf_counter()
-    files = ("results.json", "results.npz", "summary.json", "summary.md")
-    def stale(e: str) -> bool:
-        """Evaluate again unless data/ holds this experiment's results for exactly these policies."""
-        if retrain or not full or any(rel in job_times for rel in learned[e]):
-            return True
-        p = data / f"results/{e}/results.json"
-        if not p.exists() or set(json.loads(p.read_text()).get("policies", {})) != \
-                set(_names(e, learned[e])) | set(n.name for n in _baselines(e)):
-            return True
-        return not all(reuse(f"results/{e}/{f}") for f in files)
 
-    todo_e = [e for e in exps if stale(e)]
+_RESULT_FILES = ("results.json", "results.npz", "summary.json", "summary.md")
+
+
+def _stale(r: _Run, e: str, learned: list[str]) -> bool:
+    """Evaluate again unless data/ holds this experiment's results for exactly these policies."""
+    if r.retrain or not r.full or any(rel in r.job_times for rel in learned):
+        return True
+    p = r.data / f"results/{e}/results.json"
+    if not p.exists() or set(json.loads(p.read_text()).get("policies", {})) != \
+            set(_names(e, learned)) | set(n.name for n in _baselines(e)):
+        return True
+    return not all(r.reuse(f"results/{e}/{f}") for f in _RESULT_FILES)
+
+
+def _evaluate_stage(r: _Run, exps: tuple[str, ...], learned: dict[str, list[str]]) -> None:
+    """2. evaluate every experiment whose results cannot be reused, in jobs merged per experiment."""
+    t0, scale = time.perf_counter(), r.scale
+    todo_e = [e for e in exps if _stale(r, e, learned[e])]
     # the SIF experiments differ in their cost only: one job rolls their constant baselines out once
     sif = tuple(e for e in todo_e if e in SIF_EXPERIMENTS)
     sif = sif if len(sif) > 1 else ()
     ejobs = [(sif, _cheap_and_heavy(sif[0])[0], [], scale)] if sif else []
     for e in todo_e:
-        ejobs += _evaluation_jobs(e, [str(out / rel) for rel in learned[e]], scale, cheap=e not in sif)
+        ejobs += _evaluation_jobs(e, [str(r.out / rel) for rel in learned[e]], scale, cheap=e not in sif)
     # the SIF greedy jobs are the longest: start them first, then the shared SIF baselines
     order = sorted(range(len(ejobs)), key=lambda i: (not set(ejobs[i][0]) & set(SIF_EXPERIMENTS),
                                                      ejobs[i][1] != ["greedy"], len(ejobs[i][0]) == 1))
     ekeys = [(_evaluation_key(ejobs[i]), SEED) for i in order]
-    resumed = journal.count(ekeys)
-    say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs, {resumed} of them "
-        f"finished by an earlier run ({JOURNAL})")
-    outs = journal.run(_evaluate_job, [ejobs[i] for i in order], ekeys, save=_save_parts, load=_load_parts,
-                       workers=workers, cluster=cluster, progress=progress, desc="evaluate")
+    resumed = r.journal.count(ekeys)
+    r.say(f"[evaluate] {len(todo_e)} experiments at M = {scale.eval_runs} in {len(ejobs)} jobs, {resumed} of them "
+          f"finished by an earlier run ({JOURNAL})")
+    outs = r.jobs(_evaluate_job, [ejobs[i] for i in order], ekeys, "evaluate", save=_save_parts, load=_load_parts)
     # each experiment's parts in job order (a shared job first): the merged tables keep their order
     by_job = dict(zip(order, outs))
     parts: dict[str, list] = {e: [] for e in todo_e}
     cpu = 0.0
     for i, (exps_i, *_rest) in enumerate(ejobs):
         res, t = by_job[i]
-        for e, r in zip(exps_i, res):
-            parts[e].append(r)
+        for e, part in zip(exps_i, res):
+            parts[e].append(part)
         cpu += t["cpu_time_s"]
         for name, w in t["policies"].items():  # a shared rollout's time is recorded under the first experiment
-            job_times[f"results/{exps_i[0]}/{name}"] = {"wall_time_s": w}
+            r.job_times[f"results/{exps_i[0]}/{name}"] = {"wall_time_s": w}
             for e in exps_i[1:]:
-                job_times[f"results/{e}/{name}"] = {"wall_time_s": 0.0, "shared_with": exps_i[0]}
+                r.job_times[f"results/{e}/{name}"] = {"wall_time_s": 0.0, "shared_with": exps_i[0]}
     for e in todo_e:
         cmd = evaluate_command(e, learned[e], scale)
         res = _merge(parts[e], e, cmd)
-        d = out / f"results/{e}"
+        d = r.out / f"results/{e}"
         res.save(d)
         atomic_write(d / "summary.json", json.dumps(res.summary(), indent=1) + "\n")
         atomic_write(d / "summary.md", res.table())
-        for f in files:
-            entries[f"results/{e}/{f}"] = {"command": cmd, "seed": SEED}
-    timings["evaluate"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": cpu,
-                           "note": f"{len(todo_e)} experiments x M = {scale.eval_runs}, {len(ejobs)} jobs; {engine}"}
-    results = {e: Results.load(out / f"results/{e}") for e in exps}
+        for f in _RESULT_FILES:
+            r.entries[f"results/{e}/{f}"] = {"command": cmd, "seed": SEED}
+    r.timings["evaluate"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": cpu,
+                             "note": f"{len(todo_e)} experiments x M = {scale.eval_runs}, {len(ejobs)} jobs; {r.engine}"}
 
-    # ---- 3. floor, 4. reconciliation
-    t0 = time.perf_counter()
+
+def _reference_stage(r: _Run, exps: tuple[str, ...]) -> tuple[dict | None, dict | None]:
+    """3. the point-mass floor on UNGM, 4. the CTM reconciliation (reused from data/ where they can be)."""
+    t0, scale = time.perf_counter(), r.scale
     refs = []
-    if "ungm-ukf" in exps and not (full and not retrain and reuse("results/ungm-floor.json")):
+    if "ungm-ukf" in exps and not (r.full and not r.retrain and r.reuse("results/ungm-floor.json")):
         refs.append(("results/ungm-floor.json", ungm_floor,
                      (scale.floor_runs, SEED, scale.floor_steps, 250, 1000, scale.eval_runs)))
-    if not (full and not retrain and reuse("results/ctm-reconciliation.json")):
+    if not (r.full and not r.retrain and r.reuse("results/ctm-reconciliation.json")):
         refs.append(("results/ctm-reconciliation.json", ctm_reconciliation, (scale.recon_runs, SEED, scale.recon_steps)))
-    ref_out = journal.run(_reference_job, [(r[0], r[2]) for r in refs], [(f"{r[0]}: {r[1].__name__}{r[2]!r}", SEED)
-                                                                         for r in refs],
-                          workers=workers, cluster=cluster, progress=progress, desc="references")
+    ref_out = r.jobs(_reference_job, [(x[0], x[2]) for x in refs], [(f"{x[0]}: {x[1].__name__}{x[2]!r}", SEED)
+                                                                    for x in refs], "references")
     for (rel, _, _), o in zip(refs, ref_out):
-        atomic_write(out / rel, json.dumps(o, indent=1) + "\n")
-        entries[rel] = {"command": o["command"], "seed": SEED, "wall_time_s": o["wall_time_s"],
-                        "cpu_time_s": o["cpu_time_s"]}
-    floor = json.loads((out / "results/ungm-floor.json").read_text()) if (out / "results/ungm-floor.json").exists() else None
-    rec = (json.loads((out / "results/ctm-reconciliation.json").read_text())
-           if (out / "results/ctm-reconciliation.json").exists() else None)
-    timings["floor+reconcile"] = {"wall_time_s": time.perf_counter() - t0,
-                                  "cpu_time_s": sum(o["cpu_time_s"] for o in ref_out),
-                                  "note": "point-mass Bayes floor on UNGM, CTM variants"}
+        atomic_write(r.out / rel, json.dumps(o, indent=1) + "\n")
+        r.entries[rel] = {"command": o["command"], "seed": SEED, "wall_time_s": o["wall_time_s"],
+                          "cpu_time_s": o["cpu_time_s"]}
+    read = lambda rel: json.loads((r.out / rel).read_text()) if (r.out / rel).exists() else None  # noqa: E731
+    r.timings["floor+reconcile"] = {"wall_time_s": time.perf_counter() - t0,
+                                    "cpu_time_s": sum(o["cpu_time_s"] for o in ref_out),
+                                    "note": "point-mass Bayes floor on UNGM, CTM variants"}
+    return read("results/ungm-floor.json"), read("results/ctm-reconciliation.json")
 
-    # ---- 5. figures, tables, claims, manifest
+
+def _report_stage(r: _Run, results: dict, floor: dict | None, rec: dict | None, T0: float) -> dict:
+    """5. figures, Table I, claims, the report's tables, timings and the manifest."""
     t0, c0 = time.perf_counter(), time.process_time()
-    figs = figures(results, floor, out / "figures")
+    figs = figures(results, floor, r.out / "figures")
     t1 = table1(results)
     cl = claims(results)
-    if any("adaptive-faithful-s0" in r for r in results.values()):
+    extra = _extra_tables(r, results, cl)
+    for rel, value in (("results/table1.json", t1), ("results/claims.json", cl)):
+        atomic_write(r.out / rel, json.dumps(value, indent=1) + "\n")
+    atomic_write(r.out / "results/table1.md", table1_md(t1))
+    for rel in ("results/table1.json", "results/table1.md", "results/claims.json",
+                *(str(p.relative_to(r.out)) for p in figs)):
+        r.entries[rel] = {}
+    r.timings["report"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0,
+                           "note": "figures, Table I, claims, manifest"}
+    r.timings["total"] = {"wall_time_s": time.perf_counter() - T0,
+                          "cpu_time_s": sum(v.get("cpu_time_s", 0) or 0 for v in r.timings.values()),
+                          "note": f"{r.scale.name} scale, {'retrain' if r.retrain else 'reusing data/'}; {r.engine}"}
+    atomic_write(r.out / "report-tables.md", report_tables(results, floor, t1, cl, rec, r.timings, extra))
+    atomic_write(r.out / "timings.json", json.dumps(
+        {"timings": r.timings, "jobs": r.job_times, "scale": asdict(r.scale), "workers": r.workers,
+         "cluster": None if r.cluster is None else str(r.cluster), "python": sys.version.split()[0],
+         "cpu_count": os.cpu_count()}, indent=1) + "\n")
+    _write_manifest(r)
+    r.journal.finish()
+    r.say(_timings_text(r.timings))
+    return {"timings": r.timings, "table1": t1, "claims": cl, "figures": figs}
+
+
+def _extra_tables(r: _Run, results: dict, cl: dict) -> dict[str, str]:
+    """The report's optional tables: the fast trainer against the faithful one where both are there, and a
+    smaller scale's verdicts against the full scale's of data/."""
+    extra = {}
+    if any("adaptive-faithful-s0" in x for x in results.values()):
         from adaptfilt.experiments.fast_vs_faithful import comparison, comparison_md
 
-        ff = comparison(results, job_times)
-        atomic_write(out / "results/fast-vs-faithful.json", json.dumps(ff, indent=1) + "\n")
-        extra = {"Fast trainer vs paper-faithful trainer (seed level)": comparison_md(ff)}
-        entries["results/fast-vs-faithful.json"] = {}
-    else:
-        extra = {}
-    ref = data / "results/claims.json"
+        ff = comparison(results, r.job_times)
+        atomic_write(r.out / "results/fast-vs-faithful.json", json.dumps(ff, indent=1) + "\n")
+        extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+        r.entries["results/fast-vs-faithful.json"] = {}
+    ref = r.data / "results/claims.json"
     # a smaller reproduction is a check of the full one in data/
-    if not full and not same and found is not None and ref.exists() and _load_manifest(data).get("scale") == "full":
+    if not r.full and not r.same and r.found is not None and ref.exists() and _load_manifest(r.data).get("scale") == "full":
         from adaptfilt.experiments.agreement import agreement, agreement_md
 
         agr = agreement(json.loads(json.dumps(cl)), json.loads(ref.read_text()))
-        atomic_write(out / "results/agreement.json", json.dumps(agr, indent=1) + "\n")
-        entries["results/agreement.json"] = {}
-        extra[f"Verdicts at {scale.name} scale against the full scale (data/)"] = agreement_md(
-            agr, f"{scale.name} scale", "full scale (data/)")
-        say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as at full scale (results/agreement.json)")
-    atomic_write(out / "results/table1.json", json.dumps(t1, indent=1) + "\n")
-    atomic_write(out / "results/table1.md", table1_md(t1))
-    atomic_write(out / "results/claims.json", json.dumps(cl, indent=1) + "\n")
-    cmd = ("adaptfilt reproduce --out " + ("data" if full else "DIR")
-           + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain")
-    for rel in ("results/table1.json", "results/table1.md", "results/claims.json",
-                *(str(p.relative_to(out)) for p in figs)):
-        entries[rel] = {}
-    timings["report"] = {"wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0,
-                         "note": "figures, Table I, claims, manifest"}
-    timings["total"] = {"wall_time_s": time.perf_counter() - T0,
-                        "cpu_time_s": sum(v.get("cpu_time_s", 0) or 0 for v in timings.values()),
-                        "note": f"{scale.name} scale, {'retrain' if retrain else 'reusing data/'}; {engine}"}
-    atomic_write(out / "report-tables.md", report_tables(results, floor, t1, cl, rec, timings, extra))
-    atomic_write(out / "timings.json", json.dumps({"timings": timings, "jobs": job_times, "scale": asdict(scale),
-                                                  "workers": workers, "cluster": None if cluster is None else str(cluster),
-                                                  "python": sys.version.split()[0], "cpu_count": os.cpu_count()},
-                                                 indent=1) + "\n")
-    manifest_files = []
-    for rel in sorted(entries):
-        e = entries[rel]
-        manifest_files.append({"path": rel, "sha256": sha256(out / rel), "command": e.get("command") or cmd,
-                               "seed": e.get("seed", SEED), "version": e.get("version", __version__),
-                               "wall_time_s": _seconds(e.get("wall_time_s")), "cpu_time_s": _seconds(e.get("cpu_time_s"))})
-    manifest = {"package_version": __version__, "scale": scale.name, "seeds": list(scale.seeds),
-                "generated_by": cmd, "files": manifest_files}
-    atomic_write(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
-    journal.finish()
-    say(_timings_text(timings))
-    return {"timings": timings, "table1": t1, "claims": cl, "figures": figs}
+        atomic_write(r.out / "results/agreement.json", json.dumps(agr, indent=1) + "\n")
+        r.entries["results/agreement.json"] = {}
+        extra[f"Verdicts at {r.scale.name} scale against the full scale (data/)"] = agreement_md(
+            agr, f"{r.scale.name} scale", "full scale (data/)")
+        r.say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as at full scale (results/agreement.json)")
+    return extra
+
+
+def run_command(scale: Scale) -> str:
+    """The command recorded for the report's files (and as the manifest's ``generated_by``)."""
+    return ("adaptfilt reproduce --out " + ("data" if scale is FULL else "DIR")
+            + {"full": "", "quick": " --quick"}.get(scale.name, f" --scale {scale.name}") + " --retrain")
+
+
+def _write_manifest(r: _Run) -> None:
+    from adaptfilt._version import __version__
+
+    cmd = run_command(r.scale)
+    files = []
+    for rel in sorted(r.entries):
+        e = r.entries[rel]
+        files.append({"path": rel, "sha256": sha256(r.out / rel), "command": e.get("command") or cmd,
+                      "seed": e.get("seed", SEED), "version": e.get("version", __version__),
+                      "wall_time_s": _seconds(e.get("wall_time_s")), "cpu_time_s": _seconds(e.get("cpu_time_s"))})
+    manifest = {"package_version": __version__, "scale": r.scale.name, "seeds": list(r.scale.seeds),
+                "generated_by": cmd, "files": files}
+    atomic_write(r.out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
 
 
 def _evaluation_key(job: tuple) -> str:
