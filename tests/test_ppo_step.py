@@ -67,3 +67,39 @@ def test_first_epoch_ratio_is_one_and_clip_takes_the_pessimistic_term():
 def test_rollout_must_stay_inside_the_episode():
     with pytest.raises(ValueError):
         ps.collect(TrapEnv(n_steps=5), ps.TinyPolicy(2, 2), n_runs=2, n_steps=5)
+
+
+def test_check_gae_accepts_the_recursion_and_names_the_slips(capsys):
+    def right(c, v, last, gamma, lam):
+        return ps.gae(c, v, last, gamma, lam)[0]
+
+    assert ps.check_gae(right)
+    capsys.readouterr()
+
+    def backwards(c, v, last, gamma, lam, factor=None, boot=True, sign=1.0, returns=False):
+        nxt = np.concatenate([v[1:], (last if boot else 0 * last)[None]])
+        delta = c + gamma * nxt - v
+        A, run = np.zeros_like(c), np.zeros(c.shape[1])
+        for k in reversed(range(c.shape[0])):
+            run = delta[k] + (gamma * lam if factor is None else factor(gamma, lam)) * run
+            A[k] = run
+        return sign * (A + v if returns else A)
+
+    slips = {"lambda-returns": dict(returns=True), "reward's sign": dict(sign=-1.0),
+             "lambda alone": dict(factor=lambda g, lam: lam), "no bootstrap": dict(boot=False)}
+    for says, kw in slips.items():
+        assert not ps.check_gae(lambda *a, kw=kw: backwards(*a, **kw))
+        assert says in capsys.readouterr().out
+
+    def forwards(c, v, last, gamma, lam):
+        delta = c + gamma * np.concatenate([v[1:], last[None]]) - v
+        A, run = np.zeros_like(c), np.zeros(c.shape[1])
+        for k in range(c.shape[0]):
+            run = delta[k] + gamma * lam * run
+            A[k] = run
+        return A
+
+    assert not ps.check_gae(forwards)
+    assert "forwards" in capsys.readouterr().out
+    assert not ps.check_gae(lambda *a: np.zeros(3))
+    assert "shape" in capsys.readouterr().out

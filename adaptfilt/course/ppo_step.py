@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["gae", "ppo_loss", "TinyPolicy", "collect", "ppo_update", "sb3_reference"]
+__all__ = ["gae", "ppo_loss", "TinyPolicy", "collect", "ppo_update", "sb3_reference", "check_gae"]
 
 
 def gae(costs, values, last_values, gamma: float, lam: float, ends=None, last_ends=None):
@@ -265,3 +265,71 @@ def sb3_reference(policy: TinyPolicy, ro: Rollout, gamma: float, lam: float = 0.
     return {"advantages": adv, "returns": ret, "loss": float(model.logger.name_to_value["train/loss"]),
             "clip_fraction": float(model.logger.name_to_value["train/clip_fraction"]),
             "params": [x.detach().clone() for x in after]}
+
+
+def _gae_cases():
+    """``(name, costs, values, last_values, gamma, lam)``: three small rollouts."""
+    rng = np.random.default_rng(6)
+    out = []
+    for K, M, gamma, lam in ((6, 4, 0.5, 0.95), (5, 3, 0.9, 0.0), (7, 2, 0.7, 1.0)):
+        out.append((f"K = {K} steps, M = {M} runs, gamma = {gamma}, lambda = {lam}",
+                    rng.gamma(1.0, 1.0, (K, M)), rng.standard_normal((K, M)), rng.standard_normal(M),
+                    gamma, lam))
+    return out
+
+
+def check_gae(my_gae) -> bool:
+    r"""Check a reader's ``my_gae(costs, values, last_values, gamma, lam) -> advantages (K, M)``
+    (no episode ends inside the rollout) against :func:`gae` on three rollouts, among them
+    :math:`\lambda = 0` (Algorithm 2's TD error) and :math:`\lambda = 1`. Names the usual slips:
+    the lambda-returns instead of the advantages, :math:`\lambda` without :math:`\gamma` in the
+    recursion, no bootstrap from ``last_values``, a sum forwards instead of backwards, a reward's
+    sign. Prints the verdict and returns whether the answer is right."""
+    problems = []
+    for name, c, v, last, gamma, lam in _gae_cases():
+        ref, ret = gae(c, v, last, gamma, lam)
+        try:
+            mine = np.asarray(my_gae(c.copy(), v.copy(), last.copy(), gamma, lam), dtype=float)
+        except Exception as e:  # noqa: BLE001 - the reader's code: report, do not raise
+            problems.append(f"{name}: your function raised {type(e).__name__}: {e}")
+            continue
+        if mine.shape != ref.shape:
+            problems.append(f"{name}: you returned shape {mine.shape}, not the rollout's {ref.shape}")
+            continue
+        if np.allclose(mine, ref, atol=1e-10):
+            continue
+        nxt = np.concatenate([v[1:], last[None]])
+        delta = c + gamma * nxt - v
+        no_boot = c + gamma * np.concatenate([v[1:], np.zeros((1, v.shape[1]))]) - v
+        wrong = {"the lambda-returns G_k = A_k + V_k, not the advantages": ret,
+                 "a reward's sign (-A_k)": -ref,
+                 "lambda alone in the recursion (it is gamma * lambda)": _recursion(delta, lam),
+                 "no bootstrap from the value after the rollout": _recursion(no_boot, gamma * lam),
+                 "a sum forwards in time (A_k from the steps before k)": _forward(delta, gamma * lam)}
+        what = next((k for k, w in wrong.items() if np.allclose(mine, w, atol=1e-10)
+                     and not np.allclose(w, ref, atol=1e-10)), None)
+        problems.append(f"{name}: your advantages differ (largest difference {np.abs(mine - ref).max():.3g})"
+                        + (f"; yours are {what}" if what else ""))
+    if problems:
+        print("not yet:\n  " + "\n  ".join(problems))
+        print("hint: delta_k = L'_k + gamma V_{k+1} - V_k (V_K = last_values), then backwards "
+              "A_k = delta_k + gamma lam A_{k+1} with A_K = 0")
+        return False
+    print("right: your GAE is ppo_step.gae's (and so SB3's) on all three rollouts")
+    return True
+
+
+def _recursion(delta, factor):
+    out, running = np.zeros_like(delta), np.zeros(delta.shape[1])
+    for k in reversed(range(delta.shape[0])):
+        running = delta[k] + factor * running
+        out[k] = running
+    return out
+
+
+def _forward(delta, factor):
+    out, running = np.zeros_like(delta), np.zeros(delta.shape[1])
+    for k in range(delta.shape[0]):
+        running = delta[k] + factor * running
+        out[k] = running
+    return out
