@@ -1,6 +1,6 @@
 r"""The schematic of the decision loop that the course is about (chapter 4): the filter's information
 state goes to a policy, the policy picks a parameter, the filter takes its step with it, the step
-costs something and leads to the next information state. A learner (chapters 6-7) watches the costs
+costs something and leads to the next information state. A learner (chapter 6) watches the costs
 and changes the policy. Drawn with matplotlib as a normal figure output (:func:`plot_decision_loop`).
 """
 from __future__ import annotations
@@ -69,7 +69,7 @@ def plot_decision_loop(ax=None):
                                 connectionstyle="arc3,rad=-0.12"))
     ax.text(5.0, -0.3, "the filter step also leads to", ha="center", va="center", fontsize=9, color="0.25")
     arrow("next", "state", "k -> k + 1", side=(-0.6, 0))
-    ax.annotate("learner (chapters 6-7): reads the costs, changes the policy", xy=(5.0, 3.6 - h / 2 - 0.1),
+    ax.annotate("learner (chapter 6): reads the costs, changes the policy", xy=(5.0, 3.6 - h / 2 - 0.1),
                 xytext=(5.0, 2.4), ha="center", va="center", fontsize=9, color=colours[2],
                 arrowprops=dict(arrowstyle="-|>", color=colours[2], lw=1.2, linestyle="--"))
     ax.set_title("The decision loop: a policy chooses the filter's parameter at every step")
