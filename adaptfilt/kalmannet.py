@@ -172,7 +172,9 @@ class GainNet(nn.Module):
         keep = 1.0 - self.dropout
         return torch.bernoulli(torch.full((B, self.fc2_hidden.out_features), keep, dtype=_DT)) / keep
 
-    def step(self, F1, F2, F3, F4, h_Q, h_Sigma, h_S, mask: torch.Tensor | None = None):
+    def step(self, F1: torch.Tensor, F2: torch.Tensor, F3: torch.Tensor, F4: torch.Tensor, h_Q: torch.Tensor,
+             h_Sigma: torch.Tensor, h_S: torch.Tensor, mask: torch.Tensor | None = None
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         h_Q = self.gru_Q(self.fc5(F4), h_Q)
         Sigma = self.gru_Sigma(torch.cat([h_Q, self.fc6(F3)], -1), h_Sigma)
         h_S = self.gru_S(torch.cat([self.fc1(Sigma), self.fc7(torch.cat([F1, F2], -1))], -1), h_S)
