@@ -10,7 +10,13 @@ Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
 * a widget (``ipywidgets.interact``) is dropped from the static book
   (``remove-cell``) and followed by a static stand-in cell that draws a figure;
 * nothing machine-specific or private in what a reader sees (wall times,
-  files the reader does not have), and every "Section N-X" exists in the paper.
+  files the reader does not have), and every "Section N-X" exists in the paper;
+* the apparatus of a textbook (issue 37): learning goals, a link to the notation
+  and the deviations pages, a numbered caption ("*Figure 13.2: ...*") right after
+  every figure and alt text of its own (cell metadata ``alt``), no table in a
+  chapter wider than ``MAX_TABLE_COLUMNS`` (wider ones are split, or live in
+  REPRODUCTION.md), and no code line longer than ``MAX_LINE`` characters, so that
+  the book shows it whole.
 """
 from __future__ import annotations
 
@@ -39,13 +45,16 @@ CHAPTERS = [
     "11-your-own-model",
     "12-rl-in-practice",
     "13-beyond-the-paper",
-    "14-adaptive-particle-count",
+    "14-looking-ahead",
+    "15-adaptive-particle-count",
 ]
 #: Chapters that must have at least this many widgets (with static stand-ins).
 MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "06-actor-critic": 1}
 
 MAX_CODE_TO_PROSE = 0.5
 MAX_CODE_LINES = 12
+MAX_LINE = 88
+MAX_TABLE_COLUMNS = 7
 MIN_EXERCISES = 3
 SUMMARY_BULLETS = (4, 6)
 
@@ -130,10 +139,27 @@ def test_code_is_at_most_half_the_prose(stem):
 
 @pytest.mark.parametrize("stem", CHAPTERS)
 def test_no_long_code_cell(stem):
+    """At most MAX_CODE_LINES lines of code a cell, a statement wrapped to fit MAX_LINE counted once
+    (wrapping for the book does not add code)."""
     for i, c in enumerate(load(stem)["cells"]):
         if c["cell_type"] == "code":
-            n = len(text(c).strip("\n").splitlines())
+            n = logical_lines(text(c))
             assert n <= MAX_CODE_LINES, f"{stem} cell {i}: {n} lines > {MAX_CODE_LINES}"
+
+
+def logical_lines(source: str) -> int:
+    """The lines of ``source`` with every bracketed continuation joined to the line it continues."""
+    import io
+    import tokenize
+
+    masked = "\n".join("pass" if ln.lstrip().startswith(("%", "!")) else ln for ln in source.strip("\n").splitlines())
+    try:
+        toks = list(tokenize.generate_tokens(io.StringIO(masked + "\n").readline))
+    except (tokenize.TokenError, SyntaxError):
+        return len(source.strip("\n").splitlines())
+    rows = {t.start[0] for t in toks if t.type in (tokenize.NEWLINE, tokenize.COMMENT) or
+            (t.type == tokenize.NL and t.line.strip().startswith("#"))}
+    return len(rows)
 
 
 @pytest.mark.parametrize("stem", CHAPTERS)
@@ -257,3 +283,74 @@ def test_no_teaching_cell_tells_the_projects_history(stem):
     cells = load(stem)["cells"]
     found = [(i, m.group()) for i, c in enumerate(cells) for m in HISTORY.finditer(text(c))]
     assert not found, f"{stem}: history in teaching cells (move it to REPRODUCTION.md, 'Earlier releases'): {found}"
+
+
+# ---------------------------------------------------------------- the apparatus of a textbook (issue 37)
+
+#: Chapters whose code lines are not all within MAX_LINE yet (issue 37, item 6), by who owns the rewrap.
+LONG_LINES_PENDING: dict[str, str] = {}
+
+
+def _figure_cells(nb: dict):
+    for i, c in enumerate(nb["cells"]):
+        if c["cell_type"] == "code":
+            n = sum(1 for o in c.get("outputs", []) if "image/png" in o.get("data", {})
+                    or "image/svg+xml" in o.get("data", {}))
+            if n:
+                yield i, c, n
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_every_figure_has_a_numbered_caption_and_its_own_alt_text(stem):
+    nb = load(stem)
+    chapter = int(stem[:2])
+    numbers = []
+    for i, c, n in _figure_cells(nb):
+        nxt = nb["cells"][i + 1] if i + 1 < len(nb["cells"]) else {"cell_type": "", "source": ""}
+        m = re.match(r"\s*\*Figure (\d+)\.(\d+):\s+\S", text(nxt) if nxt["cell_type"] == "markdown" else "")
+        assert m and int(m.group(1)) == chapter, \
+            f"{stem} cell {i}: no '*Figure {chapter}.N: ...*' caption in the Markdown cell right after the figure"
+        numbers.append(int(m.group(2)))
+        alt = (c.get("metadata") or {}).get("alt")
+        alts = [alt] if isinstance(alt, str) else list(alt or [])
+        assert alts and len(alts) in (1, n), f"{stem} cell {i}: no alt text of its own (cell metadata 'alt')"
+        for a in alts:
+            assert len(a.split()) >= 8 and "Figure after the text" not in a and "\u2026" not in a, \
+                f"{stem} cell {i}: the alt text does not say what the figure shows: {a!r}"
+    assert numbers == list(range(1, len(numbers) + 1)), f"{stem}: figures numbered {numbers}"
+
+
+@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=LONG_LINES_PENDING[s]))
+                                  if s in LONG_LINES_PENDING else s for s in CHAPTERS])
+def test_code_lines_fit_the_book(stem):
+    long = [(i, line) for i, c in enumerate(load(stem)["cells"]) if c["cell_type"] == "code"
+            for line in text(c).splitlines() if len(line) > MAX_LINE]
+    assert not long, f"{stem}: {len(long)} code lines over {MAX_LINE} characters, e.g. {long[:2]}"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_tables_fit_the_page(stem):
+    """No Markdown table of a chapter, in its prose or its outputs, is wider than MAX_TABLE_COLUMNS."""
+    wide = []
+    for i, c in enumerate(load(stem)["cells"]):
+        body = text(c) if c["cell_type"] == "markdown" else outputs_text(c)
+        for line in body.splitlines():
+            if line.lstrip().startswith("|") and not re.match(r"\s*\|[\s:|-]*$", line):
+                cols = len(line.strip().strip("|").split("|"))
+                if cols > MAX_TABLE_COLUMNS:
+                    wide.append((i, cols, line[:60]))
+                    break
+    assert not wide, f"{stem}: tables wider than {MAX_TABLE_COLUMNS} columns (cell, columns): {wide}"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_links_the_notation_and_deviations_pages(stem):
+    md = "\n".join(markdown(load(stem)))
+    assert "../docs/NOTATION.md" in md and "../docs/DEVIATIONS.md" in md, \
+        f"{stem}: no link to the notation page and the deviations page"
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_states_its_learning_goals(stem):
+    assert any("**What you will learn**" in t for t in markdown(load(stem))[:3]), \
+        f"{stem}: no '**What you will learn**' in its opening cells"

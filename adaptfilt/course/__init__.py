@@ -13,8 +13,8 @@ It may import the library and the pipeline (``adaptfilt.experiments``); nothing 
   grid usage, Figures 3 and 6); :mod:`~adaptfilt.course.ungm_ukf`, :mod:`~adaptfilt.course.ctm_ukf`,
   :mod:`~adaptfilt.course.ctm_sif` -- each chapter's own analyses (8, 9, 10);
 * :mod:`~adaptfilt.course.seed_results` -- chapters 11-12 (and 5, 7, 13): results over training seeds;
-* :mod:`~adaptfilt.course.beyond_studies` -- chapters 13 and 14: the studies beyond the paper;
-* :mod:`~adaptfilt.course.particle_count` -- chapter 14: posteriors, run errors and KLD-sampling's count;
+* :mod:`~adaptfilt.course.beyond_studies` -- chapters 13-15: the studies beyond the paper;
+* :mod:`~adaptfilt.course.particle_count` -- chapter 15: posteriors, run errors and KLD-sampling's count;
 * :mod:`~adaptfilt.course.coursemap` -- which chapter builds which library module;
 * :mod:`~adaptfilt.course.prose_numbers` -- the check that a chapter's prose quotes only numbers it printed;
 * :mod:`~adaptfilt.course.quoted_times` -- the check that the times the README, REPRODUCTION.md and
