@@ -58,7 +58,7 @@ QUICK = BeyondScale("quick", 10, (0, 1), 20, 100, 2)
 
 #: The learned groups a study summarises (policy names ``<group>-s<seed>``).
 GROUPS = ("adaptive-cand", "myopic-cand", "adaptive-penalised", "adaptive-safe", "adaptive-raw", "adaptive-anchored",
-          "adaptive")
+          "myopic-anchored", "adaptive")
 #: Per-run arrays left out of the stored evaluations (about 85 % of each file); the seed-level aggregates,
 #: paired differences (bootstrap replicates), usage and per-step curves stay.
 COMPACT = ("run_rmse", "run_anees", "run_cost", "choices")
