@@ -84,7 +84,7 @@ def main() -> None:
         groups = {"faithful": [], "fast": []}
         for kind, g in (("adaptive-faithful", "faithful"), ("adaptive", "fast")):
             for s in artefacts.seeds(exp_name, kind)[:args.seeds]:
-                pols.append(artefacts.load_policy(exp_name, kind, s))
+                pols.append(artefacts.stored_policy(exp_name, kind, s))
                 groups[g].append(pols[-1].name)
         times = {}
         for lr in LEARNERS:

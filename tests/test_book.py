@@ -325,7 +325,7 @@ def test_deviations_page_states_what_the_code_does():
     rollout = FAST.n_envs * FAST.kwargs["n_steps"]
     assert f"{rollout} transitions" in page and rollout == 16384
     for name, steps in (("ungm-ukf", 500), ("ctm-ukf", 150)):
-        stored = artefacts.load_policy(name, "adaptive", 0).metadata["transitions"]
+        stored = artefacts.stored_policy(name, "adaptive", 0).metadata["transitions"]
         assert stored == -(-1000 * steps // rollout) * rollout and f"{stored:,}" in page
     faithful = sorted(p.name for p in (artefacts.data_dir() / "policies").glob("*faithful*"))
     assert len(faithful) == 16 and not [n for n in faithful if "sif" in n]

@@ -197,7 +197,7 @@ def test_visited_states_are_what_the_scaler_is_fitted_on():
     ref = FeatureScaler.fit(f[np.isfinite(f).all(axis=1)])
     assert np.array_equal(fitted.center, ref.center) and np.array_equal(fitted.scale, ref.scale)
     if artefacts.seeds("ungm-ukf", "adaptive"):
-        pol = artefacts.load_policy("ungm-ukf", "adaptive", 3)
+        pol = artefacts.stored_policy("ungm-ukf", "adaptive", 3)
         again = fit_scaler(exp.make_env(seed=3), "paper+time", seed=3)
         assert np.allclose(again.center, pol.scaler.center) and np.allclose(again.scale, pol.scaler.scale)
     with pytest.raises(ValueError, match="visit"):

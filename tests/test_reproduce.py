@@ -54,7 +54,7 @@ def test_data_manifest_files_exist_match_and_load():
         groups = seed_groups(res.names)
         for kind in KINDS:
             assert groups[kind] == [f"{kind}-s{s}" for s in SEEDS]
-        pol = artefacts.load_policy(e, "adaptive", seed=3)
+        pol = artefacts.stored_policy(e, "adaptive", seed=3)
         assert pol.metadata["episodes"] == 1000 and pol.metadata["seed"] == 3
     floor = artefacts.load_floor()
     assert floor["n_steps"] == 500 and floor["rmse_ci"][0] <= floor["rmse"] <= floor["rmse_ci"][1]
@@ -139,7 +139,7 @@ def test_quick_reproduce_writes_everything_and_is_identical_on_one_or_two_worker
     assert agr["n"] > 30 and 0 <= agr["n_same"] <= agr["n"]
     assert f"{agr['n_same']} of {agr['n']} seed-level verdicts" in (a / "report-tables.md").read_text()
     for e in EXPERIMENTS:  # nothing was copied from data/: every policy was trained here at quick scale
-        assert artefacts.load_policy(e, "myopic", seed=1, root=a).metadata["episodes"] == 20
+        assert artefacts.stored_policy(e, "myopic", seed=1, root=a).metadata["episodes"] == 20
     assert len(artefacts.verify(a)) == len(artefacts.manifest(a)["files"])
     reproduce(b, quick=True, retrain=True, progress=False, workers=1, experiments=("ungm-ukf", "ctm-sif-nis"))
     da, db = _digest(a), _digest(b)

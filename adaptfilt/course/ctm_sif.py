@@ -85,11 +85,11 @@ def innovation_responses(experiments: Sequence[str], groups: Sequence[str] = ("a
     """:func:`innovation_response` of every training seed of every group, each on the same runs
     (``seed``) in a fresh environment of its experiment (``make_env(0, n_steps)``):
     ``{(experiment, group): [response of seed 0, seed 1, ...]}``. ``load(experiment, group, seed=s)``
-    gives a policy (default :func:`adaptfilt.experiments.artefacts.load_policy`)."""
+    gives a policy (default :func:`adaptfilt.experiments.artefacts.stored_policy`)."""
     from adaptfilt.experiment_registry import get_experiment
 
     if load is None:
-        from adaptfilt.experiments.artefacts import load_policy as load
+        from adaptfilt.experiments.artefacts import stored_policy as load
     return {(e, g): [innovation_response(get_experiment(e).make_env(0, n_steps), load(e, g, seed=s), n_runs, seed)
                      for s in seeds] for e in experiments for g in groups}
 

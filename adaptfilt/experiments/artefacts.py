@@ -7,7 +7,7 @@ command that regenerates it, the seed, the package version and its wall time.
 >>> from adaptfilt.experiments import artefacts         # doctest: +SKIP
 >>> res = artefacts.load_results("ungm-ukf")             # doctest: +SKIP
 >>> res.paired_difference("adaptive", "greedy", "rmse")  # doctest: +SKIP
->>> pol = artefacts.load_policy("ungm-ukf", "adaptive", seed=3)  # doctest: +SKIP
+>>> pol = artefacts.stored_policy("ungm-ukf", "adaptive", seed=3)  # doctest: +SKIP
 >>> artefacts.load_floor()["rmse"]                        # doctest: +SKIP
 >>> artefacts.verify()                                    # doctest: +SKIP
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from adaptfilt.files import sha256
 
-__all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "load_policy", "load_policies", "seeds", "load_floor",
+__all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "stored_policy", "stored_policies", "seeds", "load_floor",
            "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
            "verify_beyond", "load_archive"]
 
@@ -87,10 +87,11 @@ def seeds(experiment: str, kind: str = "adaptive", root: str | Path | None = Non
     return sorted(int(p.stem[len(pre):]) for p in d.glob(pre + "*.npz") if p.stem[len(pre):].isdigit())
 
 
-def load_policy(experiment: str, kind: str = "adaptive", seed: int = 0, root: str | Path | None = None):
+def stored_policy(experiment: str, kind: str = "adaptive", seed: int = 0, root: str | Path | None = None):
     """The learned policy ``kind`` of ``experiment`` trained with ``seed``: "adaptive"
     (gamma 0.5) or "myopic" (gamma 0), trained by the fast mode, or "adaptive-faithful"
-    (Algorithm 2 as printed). Its ``name`` is ``{kind}-s{seed}``, as in the stored results."""
+    (Algorithm 2 as printed). Its ``name`` is ``{kind}-s{seed}``, as in the stored results. (A policy
+    file by its path: :func:`adaptfilt.learned.load_policy`.)"""
     if kind not in POLICY_KINDS:
         raise ValueError(f"kind must be one of {', '.join(POLICY_KINDS)}; got {kind!r}")
     from adaptfilt.learned import load_policy as _load
@@ -99,9 +100,9 @@ def load_policy(experiment: str, kind: str = "adaptive", seed: int = 0, root: st
                  name=f"{kind}-s{seed}")
 
 
-def load_policies(experiment: str, kind: str = "adaptive", root: str | Path | None = None) -> list:
-    """Every seed of ``kind`` (see :func:`load_policy`), in seed order."""
-    return [load_policy(experiment, kind, s, root) for s in seeds(experiment, kind, root)]
+def stored_policies(experiment: str, kind: str = "adaptive", root: str | Path | None = None) -> list:
+    """Every seed of ``kind`` (see :func:`stored_policy`), in seed order."""
+    return [stored_policy(experiment, kind, s, root) for s in seeds(experiment, kind, root)]
 
 
 def _json(rel: str, root) -> dict:
@@ -200,7 +201,7 @@ def verify(root: str | Path | None = None, load: bool = True) -> list[str]:
         if parts[0] == "policies":
             stem, _, seed = Path(rel).stem.rpartition("-s")
             kind = next(k for k in sorted(POLICY_KINDS, key=len, reverse=True) if stem.endswith("-" + k))
-            load_policy(stem[: -len(kind) - 1], kind, int(seed), root=d)
+            stored_policy(stem[: -len(kind) - 1], kind, int(seed), root=d)
         elif parts[0] == "results" and len(parts) == 3 and parts[2] == "results.npz":
             load_results(parts[1], root=d)
         elif p.suffix == ".json":
