@@ -398,9 +398,6 @@ def setup_evaluation(experiment_or_env, policies: Sequence | None, n_runs: int, 
     return env, policies, traj, counts, config
 
 
-# The names experiments/particles_study.py still imports (another change moves it to the public ones).
-_setup, _summarise = setup_evaluation, summarise_rollout
-
 
 @contextlib.contextmanager
 def _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps, chunk_size):

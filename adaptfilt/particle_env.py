@@ -47,16 +47,13 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.costs import Cost, ParticleCost, StepCost  # noqa: F401  ParticleCost: see below
+from adaptfilt.costs import Cost, ParticleCost, StepCost
 from adaptfilt.features import FeatureSet
 from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
 
 __all__ = ["PARTICLE_GRID", "ParticleUpdate", "check_counts", "FILTER_DESCRIPTION", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
-
-# ParticleCost lives in adaptfilt.costs; the name stays importable from here only until the particle chapter's
-# notebook (being renamed by another change, its import line already edited to adaptfilt.costs) is committed.
 
 #: Counts a policy chooses from: 50 to 5000 in 13 steps of at most 1.67x (as many values as the kappa grid).
 PARTICLE_GRID = (50, 75, 100, 150, 200, 300, 500, 750, 1000, 1500, 2000, 3000, 5000)

@@ -244,7 +244,7 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
     from adaptfilt.experiments.beyond import run, summary_md
     from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions
     from adaptfilt.seed_stats import seed_groups
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
 
     summary = run(tmp_path, quick=True, workers=1, studies=("sif",), progress=False)
     e = "ctm-sif-nis"
@@ -274,7 +274,7 @@ def test_quick_sif_study_trains_penalised_and_safe_policies(tmp_path):
 def test_quick_raw_study_pairs_the_untransformed_policies_with_the_log_ones(tmp_path):
     """The raw study at toy scale: policies trained on -L record it (command and metadata) and are compared,
     paired and at the seed level, with the adaptive policies of the reproduction found beside them."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
     from adaptfilt.experiments.beyond import QUICK, run, summary_md
     from adaptfilt.seed_stats import difference
     from adaptfilt.learned import load_policy
@@ -306,7 +306,7 @@ def test_quick_anchor_and_look_studies(tmp_path):
     recipe and are evaluated on runs of their own seed (2); the references sit beside greedy on the same
     paired runs, and the two-step look-ahead equals rollout with H = 1 (the same computation, the same
     samples), while looking further costs more compute."""
-    from adaptfilt.evaluation import Results
+    from adaptfilt.results import Results
     from adaptfilt.experiments.beyond import run, summary_md
     from adaptfilt.experiments.studies.anchor import ANCHOR_EVAL_SEED
     from adaptfilt.learned import load_policy

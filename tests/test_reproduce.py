@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from adaptfilt.experiments import artefacts
-from adaptfilt.evaluation import Results
+from adaptfilt.results import Results
 from adaptfilt.experiment_registry import EXPERIMENTS
 from adaptfilt.seed_stats import seed_groups
 from adaptfilt.experiments.reproduce import FAITHFUL, KINDS, SEEDS, reproduce, sha256

@@ -117,9 +117,9 @@ def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0
     per step need, and what makes particle ``j`` the same for every count; a fixed count needs neither,
     so this is the bar a learned count has to clear. Returns ``({experiment: Results}, {N: reason})``: a
     count whose filter fails (no particle explains a measurement) has no row and its reason.
-    ``probe``: one cost-blind policy, to set the evaluation up (:func:`~adaptfilt.evaluation._setup`) exactly
+    ``probe``: one cost-blind policy, to set the evaluation up (:func:`~adaptfilt.evaluation.setup_evaluation`) exactly
     as :func:`~adaptfilt.evaluation.evaluate` does."""
-    from adaptfilt.evaluation import _setup, _summarise
+    from adaptfilt.evaluation import setup_evaluation, summarise_rollout
     from adaptfilt.exact import BootstrapParticleFilter
     from adaptfilt.gaf import FilterRun
     from adaptfilt.particle_env import ParticleUpdate
@@ -129,7 +129,7 @@ def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0
         if getattr(e.cost, "kind", None) != "sqerr":
             raise ValueError(f"{e.name}: the reference filter is charged the squared error only (its NIS and update "
                              f"step are not the study filter's), got the cost {e.cost.name!r}")
-    setups = [_setup(e, probe, scale.eval_runs, seed, 1000, None, 0.95, None, scale.n_steps) for e in exps]
+    setups = [setup_evaluation(e, probe, scale.eval_runs, seed, 1000, None, 0.95, None, scale.n_steps) for e in exps]
     env, _, traj, counts, _ = setups[0]
     M, T = traj.n_runs, env.n_steps
     x = traj.x[:, :T]
@@ -149,7 +149,8 @@ def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0
         u = ParticleUpdate(nis=np.full(M * T, np.nan), dx=np.full_like(err, np.nan), err=err)
         for e in exps:
             cost = e.cost(u, np.full(M * T, float(N)), env.nz).reshape(M, T)
-            summ = _summarise(f"{REFERENCE_PREFIX}{N}", x, run, cost, env.grid, counts, 0, 0.95, e.cost.compute_weight)
+            summ = summarise_rollout(f"{REFERENCE_PREFIX}{N}", x, run, cost, env.grid, counts, 0, 0.95,
+                                     e.cost.compute_weight)
             out[e.name].policies[f"{REFERENCE_PREFIX}{N}"] = PolicyResult(name=f"{REFERENCE_PREFIX}{N}", **summ,
                                                                          wall_time_s=time.perf_counter() - t0)
     for r in out.values():

@@ -24,7 +24,7 @@ TITLE = "SIF policies: a repair penalty, a safe action set"
 
 def select_safe_actions(experiment: str, n_runs: int, n_steps: int | None = None, seed: int = SELECTION_SEED) -> dict:
     """The safe action set of ``experiment``: the grid values that, as fixed values, left no run divergent
-    (:data:`adaptfilt.evaluation.DIVERGED_NEES`) on ``n_runs`` selection runs (``seed``, not the evaluation's).
+    (:data:`adaptfilt.metrics.DIVERGED_NEES`) on ``n_runs`` selection runs (``seed``, not the evaluation's).
 
     Returns ``{"safe": [values...], "divergent_runs": {value: k}, "n_runs", "seed", "experiment"}``.
     ValueError when the experiment's default diverged there (a policy on a subset must hold the default).
