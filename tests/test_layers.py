@@ -285,3 +285,32 @@ def test_import_adaptfilt_loads_no_heavy_dependency():
     code = ("import sys, adaptfilt; adaptfilt.experiment_registry.get_experiment('ungm-pf-1e-3').make_env(); "
             "print('adaptfilt.particles' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"
+
+
+def private_imports(root: Path = PKG) -> list[str]:
+    """``from adaptfilt.X import _name`` where ``_name`` is private to another module: a name with a leading
+    underscore is that module's own. The moment rules' package (``adaptfilt.rules``) shares its base
+    helpers among siblings, one package, as the review allows; a public name imported under a private
+    alias (``import colors as _colors``) is no breach."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("adaptfilt")):
+                continue
+            inside_rules = path.parent.name == "rules" and node.module.startswith("adaptfilt.rules")
+            for a in node.names:
+                if a.name.startswith("_") and not a.name.startswith("__") and not inside_rules:
+                    found.append(f"{path.relative_to(root.parent)}: from {node.module} import {a.name}")
+    return found
+
+
+def test_no_private_name_crosses_a_module():
+    assert not private_imports()
+
+
+def test_the_check_sees_a_private_import(tmp_path):
+    pkg = tmp_path / "adaptfilt"
+    (pkg / "course").mkdir(parents=True)
+    (pkg / "course" / "a.py").write_text("from adaptfilt.course.common import _ax\n")
+    (pkg / "b.py").write_text("from adaptfilt.style import colors as _colors\n")
+    assert private_imports(pkg) == ["adaptfilt/course/a.py: from adaptfilt.course.common import _ax"]

@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 
 __all__ = ["BayesStep", "grid_bayes_step", "filtering_densities", "SignAmbiguity", "sign_ambiguity",
            "ambiguous_mask", "ambiguous_cases", "point_estimates", "ExpectedLoss", "expected_loss",
@@ -28,7 +28,7 @@ class BayesStep:
     posterior: np.ndarray  # p(x_k | z^k), eq. (3a)
 
 
-def _gauss(r, var: float):
+def gauss_pdf(r, var: float):
     return np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
 
 
@@ -54,9 +54,9 @@ def grid_bayes_step(model, grid: np.ndarray, prev: np.ndarray, z: float, t: int)
     grid = np.asarray(grid, dtype=float)
     dx = grid[1] - grid[0]
     Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
-    transition = _gauss(grid[:, None] - model.f(grid[:, None], t)[:, 0][None, :], Q)  # p(x_k = x_i | x_{k-1} = x_j)
+    transition = gauss_pdf(grid[:, None] - model.f(grid[:, None], t)[:, 0][None, :], Q)  # p(x_k = x_i | x_{k-1} = x_j)
     predictive = transition @ prev * dx                                                  # (3b)
-    likelihood = _gauss(z - model.h(grid[:, None], t + 1)[:, 0], R)                      # p(z_k | x_k)
+    likelihood = gauss_pdf(z - model.h(grid[:, None], t + 1)[:, 0], R)                      # p(z_k | x_k)
     posterior = likelihood * predictive
     return BayesStep(predictive, likelihood, posterior / (posterior.sum() * dx))          # (3a)
 
@@ -146,7 +146,7 @@ def expected_loss(grid: np.ndarray, post: np.ndarray, candidates: np.ndarray) ->
 
 def plot_ungm_roots(traj, run: int, ax=None):
     """UNGM: the true state of one run with the two states ``±sqrt(20 z_k)`` its measurement allows."""
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     x, z = traj.x[run, :, 0], traj.z[run, :, 0]
     k = np.arange(1, x.size + 1)
     root = np.sqrt(20 * np.clip(z, 0, None))
@@ -179,7 +179,7 @@ def plot_posteriors(grid: np.ndarray, dens: np.ndarray, x: np.ndarray, cases: Se
 
 def plot_bayes_step(grid: np.ndarray, step: BayesStep, title: str = "", ax=None, xlim=(-25, 25)):
     """Predictive density, (scaled) likelihood and posterior of one :class:`BayesStep`."""
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     ax.plot(grid, step.predictive, label=r"predictive $p(x_k|z^{k-1})$")
     ax.plot(grid, step.likelihood / step.likelihood.max() * step.predictive.max(), "--",
             label=r"likelihood $p(z_k|x_k)$ (scaled)")
@@ -193,7 +193,7 @@ def plot_expected_loss(el: ExpectedLoss, title: str = "", ax=None):
     """The expected squared loss of each candidate estimate, with the posterior mean and MAP marked."""
     from adaptfilt.style import OKABE_ITO
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     ax.plot(el.candidates, el.loss, color="k", label=r"$\int (x-\hat{x})^2 p(x|z^k)\,dx$")
     ax.axvline(el.mean, color=OKABE_ITO[3], label=f"posterior mean {el.mean:.2f}")
     ax.axvline(el.map, color=OKABE_ITO[2], ls="--", label=f"MAP {el.map:.2f}")

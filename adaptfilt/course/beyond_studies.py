@@ -23,7 +23,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 from adaptfilt.course.seed_results import seed_verdicts
 from adaptfilt.seed_stats import seed_groups, seed_verdict
 
@@ -181,7 +181,7 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
     figure), or ``None``."""
     from adaptfilt import style
 
-    fig, ax = _ax(ax, size=(7.5, 4.6))
+    fig, ax = figure_axes(ax, size=(7.5, 4.6))
     ref = getattr(results["default"], metric)
 
     def rel(n):

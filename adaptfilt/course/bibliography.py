@@ -10,7 +10,7 @@ import unicodedata
 from collections import Counter
 from typing import Any, Mapping, Sequence
 
-from adaptfilt.course.notebook_markdown import _text
+from adaptfilt.course.notebook_markdown import text_of
 
 __all__ = ["notebook_references", "split_reference", "bibliography_markdown"]
 
@@ -25,7 +25,7 @@ def notebook_references(nb: Mapping[str, Any]) -> list[str]:
     for cell in nb.get("cells", []):
         if cell.get("cell_type") != "markdown":
             continue
-        for line in _text(cell.get("source", "")).splitlines():
+        for line in text_of(cell.get("source", "")).splitlines():
             heading = re.match(r"^(#{1,6})\s+(.*?)\s*#*\s*$", line)
             if heading and len(heading.group(1)) <= 2:
                 inside = heading.group(2).strip().lower() in ("references", "reference", "bibliography")

@@ -38,7 +38,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from adaptfilt.course.reference import REFERENCE_DIR, library_modules, reference_chapter, write_reference
 from adaptfilt.course.bibliography import bibliography_markdown, notebook_references
-from adaptfilt.course.notebook_markdown import (ANSI_ESCAPE, _localise_images, escape_math, notebook_title,
+from adaptfilt.course.notebook_markdown import (ANSI_ESCAPE, localise_images, escape_math, notebook_title,
                                                 notebook_to_markdown, rewrite_links, rewrite_math)
 
 __all__ = [
@@ -203,7 +203,7 @@ def _link_targets(root: Path, notebooks: Sequence[Path]) -> dict[str, str]:
 def _markdown_chapter(path: Path, title: str, filename: str, links: Mapping[str, str]) -> Chapter:
     """A chapter from a Markdown file of the repository."""
     text = rewrite_links(rewrite_math(path.read_text(encoding="utf-8")), links)
-    text, files = _localise_images(text, path.parent, f"assets/{Path(filename).stem}")
+    text, files = localise_images(text, path.parent, f"assets/{Path(filename).stem}")
     return Chapter(title, filename, text, files)
 
 
@@ -211,7 +211,7 @@ def _notebook_chapter(path: Path, nb: Mapping[str, Any], links: Mapping[str, str
     """A chapter from an executed notebook (``nb`` is its JSON)."""
     stem = path.stem
     text, files = notebook_to_markdown(nb, f"figures/{stem}", links)
-    text, more = _localise_images(text, path.parent, f"assets/{stem}")
+    text, more = localise_images(text, path.parent, f"assets/{stem}")
     files.update(more)
     return Chapter(notebook_title(nb, stem.replace("-", " ")), f"{stem}.md", text, files)
 

@@ -35,13 +35,13 @@ def show_source(obj, lines: tuple[int, int] | None = None):
     return Markdown(f"```python\n{textwrap.dedent(src)}\n```")
 
 
-def _plt():
+def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
 
 
-def _ax(ax, **figure_kw):
+def figure_axes(ax, **figure_kw):
     """``ax`` itself, or a new single-panel course figure."""
     if ax is not None:
         return ax.figure, ax
@@ -156,7 +156,7 @@ def plot_rmse_k(scores: Mapping[str, Score], ax=None, title: str | None = None, 
     """``RMSE_k`` of each score over time with its 95 % bootstrap band; returns the figure."""
     from adaptfilt.style import policy_label
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     for i, (n, s) in enumerate(scores.items()):
         c = None if colors is None else colors[i]
         k = np.arange(1, s.rmse_k.size + 1)

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.course.paper_common import _md
+from adaptfilt.course.paper_common import markdown_table
 
 __all__ = ["sif_spread", "innovation_response", "innovation_responses", "innovation_response_md"]
 
@@ -115,4 +115,4 @@ def innovation_response_md(responses: dict, what: str = "N_it") -> str:
     k = next(iter(responses.values()))[0]["early_steps"]
     head = ["experiment", "group", "seeds", f"{what}, steps 1-{k}", "after", "quartile 1 (quietest)", "quartile 2",
             "quartile 3", "quartile 4 (loudest)", "early - after", "quartile 4 - quartile 1"]
-    return _md(head, rows)
+    return markdown_table(head, rows)

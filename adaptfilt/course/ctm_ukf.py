@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.course.paper_common import _md, _short, place_labels, plain_log
+from adaptfilt.course.paper_common import markdown_table, short_label, place_labels, plain_log
 from adaptfilt.experiments.claims import members
 
 __all__ = ["plot_cost_time", "ReachAnatomy", "reach_anatomy", "reach_table", "LineOfSight", "line_of_sight",
@@ -242,7 +242,7 @@ def position_velocity_md(pv: dict, names: Sequence[str], stored=None) -> str:
     head = ["policy", "RMSE full state", "position (m)", "velocity (m/s)"]
     if stored is not None:
         head.append(f"RMSE full state, stored (M = {stored.config['n_runs']})")
-    return _md(head, rows)
+    return markdown_table(head, rows)
 
 
 def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str, str] = ("m", "m/s"), ax=None,
@@ -266,7 +266,7 @@ def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str,
         ax.plot(np.median(p), np.median(v), st["marker"], color=st["color"], ms=9 if st["family"] != "fixed" else 6,
                 mec="black" if st["family"] != "fixed" else st["color"], mew=0.6, zorder=3)
         pts[n] = (float(np.median(p)), float(np.median(v)))
-        cols[_short(n)] = st["color"] if st["family"] != "fixed" else "0.25"
+        cols[short_label(n)] = st["color"] if st["family"] != "fixed" else "0.25"
     fixed = sorted((n for n in names if n.startswith("fixed-")), key=lambda n: float(n.split("=")[1]))
     ax.plot([pts[n][0] for n in fixed], [pts[n][1] for n in fixed], color="0.6", lw=1, zorder=0)
     ax.set(xlabel=f"time-averaged RMSE of the position ({unit[0]})",
@@ -274,6 +274,6 @@ def plot_position_velocity(pv: dict, res, names: Sequence[str], unit: tuple[str,
     ax.grid(alpha=0.3)
     sel = [n for n in names if label is None or n in label]
     order = sorted(sel, key=lambda n: n.startswith("fixed-"))
-    place_labels(ax, {_short(n): pts[n] for n in order}, colors=cols,
+    place_labels(ax, {short_label(n): pts[n] for n in order}, colors=cols,
                  avoid=[pts[n] for n in names if n not in sel] + dots)
     return fig

@@ -14,7 +14,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from adaptfilt import metrics
-from adaptfilt.course.common import Score, _ax, _plt, chi2_median
+from adaptfilt.course.common import Score, figure_axes, pyplot, chi2_median
 
 __all__ = ["ungm_h", "bearing", "unscented_moments", "unscented_pzz", "plot_pzz_vs_kappa", "plot_unscented",
            "show_unscented", "gauss_hermite_moments", "RuleErrors", "rule_errors", "plot_rule_errors",
@@ -64,7 +64,7 @@ def plot_pzz_vs_kappa(kappas, cases: Sequence[tuple[float, float]], R: float = 0
     """UNGM: ``P^zz`` of the unscented rule against ``kappa`` for each ``(m, P)``, with the exact value."""
     from adaptfilt.style import param_label
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     for m, P in cases:
         line, = ax.plot(kappas, unscented_pzz(kappas, m, P, R), label=f"UT, m = {m:g}, P = {P:g}")
         ax.axhline(_pzz_exact_ungm(m, P, R), color=line.get_color(), ls="--", lw=1, label=f"exact, m = {m:g}, P = {P:g}")
@@ -90,7 +90,7 @@ def plot_unscented(kappa: float, ax=None, m: float = 5.0, P: float = 4.0, R: flo
 
     if not kappa > -1:
         raise ValueError(f"kappa must satisfy 1 + kappa > 0 for a scalar state, got {kappa}")
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     s = np.sqrt((1 + kappa) * P)
     pts, w = np.array([m - s, m, m + s]), np.array([0.5, kappa, 0.5]) / (1 + kappa)
     xs = np.linspace(m - 4.5 * np.sqrt(P), m + 4.5 * np.sqrt(P), 300)
@@ -108,7 +108,7 @@ def plot_unscented(kappa: float, ax=None, m: float = 5.0, P: float = 4.0, R: flo
 def show_unscented(kappa: float = 2.0, m: float = 5.0, P: float = 4.0) -> None:
     """Widget callback (``ipywidgets.interact``): draw :func:`plot_unscented` and show it."""
     plot_unscented(kappa, m=m, P=P)
-    _plt().show()
+    pyplot().show()
 
 
 def gauss_hermite_moments(g: Callable, m, P, order: int = 60) -> tuple[float, float]:
@@ -169,7 +169,7 @@ def plot_rule_errors(n_iters, sir: RuleErrors, ut: RuleErrors, ax=None):
     """Log-log errors of the stochastic rule against iterations, the ``N^-1/2`` slope and the UT's bias."""
     from adaptfilt.style import OKABE_ITO
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     n_iters = np.asarray(n_iters, dtype=float)
     ax.loglog(n_iters, sir.mean, "o-", color=OKABE_ITO[0], label=r"SIR: RMS error of $\mathrm{E}[g]$")
     ax.loglog(n_iters, sir.var, "s-", color=OKABE_ITO[1], label=r"SIR: RMS error of $\mathrm{Var}[g]$")
@@ -198,7 +198,7 @@ def plot_sif_draws(n_iter: int, ax=None, m=_BEARING_M, P=_BEARING_P, g: Callable
 
     if int(n_iter) < 1:
         raise ValueError(f"n_iter must be a positive integer, got {n_iter}")
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     m, P = np.asarray(m, dtype=float), np.asarray(P, dtype=float)
     ref = gauss_hermite_moments(g, m, P)[0]
     mb, Pb = np.repeat(m[:, None], n_batch, axis=1), np.repeat(P[:, :, None], n_batch, axis=2)
@@ -218,7 +218,7 @@ def plot_sif_draws(n_iter: int, ax=None, m=_BEARING_M, P=_BEARING_P, g: Callable
 def show_sif_draws(n_iter: int = 8, m=_BEARING_M, P=_BEARING_P) -> None:
     """Widget callback (``ipywidgets.interact``): draw :func:`plot_sif_draws` and show it."""
     plot_sif_draws(n_iter, m=m, P=P)
-    _plt().show()
+    pyplot().show()
 
 
 def plot_anees_k(scores: Mapping[str, Score], nx: int, median_of: Mapping[str, Score] | None = None,
@@ -227,7 +227,7 @@ def plot_anees_k(scores: Mapping[str, Score], nx: int, median_of: Mapping[str, S
     ``median_of`` adds the median NEES of other scores (dashed) and the chi2(nx) median line."""
     from adaptfilt.style import policy_label
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     for n, s in scores.items():
         k = np.arange(1, s.anees_k.size + 1)
         ax.semilogy(k, s.anees_k, label=f"{policy_label(n)}: ANEES")
@@ -248,7 +248,7 @@ def plot_per_run_rmse(scores: Mapping[str, Score], bins=None, ax=None, title: st
     """Histograms (log x) of the per-run RMS errors, with each filter's median in the legend."""
     from adaptfilt.style import policy_label
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     bins = np.logspace(-1.5, 1.7, 50) if bins is None else bins
     for n, s in scores.items():
         ax.hist(s.run_rmse, bins=bins, histtype="step", lw=1.5, label=f"{policy_label(n)} (median {s.median_run_rmse:.2f})")
@@ -276,7 +276,7 @@ def line_of_sight_errors(x: np.ndarray, mean: np.ndarray, pos: Sequence[int] = (
 
 def plot_line_of_sight_errors(radial: np.ndarray, cross: np.ndarray, ax=None, unit: str = "m"):
     """RMS over runs of the radial and cross-range position errors against time."""
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     k = np.arange(1, radial.shape[1] + 1)
     ax.plot(k, np.sqrt((radial ** 2).mean(0)), label="along the line of sight (range)")
     ax.plot(k, np.sqrt((cross ** 2).mean(0)), label="across the line of sight")

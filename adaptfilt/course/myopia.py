@@ -10,7 +10,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.course.bayes import _gauss, point_estimates
+from adaptfilt.course.bayes import gauss_pdf, point_estimates
 
 __all__ = ["phi_brr", "DecisionLoop", "decision_loop", "posterior_mean", "posterior_median", "posterior_map",
            "filter_loop", "divergence", "plot_divergence", "deviation_costs", "MyopicComparison",
@@ -27,9 +27,9 @@ def phi_brr(model, grid: np.ndarray, s: np.ndarray, z_next: np.ndarray, t: int) 
     """
     dx = grid[1] - grid[0]
     Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
-    transition = _gauss(grid[:, None] - model.f(grid[:, None], t + 1).T, Q) * dx   # p(x_{k+1} | x_k) on the grid
+    transition = gauss_pdf(grid[:, None] - model.f(grid[:, None], t + 1).T, Q) * dx   # p(x_{k+1} | x_k) on the grid
     pred = transition @ s                                                           # (3b)
-    post = _gauss(z_next[None, :] - model.h(grid[:, None], t + 2), R) * pred        # (3a), unnormalised
+    post = gauss_pdf(z_next[None, :] - model.h(grid[:, None], t + 2), R) * pred        # (3a), unnormalised
     return post / (post.sum(axis=0) * dx)
 
 
@@ -59,8 +59,8 @@ def decision_loop(model, grid: np.ndarray, estimator: Callable, z: np.ndarray, l
     dx = grid[1] - grid[0]
     zz = np.asarray(z, dtype=float)[..., 0]                                 # (M, T), scalar measurements
     M, T = zz.shape
-    prior = np.repeat(_gauss(grid - model.m0[0], float(model.P0[0, 0]))[:, None], M, axis=1)
-    post = _gauss(zz[None, :, 0] - model.h(grid[:, None], 1), float(model.R[0, 0])) * prior
+    prior = np.repeat(gauss_pdf(grid - model.m0[0], float(model.P0[0, 0]))[:, None], M, axis=1)
+    post = gauss_pdf(zz[None, :, 0] - model.h(grid[:, None], 1), float(model.R[0, 0])) * prior
     s = post / (post.sum(axis=0) * dx)                                     # s_1: Bayes (3a) on the prior
     states, est, exp_loss = np.empty((T, grid.size, M)), np.empty((M, T)), np.empty((M, T))
     for t in range(T):                                                      # t = k - 1

@@ -207,7 +207,7 @@ def rewrite_links(markdown: str, targets: Mapping[str, str]) -> str:
     return re.sub(r"(\]\(\s*<?)([^)\s#>]+)(#[^)\s>]*)?", repl, markdown)
 
 
-def _localise_images(markdown: str, base: Path, prefix: str) -> tuple[str, dict[str, bytes]]:
+def localise_images(markdown: str, base: Path, prefix: str) -> tuple[str, dict[str, bytes]]:
     """Copy images a Markdown file references by relative path into the book.
 
     Returns the rewritten Markdown and the files to write (relative to src).
@@ -243,7 +243,7 @@ def _safe_name(path: str) -> str:
 # ---------------------------------------------------------------- notebooks
 
 
-def _text(value: str | Sequence[str]) -> str:
+def text_of(value: str | Sequence[str]) -> str:
     """Notebook strings may be stored as a list of lines."""
     return value if isinstance(value, str) else "".join(value)
 
@@ -287,24 +287,24 @@ def _render_data(data: Mapping[str, Any], stem: str, files: dict[str, bytes], al
     mime = mimes[0]
     if mime in _IMAGE_EXT:
         name = f"{stem}.{_IMAGE_EXT[mime]}"
-        raw = _text(data[mime])
+        raw = text_of(data[mime])
         files[name] = raw.encode() if mime == "image/svg+xml" else base64.b64decode(raw)
-        text = " ".join(_text(data.get("text/plain", "")).split())
+        text = " ".join(text_of(data.get("text/plain", "")).split())
         # matplotlib's text/plain is its repr, "<Figure size 700x360 with 1 Axes>": no description
         alt = alt or ("" if _REPR.match(text) else plain_text(text, markdown=False)) or "figure"
         return f"![{escape_math(alt)}]({name})\n"
     if mime == "text/html":
-        return _html_block(_text(data[mime]))
+        return _html_block(text_of(data[mime]))
     if mime in ("text/markdown", "text/latex"):
-        return rewrite_math(_text(data[mime])) + "\n"
-    return _fenced(_text(data[mime]), "text")
+        return rewrite_math(text_of(data[mime])) + "\n"
+    return _fenced(text_of(data[mime]), "text")
 
 
 def _render_output(output: Mapping[str, Any], stem: str, files: dict[str, bytes], alt: str = "") -> str:
     """Markdown for one cell output."""
     kind = output.get("output_type")
     if kind == "stream":
-        text = _collapse_carriage_returns(_text(output.get("text", "")))
+        text = _collapse_carriage_returns(text_of(output.get("text", "")))
         return _fenced(ANSI_ESCAPE.sub("", text), "text") if text.strip() else ""
     if kind == "error":
         trace = "\n".join(output.get("traceback") or []) or f"{output.get('ename')}: {output.get('evalue')}"
@@ -319,7 +319,7 @@ def _attachments(cell: Mapping[str, Any], source: str, prefix: str, files: dict[
     for name, bundle in (cell.get("attachments") or {}).items():
         for mime, ext in _IMAGE_EXT.items():
             if mime in bundle:
-                raw = _text(bundle[mime])
+                raw = text_of(bundle[mime])
                 target = f"{prefix}-{_safe_name(name)}"
                 if not target.endswith("." + ext):
                     target += "." + ext
@@ -346,7 +346,7 @@ def notebook_to_markdown(
     before = ""  # the last Markdown cell so far: a figure without a title is described from it
     for i, cell in enumerate(nb.get("cells", [])):
         tags = set((cell.get("metadata") or {}).get("tags") or [])
-        source = _text(cell.get("source", ""))
+        source = text_of(cell.get("source", ""))
         kind = cell.get("cell_type")
         if kind == "markdown":
             before = source
@@ -373,7 +373,7 @@ def notebook_title(nb: Mapping[str, Any], fallback: str) -> str:
     for cell in nb.get("cells", []):
         if cell.get("cell_type") != "markdown":
             continue
-        m = re.search(r"^#{1,6}[ \t]+(.+?)[ \t#]*$", _text(cell.get("source", "")), flags=re.M)
+        m = re.search(r"^#{1,6}[ \t]+(.+?)[ \t#]*$", text_of(cell.get("source", "")), flags=re.M)
         if m:
             # The sidebar shows titles as plain text: `the $\kappa$ knob` -> `the kappa knob`.
             return re.sub(r"\\([A-Za-z]+)", r"\1", m.group(1).replace("$", "")).strip()

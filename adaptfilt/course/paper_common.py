@@ -33,7 +33,7 @@ __all__ = ["seed_table_md", "differences_md", "usage_shares", "usage_md", "plain
            "plot_tradeoff_panels"]
 
 
-def _md(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def markdown_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows]) + "\n"
 
@@ -62,7 +62,7 @@ def seed_table_md(res, groups: Sequence[str] = ("adaptive", "myopic"),
             a = aggregate(res, names, m)
             vals = [f"{v:.3g}" for v in a.values] + [""] * (n - len(names))
             rows.append([g, m, fmt(a.iqm, a.iqm_ci, 3), f"{a.mean:.3g}", *vals])
-    return _md(["group", "metric", "IQM [95 % CI]", "mean", *[f"s{i}" for i in range(n)]], rows)
+    return markdown_table(["group", "metric", "IQM [95 % CI]", "mean", *[f"s{i}" for i in range(n)]], rows)
 
 
 def differences_md(res, pairs: Sequence[tuple[str, str]], metrics: Sequence[str] = ("rmse", "anees")) -> str:
@@ -77,7 +77,7 @@ def differences_md(res, pairs: Sequence[tuple[str, str]], metrics: Sequence[str]
             sign = "a < b" if hi < 0 else "a > b" if lo > 0 else "n.s."
             rows.append([f"{a} - {b}", m, f"{c['a_value']:.4g}", f"{c['b_value']:.4g}",
                          f"{c['diff']:+.3g} [{lo:+.3g}, {hi:+.3g}]", sign])
-    return _md(["a - b", "metric", "a (IQM)", "b (IQM)", "a - b [95 % CI]", "interval"], rows)
+    return markdown_table(["a - b", "metric", "a (IQM)", "b (IQM)", "a - b [95 % CI]", "interval"], rows)
 
 
 def usage_shares(res, names: Sequence[str]) -> dict[str, np.ndarray]:
@@ -102,7 +102,7 @@ def usage_md(res, names: Sequence[str], min_share: float = 0.01) -> str:
 
     head = ["policy"] + [param_label(pname, g) for g, k in zip(grid, keep) if k]
     rows = [[n] + [f"{100 * s:.0f} %" if s >= 0.005 else "." for s, k in zip(u, keep) if k] for n, u in shares.items()]
-    return _md(head, rows)
+    return markdown_table(head, rows)
 
 
 def plain_log(ax, axis: str = "y") -> None:
@@ -177,7 +177,7 @@ def place_labels(ax, points: dict, colors: dict | None = None, fontsize: float =
     return out
 
 
-def _short(name: str) -> str:
+def short_label(name: str) -> str:
     from adaptfilt.style import policy_label
 
     return policy_label(name[len("fixed-"):] if name.startswith("fixed-") else name)
@@ -221,7 +221,7 @@ def plot_tradeoff_panels(res, names: Sequence[str], zoom: Sequence[str], floor: 
         dots = [(u, v) for n in rest for u, v in zip(seeds(n, "rmse"), seeds(n, "anees"))]
         bars = [s for n in rest for s in (((res[n].rmse_ci[0], res[n].anees), (res[n].rmse_ci[1], res[n].anees)),
                                           ((res[n].rmse, res[n].anees_ci[0]), (res[n].rmse, res[n].anees_ci[1])))]
-        place_labels(a, {_short(n): (res[n].rmse, res[n].anees) for n in order},
-                     colors={_short(n): color(n) for n in order}, segments=bars,
+        place_labels(a, {short_label(n): (res[n].rmse, res[n].anees) for n in order},
+                     colors={short_label(n): color(n) for n in order}, segments=bars,
                      avoid=[(res[n].rmse, res[n].anees) for n in rest if n not in sel] + dots)
     return fig

@@ -8,7 +8,7 @@ import numpy as np
 from scipy import stats
 
 from adaptfilt import metrics
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 
 __all__ = ["separated_modes", "plot_two_modes", "plot_run_errors", "plot_kld_run", "study_protocol"]
 
@@ -26,7 +26,7 @@ def separated_modes(density: Mapping[int, np.ndarray], grid: np.ndarray, gap: fl
 def plot_two_modes(grid: np.ndarray, posterior: np.ndarray, mean: float, var: float, x_true: float, ax=None,
                    title: str | None = None):
     """The exact posterior density on ``grid`` beside the Gaussian ``N(mean, var)`` and the true state."""
-    _, ax = _ax(ax)
+    _, ax = figure_axes(ax)
     ax.plot(grid, posterior, label="exact posterior (point-mass)")
     ax.plot(grid, stats.norm.pdf(grid, mean, np.sqrt(var)), label="the UKF's Gaussian")
     ax.axvline(x_true, color="k", ls=":", label="true state")
@@ -37,7 +37,7 @@ def plot_two_modes(grid: np.ndarray, posterior: np.ndarray, mean: float, var: fl
 
 def plot_run_errors(x: np.ndarray, runs: Mapping[str, object], ax=None, title: str | None = None):
     """Every run's RMS error over its steps, sorted (an empirical CDF, log axis), one line per filter run."""
-    _, ax = _ax(ax)
+    _, ax = figure_axes(ax)
     for name, run in runs.items():
         e = np.sort(np.sqrt(metrics.squared_error(x, run.mean).mean(axis=1)))
         ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name)
@@ -49,7 +49,7 @@ def plot_run_errors(x: np.ndarray, runs: Mapping[str, object], ax=None, title: s
 def plot_kld_run(counts: np.ndarray, x: np.ndarray, two_modes: np.ndarray, ax=None, title: str | None = None):
     """One run: the particle count per step (``counts (T,)``), the state ``x (T,)`` on a second axis, and the
     steps whose exact posterior has two separated modes (``two_modes (T,)`` bool) shaded."""
-    _, ax = _ax(ax, size=(12, 3.6))
+    _, ax = figure_axes(ax, size=(12, 3.6))
     k = np.arange(1, counts.size + 1)
     ax.plot(k, counts, drawstyle="steps-mid", label="KLD-sampling's $N_k$")
     ax.set(xlabel="step $k$", ylabel="particles", ylim=(0, None), title=title)

@@ -21,7 +21,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 from adaptfilt.seed_stats import seed_groups
 
 __all__ = ["plot_share_over_time", "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs",
@@ -33,7 +33,7 @@ def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=N
     r"""Share of runs whose parameter is ``>= at_least`` at each step ``k``, per policy
     (from ``Results[...].choices``; a seed group's choices are averaged over seeds),
     with an optional ``overlay(k)`` on a second axis (e.g. the forcing of the dynamics)."""
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     grid = results.grid
     for name in policies:
         members = seed_groups(results.names).get(name, [name])
@@ -114,7 +114,7 @@ def plot_policy_probs(policies: Sequence, state: np.ndarray, ax=None, title: str
                       colorbar: bool = False):
     r"""``pi(theta | s)`` of each policy at one raw information state ``(1, d)`` as a heat map:
     one row per policy, one column per grid value, the most probable value of each row marked."""
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     P = np.concatenate([p.probs(state) for p in policies])          # (n_policies, G)
     grid = np.asarray(policies[0].grid)
     im = ax.imshow(P, vmin=0.0, vmax=1.0, cmap="Blues", aspect="auto", interpolation="nearest")

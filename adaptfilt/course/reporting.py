@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from adaptfilt import metrics, seed_stats
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 
 __all__ = ["run_counts", "unpaired", "pooled_runs", "divergence", "plot_bootstrap", "plot_paired", "plot_levels",
            "plot_divergence"]
@@ -136,7 +136,7 @@ def plot_levels(results, names: Sequence[str], metric: str = "rmse", ax=None):
     seeds fixed) and the two-level intervals of the mean and the IQM (seeds resampled too)."""
     from adaptfilt import style
 
-    fig, ax = _ax(ax, size=(9, 4.6))
+    fig, ax = figure_axes(ax, size=(9, 4.6))
     for i, n in enumerate(names):
         p = results[n]
         _interval(ax, i, getattr(p, metric), *getattr(p, metric + "_ci"), fmt="o", ms=4, color="0.4")
@@ -159,7 +159,7 @@ def plot_divergence(results, names: Sequence[str], ax=None):
     divergence threshold ``DIVERGED_NEES`` (:func:`adaptfilt.metrics.divergent`)."""
     from adaptfilt import style
 
-    fig, ax = _ax(ax, size=(10, 4))
+    fig, ax = figure_axes(ax, size=(10, 4))
     nx = int(results.config["nx"])
     runs = [np.asarray(results[n].run_anees, float) / nx for n in names]
     bins = np.geomspace(min(r.min() for r in runs), max(r.max() for r in runs), 80)

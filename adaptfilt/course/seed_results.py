@@ -22,7 +22,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
 
 __all__ = ["seed_lines", "plot_differences", "plot_seed_spread", "seed_verdicts", "claims_table", "timed"]
@@ -59,7 +59,7 @@ def plot_differences(diffs: Mapping[str, Mapping[str, tuple[float, float, float]
     one x position per condition, one marker per label, a line at 0."""
     from adaptfilt import style
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     conds = list(diffs)
     labels = list(dict.fromkeys(lab for c in conds for lab in diffs[c]))
     x = np.arange(len(conds))
@@ -84,7 +84,7 @@ def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=No
     (seeds x runs) intervals: what a single seed hides."""
     from adaptfilt import style
 
-    fig, ax = _ax(ax)
+    fig, ax = figure_axes(ax)
     all_groups = seed_groups(results.names)
     y0 = 0
     ticks, labels = [], []

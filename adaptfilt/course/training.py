@@ -27,7 +27,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from adaptfilt.course.common import _ax
+from adaptfilt.course.common import figure_axes
 
 __all__ = ["plot_sign_demo", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
            "actor_update_batch", "library_actor_loss", "check_actor_update", "plot_state_probs"]
@@ -245,7 +245,7 @@ def plot_state_probs(policy, cases: Mapping[str, np.ndarray], ax=None, title: st
     r"""``pi(theta | s)`` of one policy at several raw information states as a heat map: one row
     per entry of ``cases`` (label -> state ``(1, d)``), one column per grid value, the most
     probable value of each row marked."""
-    fig, ax = _ax(ax, size=(7.0, 0.5 * len(cases) + 1.6))
+    fig, ax = figure_axes(ax, size=(7.0, 0.5 * len(cases) + 1.6))
     P = np.concatenate([policy.probs(st) for st in cases.values()])
     grid = np.asarray(policy.grid)
     im = ax.imshow(P, vmin=0.0, vmax=1.0, cmap="Blues", aspect="auto", interpolation="nearest")

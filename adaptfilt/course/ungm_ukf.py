@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.course.paper_common import _short, plain_log
+from adaptfilt.course.paper_common import short_label, plain_log
 from adaptfilt.experiments.claims import members
 from adaptfilt.seed_stats import aggregate
 
@@ -255,7 +255,7 @@ def plot_rmse_steps(res, names: Sequence[str], floor_t: np.ndarray | None = None
         y = np.mean([np.asarray(res[m].rmse_t, dtype=float) for m in members(res, n)], axis=0)
         st = policy_style(res, members(res, n)[0])
         c = next(palette) if st["family"] == "fixed" else st["color"]  # adaptive: the colours of every figure
-        ax.plot(np.arange(1, y.size + 1), y, color=c, lw=1.1, label=_short(n))
+        ax.plot(np.arange(1, y.size + 1), y, color=c, lw=1.1, label=short_label(n))
     if floor_t is not None:
         f = np.asarray(floor_t, dtype=float)
         ax.plot(np.arange(1, f.size + 1), f, color="0.3", ls=":", lw=1.3, label=floor_label)
