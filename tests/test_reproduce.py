@@ -189,6 +189,26 @@ def test_reproduce_stops_on_ctrl_c_and_resumes_to_identical_files(quick_reproduc
         assert _untimed(quick_reproduction, rel) == _untimed(out, rel), rel
 
 
+def test_the_figures_do_not_depend_on_the_callers_style(quick_reproduction, tmp_path):
+    """The manifest records the figures' bytes: drawn after ``style.use()`` (a notebook's, or an earlier
+    test's in the same process), they are the command line's, byte for byte."""
+    import matplotlib
+
+    from adaptfilt import style
+    from adaptfilt.experiments.report import figures
+
+    a = quick_reproduction
+    results = {d.name: Results.load(d) for d in sorted((a / "results").iterdir())
+               if d.is_dir() and (d / "results.json").exists()}
+    floor = json.loads((a / "results/ungm-floor.json").read_text())
+    with matplotlib.rc_context():
+        style.use()
+        made = figures(results, floor, tmp_path)
+        assert matplotlib.rcParams["axes.prop_cycle"].by_key()["color"][0] == style.OKABE_ITO[0]  # kept
+    assert len(made) == 11
+    assert [p.name for p in made if sha256(p) != sha256(a / "figures" / p.name)] == []
+
+
 def _digest_all(root) -> dict:
     return {str(p.relative_to(root)): sha256(p) for p in sorted(root.rglob("*")) if p.is_file()}
 

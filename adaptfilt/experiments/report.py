@@ -312,7 +312,17 @@ def figure_policies(res) -> list[str]:
 
 
 def figures(results: dict, floor: dict | None, fig_dir: Path) -> list[Path]:
-    """Figures 1-6 (per-seed points beside the aggregates) and the choices of one seed per learned group."""
+    """Figures 1-6 (per-seed points beside the aggregates) and the choices of one seed per learned group,
+    drawn in matplotlib's own defaults whatever style the calling process set (``style.use()`` in a
+    notebook, or an earlier test): the manifest records their bytes."""
+    import matplotlib
+
+    with matplotlib.rc_context():
+        matplotlib.rcdefaults()
+        return _figures(results, floor, fig_dir)
+
+
+def _figures(results: dict, floor: dict | None, fig_dir: Path) -> list[Path]:
     from adaptfilt.plots import plot_anees_bars, plot_choices, plot_rmse_bars, plot_tradeoff, plt
 
     from adaptfilt.seed_stats import collapse_seeds
