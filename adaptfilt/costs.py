@@ -11,7 +11,9 @@ and read by both families:
 
 * :class:`Cost`, for a Gaussian-assumed filter's update (:class:`~adaptfilt.mdp.FilterEnv`):
   ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"`` ``log(1 + max(0, NIS - nz))``, ``"stateinnov"``
-  ``||K z~||``, plus ``compute_weight * theta`` (the paper's ``n_iter / 50``);
+  ``||K z~||``, ``"sqerr"`` ``||x_filt - x||^2`` against the true state (beyond the paper: a cost only
+  a simulation can pay; the environment hands it the truth, :attr:`Cost.needs_truth`), plus
+  ``compute_weight * theta`` (the paper's ``n_iter / 50``);
 * :class:`ParticleCost`, for a particle filter's update with ``N`` particles
   (:class:`~adaptfilt.particle_env.ParticleCountEnv`): the same NIS-type costs of the Gaussian fit of
   the predicted measurement, ``"stateinnov"`` as the update's move of the mean, ``"sqerr"``
@@ -78,17 +80,26 @@ class Cost:
     """One-step cost ``L(s, z, theta)`` of Section VI-D for a Gaussian-assumed filter's update.
 
     ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
-    (``log(1 + max(0, NIS - nz))``) or ``"stateinnov"`` (``||K z~||``);
-    ``compute_weight`` adds ``weight * theta`` (the iteration count of the SIF).
+    (``log(1 + max(0, NIS - nz))``), ``"stateinnov"`` (``||K z~||``) or ``"sqerr"``
+    (``||x_{t|t} - x_t||^2``, the squared error of the update's mean against the true state ``x_t``:
+    beyond the paper, for the learned-gain study of issue 38, where the kappa policy is trained on the
+    objective supervised KalmanNet is trained on); ``compute_weight`` adds ``weight * theta`` (the
+    iteration count of the SIF).
 
-    >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name
-    ('nis', 'stateinnov+n_iter/50')
+    Only ``"sqerr"`` reads the truth (:attr:`needs_truth`): :class:`~adaptfilt.mdp.FilterEnv` then passes
+    ``truth (nx, M)``, the true state of the step, run-last as the update; the other kinds are called
+    exactly as before, without it. A policy trained on ``"sqerr"`` still sees only its information state.
+    Its greedy baseline (the argmin of the one-step cost over the grid) reads the truth: an oracle, not
+    a filter.
+
+    >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name, Cost("sqerr").needs_truth
+    ('nis', 'stateinnov+n_iter/50', True)
     """
 
-    kind: Literal["nis", "logmaxnis", "stateinnov"] = "nis"
+    kind: Literal["nis", "logmaxnis", "stateinnov", "sqerr"] = "nis"
     compute_weight: float = 0.0
 
-    KINDS = ("nis", "logmaxnis", "stateinnov")
+    KINDS = ("nis", "logmaxnis", "stateinnov", "sqerr")
 
     def __post_init__(self):
         _check_kind(self.kind, self.KINDS)
@@ -102,17 +113,35 @@ class Cost:
         w = f"n_iter/{inv:g}" if abs(inv - round(inv)) < 1e-9 else f"{self.compute_weight:g}*n_iter"
         return f"{self.kind}+{w}"
 
-    def estimation_cost(self, u, nz: int) -> np.ndarray:
+    @property
+    def needs_truth(self) -> bool:
+        """Whether the cost reads the true state (``"sqerr"``): the environment then passes ``truth=``."""
+        return self.kind == "sqerr"
+
+    def estimation_cost(self, u, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
         """The estimation part of the cost, per run, of an update ``u`` (run-last: ``nis (M,)``,
-        ``K (nx, nz, M)``, ``innovation (nz, M)``)."""
+        ``K (nx, nz, M)``, ``innovation (nz, M)``, ``x_filt (nx, M)``); ``truth (nx, M)``: the true
+        state, read by ``"sqerr"`` only (ValueError when it is missing or not finite)."""
         if self.kind in NIS_COSTS:
             return NIS_COSTS[self.kind](u.nis, nz)
+        if self.kind == "sqerr":
+            if truth is None:
+                raise ValueError("the 'sqerr' cost needs the true state: call it with truth= (nx, M) "
+                                 "(a FilterEnv does, from its trajectory's x)")
+            truth = np.asarray(truth, dtype=float)
+            if truth.shape != u.x_filt.shape:
+                raise ValueError(f"the 'sqerr' cost: truth must be run-last (nx, M) = {u.x_filt.shape}, got {truth.shape}")
+            if not np.all(np.isfinite(truth)):
+                raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x); "
+                                 "got non-finite ones")
+            e = u.x_filt - truth
+            return (e * e).sum(axis=0)
         dx = np.einsum("ijM,jM->iM", u.K, u.innovation)
         return np.sqrt((dx * dx).sum(axis=0))
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
-        """Cost per run of update ``u`` made with parameter(s) ``theta``."""
-        c = self.estimation_cost(u, nz)
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        """Cost per run of update ``u`` made with parameter(s) ``theta`` (``truth``: see :meth:`estimation_cost`)."""
+        c = self.estimation_cost(u, nz, truth)
         return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
 
 

@@ -258,6 +258,16 @@ VARIANTS: dict[str, Experiment] = {
     for e in EXPERIMENTS.values() if e.envs == _SIF
 }
 
+#: The kappa experiments on the squared error ``||x_{t|t} - x_t||^2`` (beyond the paper; the learned-gain study
+#: of issue 38, :mod:`adaptfilt.experiments.studies.gain`): grid, features and filter of ``ungm-ukf`` and
+#: ``ctm-ukf``, the cost of supervised KalmanNet. A simulation-only cost (training knows the truth; the
+#: policy sees its information state only); their greedy baseline reads the truth (an oracle).
+SQERR_VARIANTS: dict[str, Experiment] = {
+    f"{e.name}-sqerr": replace(e, name=f"{e.name}-sqerr", cost=Cost("sqerr"),
+                               description=e.description.split(", NIS cost")[0] + ", ||x_filt - x||^2 cost (beyond the paper)")
+    for e in EXPERIMENTS.values() if e.name in ("ungm-ukf", "ctm-ukf")
+}
+VARIANTS.update(SQERR_VARIANTS)
 
 #: Prices per particle of the particle-count experiments (beyond the paper), per model: the default's
 #: 1000 particles cost about a tenth of, and about as much as, the default's mean squared error

@@ -107,7 +107,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Sequence
 
 import numpy as np
 import torch
@@ -452,6 +452,20 @@ class KalmanNet:
             info["K"] = K
         return FilterRun(mean=mean, cov=cov, nis=nan, loglik=nan, params=nan, x_pred=x_pred, info=info)
 
+    def snapshot(self, epoch: int) -> "KalmanNet":
+        """The filter as a training of ``epoch`` epochs returned it (``train_kalmannet(snapshots=...)``):
+        a copy with those weights and that history. ValueError naming the epochs kept otherwise."""
+        kept = getattr(self, "_snapshots", {})
+        if int(epoch) not in kept:
+            raise ValueError(f"no snapshot at epoch {epoch}; kept: {sorted(kept) or 'none (train with snapshots=...)'}")
+        state, hist = kept[int(epoch)]
+        other = copy.copy(self)
+        other.net = copy.deepcopy(self.net)
+        other.net.load_state_dict(state)
+        other.net.eval()
+        other.history, other._snapshots = copy.deepcopy(hist), {}
+        return other
+
     # -------------------------------------------------------------- files
     def n_parameters(self) -> int:
         return sum(p.numel() for p in self.net.parameters())
@@ -545,7 +559,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     train: Trajectory | None = None, val: Trajectory | None = None, progress: bool = True,
                     calibration: float = 1.0, init: KalmanNet | None = None,
                     on_diverged: Literal["raise", "restore"] = "raise", max_restores: int = 5,
-                    max_cpu_s: float | None = None,
+                    max_cpu_s: float | None = None, snapshots: Sequence[int] = (),
                     **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
@@ -581,6 +595,13 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         A training budget in process CPU seconds (everything since the call: simulation,
         validation): training stops after the optimiser step that spends it, validates once more
         and keeps the best model (``history["stopped_by_budget"]``). For budget-matched studies.
+    snapshots : sequence of int
+        Epochs after which to keep the model as a training of that many epochs would have returned it
+        (the best on validation so far, its history cut there): ``knet.snapshot(e)``. Training is
+        deterministic per seed and an epoch does not depend on the epochs after it, so a snapshot at
+        ``e`` is the filter of ``epochs=e`` (weights bit for bit; the CPU seconds are those spent up to
+        it). One training then serves a budget curve (the learned-gain study). ValueError for an epoch
+        outside ``1..epochs``.
     on_diverged : "raise" or "restore"
         What a non-finite training loss, gradient or validation loss does: ``"raise"`` (default)
         :class:`TrainingDiverged` naming the epoch and optimiser step; ``"restore"`` (a documented
@@ -605,6 +626,9 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         raise ValueError(f"clip must be a positive gradient norm or None, got {clip}")
     if max_cpu_s is not None and not float(max_cpu_s) > 0:
         raise ValueError(f"max_cpu_s must be a positive number of CPU seconds or None, got {max_cpu_s}")
+    snaps = sorted({int(e) for e in snapshots})
+    if any(e < 1 or e > int(epochs) for e in snaps) or any(int(e) != e for e in snapshots):
+        raise ValueError(f"snapshots must be epochs in 1..epochs={int(epochs)}, got {list(snapshots)}")
     if on_diverged not in ("raise", "restore"):
         raise ValueError(f"on_diverged must be 'raise' or 'restore', got {on_diverged!r}")
     if not (math.isfinite(lr) and lr > 0):
@@ -663,6 +687,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         best_state = copy.deepcopy(knet.net.state_dict())
         hist["val_loss"].append(best)
         step = 0
+        kept: dict[int, tuple[dict, dict]] = {}  # epoch -> (best weights so far, history then)
         for epoch in bar:
             knet.net.train()
             perm = order_rng.permutation(M)
@@ -710,6 +735,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                 best_state = copy.deepcopy(knet.net.state_dict())
             if progress:
                 bar.set_postfix(train=f"{hist['train_loss'][-1]:.4g}", val=f"{v:.4g}")
+            if epoch in snaps:
+                kept[epoch] = (copy.deepcopy(best_state), {
+                    **hist, "train_loss": list(hist["train_loss"]), "val_loss": list(hist["val_loss"]),
+                    "restores": list(hist["restores"]), "epochs": epoch, "best_val_loss": best,
+                    "optimiser_steps": step, "cpu_s": time.process_time() - cpu0})
             if hist["stopped_by_budget"]:
                 break
     knet.net.load_state_dict(best_state)
@@ -718,4 +748,5 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     hist["optimiser_steps"] = step
     hist["cpu_s"] = time.process_time() - cpu0
     knet.history = hist
+    knet._snapshots = kept
     return knet

@@ -20,7 +20,8 @@ that is stored with a trained policy.
 **Costs** (Section VI-D), all functions of the update under the chosen parameter:
 ``L_NIS = (NIS - nz)^2``, ``L_logmaxNIS = log(1 + max(0, NIS - nz))``,
 ``L_stateInnov = ||K z~||``, plus an optional computational term
-``weight * n_iter`` (the paper uses ``1/50``): :class:`~adaptfilt.costs.Cost`, in
+``weight * n_iter`` (the paper uses ``1/50``); beyond the paper ``L_sqerr = ||x_{t|t} - x_t||^2``
+against the episode's true state (:meth:`FilterEnv._charge` hands it to the cost): :class:`~adaptfilt.costs.Cost`, in
 :mod:`adaptfilt.costs` with every other cost (this module's ``Cost`` is that one).
 
 :class:`FilterEnv` meets :class:`~adaptfilt.paramenv.ParamEnv`, the interface every parameter MDP
@@ -259,6 +260,9 @@ class FilterEnv:
             tf = np.asarray(self.model.time_features(d.t + 1), dtype=float)
             blocks.append(np.repeat(tf[:, None], M, axis=1))
         if fs.candidates:
+            if getattr(self.cost, "needs_truth", False):
+                # the candidates' costs would hand the policy the true state
+                raise ValueError(f"the 'cand' features would read the true state through the cost {self.cost.name!r}")
             cost = d.candidates()["cost"]
             if cost is None:
                 raise ValueError("the 'cand' features need an environment with a cost")
@@ -289,8 +293,22 @@ class FilterEnv:
         out = {"update": u, "theta": theta, "repaired": flags.reshape(G, M) | pred_flags[None],
                "nis": u.nis.reshape(G, M), "loglik": u.loglik.reshape(G, M), "cost": None}
         if self.cost is not None:
-            out["cost"] = self.cost(u, theta, self.nz).reshape(G, M)
+            out["cost"] = self._charge(u, theta, t, G).reshape(G, M)
         return out
+
+    def _charge(self, u, theta: np.ndarray, t: int, repeat: int = 1) -> np.ndarray:
+        """The cost of update ``u`` at step ``t``; a cost that reads the truth (``needs_truth``, the
+        ``"sqerr"`` :class:`~adaptfilt.costs.Cost`) gets the true state of step ``t`` from the episode's
+        trajectory, run-last ``(nx, M)``, tiled ``repeat`` times for the grid's candidates (candidate
+        ``g`` of run ``m`` sits at ``g M + m``). Every other cost is called exactly as always."""
+        if not getattr(self.cost, "needs_truth", False):
+            return self.cost(u, theta, self.nz)
+        x = self.traj.x
+        if x.ndim != 3 or x.shape[1] <= t:
+            raise ValueError(f"cost {self.cost.name!r} needs the true state of step {t}: the trajectory has "
+                             f"states of shape {x.shape}")
+        truth = np.ascontiguousarray(x[:, t].T)
+        return self.cost(u, theta, self.nz, truth=np.tile(truth, (1, repeat)) if repeat > 1 else truth)
 
     def _new_decision(self) -> Decision:
         self._decision = Decision(self._t, self.grid, self.default_index, self,
@@ -383,7 +401,7 @@ class FilterEnv:
         else:
             u, repaired = self._logging_repairs(M, lambda: self.filt.update_rl(
                 self._m, self._P, self._z_t, t, theta, rng=self.filt.rng(UPDATE, t, self.stream)))
-            cost = None if self.cost is None else self.cost(u, theta, self.nz)
+            cost = None if self.cost is None else self._charge(u, theta, t)
         info = {"t": t, "theta": theta, "update": u, "x_filt": u.x_filt.T, "P_filt": np.moveaxis(u.P_filt, -1, 0),
                 "nis": u.nis, "loglik": u.loglik, "x_pred": self._m.T, "P_pred": np.moveaxis(self._P, -1, 0),
                 # the chosen candidate is the update that happens: not spent on top of it

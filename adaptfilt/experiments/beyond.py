@@ -37,7 +37,7 @@ __all__ = ["BeyondScale", "FULL", "QUICK", "run", "command", "summary_md", "STUD
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"
 #: The ``--studies`` words, in the order the command line lists them.
-STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look", "particles")
+STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look", "particles", "gain")
 
 
 def command(out_dir: str | Path, quick: bool, studies: tuple[str, ...]) -> str:

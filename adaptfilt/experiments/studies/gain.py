@@ -1,0 +1,660 @@
+r"""Study 8, ``gain``: learn the parameter or learn the gain? (issue 38, item 2)
+
+A 2 x 2 design on UNGM (``ungm-ukf``, T = 500) and the bearing-only CTM (``ctm-ukf``, T = 150) that
+separates *what is learned* from *what it is trained on*:
+
+==============  ===========================================  ==========================================
+arm (group)     what is learned                              what it is trained on
+==============  ===========================================  ==========================================
+``kappa-nis``   the UKF's kappa per step (the reproduction's  the paper's NIS cost ``(NIS - nz)^2``
+                fast mode, gamma 0.5: ``ungm-ukf``/``ctm-ukf``) (measurements only)
+``kappa-sqerr`` the same learner                             ``||x_{t|t} - x_t||^2`` (``*-ukf-sqerr``)
+``gain-unsup``  KalmanNet's gain (:mod:`adaptfilt.kalmannet`)  ``|z_t - h(x_{t|t-1})|^2`` (measurements)
+``gain-sup``    KalmanNet's gain                             ``|x_{t|t} - x_t|^2`` (the paper's)
+==============  ===========================================  ==========================================
+
+**Budgets matched in CPU seconds, fixed in work units.** A budget is a number of episodes (kappa) or
+epochs (KalmanNet), so that the same seed gives the same policy on any machine of the same kind; the
+numbers were calibrated once on this 2-core machine (under ``nice -n 19``, other work running) to the
+targets :data:`TARGET_CPU_S` = 5, 15 and 45 CPU-s per policy (:data:`CALIBRATION` records the
+measurements that set them), and every policy's *measured* training CPU-s is reported beside its
+budget. KalmanNet trains once per seed and arm and is snapshotted at the three epoch counts
+(``train_kalmannet(snapshots=...)``: a snapshot is bit for bit the filter of a training that stopped
+there); the kappa learner (:func:`adaptfilt.trainers.train_policy` has no snapshots) trains
+separately at each budget, as the other studies' ``adaptfilt train`` jobs.
+
+**KalmanNet's recipe** (:data:`KNET`, fixed before any evaluation): 100 training and 50 validation
+trajectories of the full horizon simulated per seed (``data_seed`` = the seed: both gain arms of a seed
+see the same trajectories; the kappa learner simulates its own episodes from its seed), minibatches of
+20 whole trajectories (full back-propagation through time), Adam 1e-3, weight decay 1e-4, gradient
+norm clipped at 10, the best validation model kept, a non-finite loss restoring the best weights at half
+the learning rate (recorded in the file's history). Inputs scaled by fixed scales from a pilot
+simulation (``feature_norm="scale"``), not the public code's per-sample L2 norm, which leaves only the
+sign of UNGM's and the bearing's one-dimensional features. Plain KalmanNet: it gives **no covariance**,
+so its ANEES and its NEES-based divergence are *n/a* (``None`` in the summary, NaN in the stored
+evaluation, never averaged), and so is the NIS-type cost (no innovation covariance). The Bayesian
+variant (dropout copies, a covariance) costs ``J`` times as much per step and is not an arm here.
+
+**Evaluation.** On the same runs (seed 0) every arm's policies beside the default, every update-only
+constant kappa (the best one in hindsight by RMSE is the bar), greedy and ML (on the NIS cost, the
+reproduction's), the bootstrap particle filter (:class:`~adaptfilt.exact.BootstrapParticleFilter`,
+:data:`PF_PARTICLES`) and, on UNGM, the point-mass filter on the first :attr:`GainScale.floor_runs`
+runs with the truth's own model (the Bayes floor; under the mismatch the filter that knows ``Q x 4``).
+KalmanNet enters the same :class:`~adaptfilt.results.Results` through :func:`kalmannet_result`, the
+library's own :func:`~adaptfilt.evaluation.summarise_rollout` on the evaluation's trajectories and
+bootstrap counts (:func:`~adaptfilt.evaluation.setup_evaluation`), so its differences to every other
+policy are paired. Two regimes (:data:`REGIMES`): the nominal model and a truth with ``Q x 4``
+(:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the nominal model, the filters keep it).
+The final budget is evaluated on :attr:`GainScale.eval_runs` runs (10^4), the budget curve (all three
+budgets, default and constants) on :attr:`GainScale.curve_runs` runs (2000: a cheaper, separate set).
+
+**Metrics**: RMSE (the verdicts' metric), MSE in dB (``10 log10`` of the mean squared error over runs
+and steps, KalmanNet's unit; per seed, IQM over seeds without an interval), ANEES and the NIS cost where
+defined, divergent runs by the error rule (a non-finite estimate, counted as an infinite error, never
+dropped, or a run RMSE above :data:`DIVERGED_RMSE`) for every arm and by the library's NEES rule where a
+covariance exists, training CPU-s, microseconds per run-step (the evaluation's wall time over its
+``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level with
+:data:`adaptfilt.seed_stats.MARGINS` for the pairs of :data:`PAIRS`, at every budget, model and regime.
+
+**Size of the full run** (measured on this machine, 2 cores, ``nice -n 19``, other work running; see
+:data:`CALIBRATION`): trainings: KalmanNet 2 models x 2 arms x 8 seeds at the top budget (about 45
+CPU-s each, the snapshots free) = 32 x 45 ~ 1,450 CPU-s; kappa 2 x 2 x 8 x (5 + 15 + 45) ~ 2,100 CPU-s;
+evaluations: see :data:`SIZE`. Total about 5,000-6,300 CPU-s, i.e. about 45-55 minutes of wall time on
+2 cores. Not run yet.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, job_key
+from adaptfilt.experiments.report import md_table
+from adaptfilt.experiments.study import COMPACT, Run, diff_ci
+
+NAME = "gain"
+
+#: The models: the nominal experiment (the kappa-nis arm's, and the evaluation's: its NIS cost, grid, greedy
+#: and ML) and its squared-error twin (the kappa-sqerr arm's training experiment).
+MODELS = {"ungm-ukf": "ungm-ukf-sqerr", "ctm-ukf": "ctm-ukf-sqerr"}
+#: The arms, in the order the tables list them: (group, what is learned, what it is trained on).
+ARMS = (("kappa-nis", "kappa", "NIS cost"), ("kappa-sqerr", "kappa", "squared error"),
+        ("gain-unsup", "gain", "predicted-measurement error"), ("gain-sup", "gain", "squared error"))
+ARM_NAMES = tuple(a for a, _, _ in ARMS)
+#: KalmanNet's loss per gain arm.
+LOSS = {"gain-unsup": "unsupervised", "gain-sup": "supervised"}
+#: The regimes: truth noise scale factors (q, r); the filters keep the nominal model.
+REGIMES = {"nominal": (1.0, 1.0), "q4": (4.0, 1.0)}
+#: Target training CPU-s of the three budgets (per policy).
+TARGET_CPU_S = (5.0, 15.0, 45.0)
+#: KalmanNet's training recipe (module docstring); ``n_steps`` is the model's horizon (the scale's at quick).
+KNET = dict(n_train=100, n_val=50, batch_size=20, lr=1e-3, weight_decay=1e-4, clip=10.0, feature_norm="scale",
+            on_diverged="restore")
+#: Particles of the bootstrap particle filter reference (the reproduction's references: bpf-500 on UNGM,
+#: bpf-1000 on the CTM).
+PF_PARTICLES = {"ungm-ukf": 500, "ctm-ukf": 1000}
+#: Error rule of a diverged run, for every arm (plain KalmanNet has no NEES): a run RMSE above this, about
+#: the size of UNGM's state itself (|x| < 30) and 25 times the CTM particle filter's RMSE, or a
+#: non-finite estimate.
+DIVERGED_RMSE = {"ungm-ukf": 30.0, "ctm-ukf": 1000.0}
+#: Keys the reference filter's random stream (apart from the trajectories').
+_PF_KEY = 38
+
+#: The measurements that set the budgets (2026-12, this machine, 2 cores, ``nice -n 19`` beside other timed
+#: work; process CPU-s of one training, one torch thread): the kappa learner (``--algo fast``, seed 0) and
+#: KalmanNet (:data:`KNET`, seed 0, per epoch incl. validation; the snapshot's CPU-s at each epoch).
+CALIBRATION = {
+    "kappa ungm-ukf": {"100 episodes": 1.68, "400 episodes": 5.14},
+    "kappa ungm-ukf-sqerr": {"100 episodes": 1.68, "400 episodes": 4.70},
+    "kappa ctm-ukf": {"100 episodes": 0.48, "400 episodes": 1.55},
+    "kappa ctm-ukf-sqerr": {"100 episodes": 0.48, "400 episodes": 1.56},
+    # KNET but 200 training trajectories: per-epoch CPU-s (snapshot CPU-s at epochs 1, 2, 3, ...); the
+    # study's 100 halve the training part (validation, 50 trajectories, stays)
+    "kalmannet ungm-ukf supervised, n_train=200": {"snapshot CPU-s": [8.36, 17.97, 27.2]},
+    "kalmannet ungm-ukf unsupervised, n_train=200": {"snapshot CPU-s": [8.94, 19.84, 30.32]},
+    "kalmannet ctm-ukf supervised, n_train=200": {"snapshot CPU-s": [2.95, 5.98, 9.5, 13.03, 16.53, 19.94]},
+}
+#: The full run's measured sizes (filled in from :data:`CALIBRATION` and one timed evaluation job).
+SIZE: dict = {}
+
+
+@dataclass(frozen=True)
+class GainScale:
+    """The study's budgets: seeds, horizon (None: the model's), runs of the final evaluation and of the
+    budget curve, runs of the point-mass floor, and per model the three budgets in work units: kappa
+    episodes and KalmanNet epochs; ``knet`` overrides :data:`KNET`'s sizes (the quick scale's)."""
+
+    name: str
+    seeds: tuple[int, ...]
+    n_steps: int | None
+    eval_runs: int
+    curve_runs: int
+    floor_runs: int
+    kappa_episodes: dict
+    knet_epochs: dict
+    knet: dict
+    pf_particles: dict
+
+    def words(self) -> str:
+        return (f"gain-scale={self.name} seeds={len(self.seeds)} steps={self.n_steps} runs={self.eval_runs} "
+                f"curve={self.curve_runs} floor={self.floor_runs} kappa={self.kappa_episodes} "
+                f"knet={self.knet_epochs} {self.knet} pf={self.pf_particles}")
+
+
+#: The full scale: budgets from :data:`CALIBRATION` for :data:`TARGET_CPU_S`.
+FULL = GainScale("full", tuple(range(8)), None, 10_000, 2000, 200,
+                 {"ungm-ukf": (400, 1250, 4000), "ctm-ukf": (1350, 4150, 12500)},
+                 {"ungm-ukf": (1, 3, 10), "ctm-ukf": (3, 8, 25)}, {}, PF_PARTICLES)
+#: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (one PPO rollout each).
+QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": (2, 4, 6), "ctm-ukf": (2, 4, 6)},
+                  {"ungm-ukf": (1, 2, 3), "ctm-ukf": (1, 2, 3)}, {"n_train": 8, "n_val": 4, "batch_size": 4},
+                  {"ungm-ukf": 50, "ctm-ukf": 50})
+
+
+def scale_of(run: Run) -> GainScale:
+    return QUICK if run.quick else FULL
+
+
+def budgets(scale: GainScale) -> range:
+    return range(1, 1 + len(TARGET_CPU_S))
+
+
+# ------------------------------------------------------------------ files and names
+def policy_name(arm: str, budget: int, seed: int) -> str:
+    """``<arm>-b<budget>-s<seed>``: group ``<arm>-b<budget>`` for :func:`adaptfilt.seed_stats.seed_groups`."""
+    return f"{arm}-b{budget}-s{seed}"
+
+
+def policy_rel(experiment: str, arm: str, budget: int, seed: int) -> str:
+    """Where a policy of the study lives in ``DIR/beyond``."""
+    return f"policies/{experiment}-{policy_name(arm, budget, seed)}.npz"
+
+
+def knet_options(scale: GainScale) -> dict:
+    return {**KNET, **scale.knet}
+
+
+def knet_command(experiment: str, arm: str, seed: int, scale: GainScale, epoch: int) -> str:
+    """What a KalmanNet file records (the manifest's ``command``): the call that makes it."""
+    from adaptfilt.experiment_registry import get_experiment
+
+    model = get_experiment(experiment).make_model()
+    T = scale.n_steps or model.n_steps
+    kw = ", ".join(f"{k}={v!r}" for k, v in sorted(knet_options(scale).items()))
+    last = scale.knet_epochs[experiment][-1]
+    return (f"adaptfilt.kalmannet.train_kalmannet(<{model.name}>, loss={LOSS[arm]!r}, n_steps={T}, epochs={last}, "
+            f"seed={seed}, {kw}, snapshots={list(scale.knet_epochs[experiment])}).snapshot({epoch})")
+
+
+# ------------------------------------------------------------------ KalmanNet training (prepare)
+def train_gain_job(experiment: str, arm: str, seed: int, scale: GainScale, paths: list[str]) -> dict:
+    """Train KalmanNet for ``arm`` once to the top budget and save its snapshot at each budget's epochs into
+    ``paths``; returns per path its training CPU-s (up to the snapshot), epochs, best epoch, restores."""
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.kalmannet import train_kalmannet
+
+    model = get_experiment(experiment).make_model()
+    epochs = scale.knet_epochs[experiment]
+    knet = train_kalmannet(model, loss=LOSS[arm], n_steps=scale.n_steps or model.n_steps, epochs=epochs[-1],
+                           seed=seed, progress=False, snapshots=epochs, **knet_options(scale))
+    out = {}
+    for e, p in zip(epochs, paths):
+        snap = knet.snapshot(e)
+        snap.save(p)
+        h = snap.history
+        out[p] = {"cpu_time_s": float(h["cpu_s"]), "epochs": int(e), "best_epoch": int(h["best_epoch"]),
+                  "restores": len(h["restores"]), "optimiser_steps": int(h["optimiser_steps"])}
+    return out
+
+
+def prepare(run: Run) -> dict:
+    """KalmanNet's trainings (one per model, gain arm and seed, snapshotted at the budgets), as journaled jobs;
+    files an earlier run listed in the manifest with the same command and sha256 are reused."""
+    from adaptfilt.experiments.beyond import _listed_policies, _same_training
+
+    sc = scale_of(run)
+    listed = _listed_policies(run.out)
+    jobs, keys, files = [], [], []
+    for e in MODELS:
+        for arm in LOSS:
+            for s in sc.seeds:
+                rels = [policy_rel(e, arm, b, s) for b in budgets(sc)]
+                cmds = [knet_command(e, arm, s, sc, ep) for ep in sc.knet_epochs[e]]
+                if all(_same_training(listed.get(r), c, run.out / r) for r, c in zip(rels, cmds)):
+                    continue
+                paths = [str(run.out / r) for r in rels]
+                jobs.append((e, arm, s, sc, paths))
+                keys.append((f"beyond gain kalmannet {e} {arm} {sc.words()} {KNET}", s))
+                files.append(paths)
+    run.say(f"[beyond] gain: {len(jobs)} KalmanNet trainings (each snapshotted at {len(TARGET_CPU_S)} budgets)")
+    values = run.jobs(train_gain_job, jobs, keys, files=files, progress=run.progress, desc="beyond: KalmanNet")
+    for (e, arm, s, _, paths), v in zip(jobs, values):
+        for ep, p in zip(sc.knet_epochs[e], paths):
+            rel = str(Path(p).relative_to(run.out))
+            run.entries[rel] = {"command": knet_command(e, arm, s, sc, ep), "cpu_time_s": v[p]["cpu_time_s"]}
+    return {}
+
+
+# ------------------------------------------------------------------ kappa trainings
+def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+    """The kappa learner (fast mode, gamma 0.5) on the NIS cost and on the squared error, one training per
+    budget (episodes) and seed."""
+    sc = scale_of(run)
+    out = []
+    for e, sq in MODELS.items():
+        for arm, exp in (("kappa-nis", e), ("kappa-sqerr", sq)):
+            for b, episodes in zip(budgets(sc), sc.kappa_episodes[e]):
+                for s in sc.seeds:
+                    rel = policy_rel(e, arm, b, s)
+                    out.append((rel, TrainSpec(exp, 0.5, episodes, s, str(run.out / rel), horizon=sc.n_steps)))
+    return out
+
+
+# ------------------------------------------------------------------ evaluation
+#: The parts of one (model, regime) evaluation, each its own job: the final budget's UKF policies and
+#: baselines, KalmanNet's, the references (particle filter, floor), and the budget curve.
+PARTS = ("ukf", "gain", "reference", "curve")
+
+
+def _env(experiment: str, regime: str, scale: GainScale, seed: int = 0):
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiments.ood import Condition, mismatched_env
+
+    if regime not in REGIMES:
+        raise ValueError(f"unknown regime {regime!r}; known: {', '.join(REGIMES)}")
+    if regime == "nominal":
+        return get_experiment(experiment).make_env(seed=seed, n_steps=scale.n_steps)
+    return mismatched_env(experiment, Condition(*REGIMES[regime]), seed, scale.n_steps)
+
+
+def _kappa(experiment: str, files: dict[str, str]) -> list:
+    """The kappa policies ``{name: file}``, each loaded (and checked) against its training experiment."""
+    from adaptfilt.learned import load_policy
+
+    out = []
+    for name, f in files.items():
+        exp = MODELS[experiment] if name.startswith("kappa-sqerr") else experiment
+        out.append(load_policy(f, experiment=exp, name=name))
+    return out
+
+
+def kalmannet_result(name: str, knet, env, traj, counts: np.ndarray, level: float = 0.95):
+    """One :class:`~adaptfilt.results.PolicyResult` for a trained KalmanNet on an evaluation's runs ``traj``
+    and bootstrap ``counts`` (:func:`~adaptfilt.evaluation.setup_evaluation`), reduced by the library's
+    :func:`~adaptfilt.evaluation.summarise_rollout` as any policy, so that it is paired with the others.
+
+    A non-finite estimate (a learned gain can make the recursion unstable) counts as an infinite error from
+    that step on: the run is kept and diverged. Plain KalmanNet has no covariance: its ANEES fields and its
+    NEES-based ``divergent_frac`` are set to NaN here explicitly (summarise_rollout is given an identity
+    covariance to run, whose NEES is discarded); the Bayesian variant keeps its own. No NIS cost (no
+    innovation covariance): ``cost`` and the objective are NaN, as for a cost-less evaluation.
+    ``wall_time_s``: filtering plus reduction, as for every policy."""
+    from adaptfilt.evaluation import summarise_rollout
+    from adaptfilt.gaf import FilterRun
+    from adaptfilt.results import PolicyResult
+
+    T = env.n_steps
+    x = traj.x[:, :T]
+    M = x.shape[0]
+    t0 = time.perf_counter()
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = knet.run(traj.z[:, :T])
+    mean = np.where(np.isfinite(r.mean).all(axis=-1, keepdims=True), r.mean, np.inf)
+    # a step after a non-finite one stays diverged (the recursion has no way back)
+    bad = np.maximum.accumulate(~np.isfinite(mean).all(axis=-1), axis=1)
+    mean = np.where(bad[..., None], np.inf, mean)
+    has_cov = knet.bayesian
+    cov = r.cov if has_cov else np.broadcast_to(np.eye(env.nx), (M, T, env.nx, env.nx))
+    nan = np.full((M, T), np.nan)
+    fr = FilterRun(mean=mean, cov=np.where(np.isfinite(cov), cov, np.inf) if has_cov else cov, nis=nan, loglik=nan,
+                   params=nan, info={"spent": np.full(M, np.nan), "on_indefinite": "inf"})
+    with np.errstate(over="ignore", invalid="ignore"):
+        summ = summarise_rollout(name, x, fr, None, env.grid, counts, 0, level)
+    if not has_cov:
+        B = counts.shape[0]
+        summ.update(anees=np.nan, anees_ci=(np.nan, np.nan), anees_t=np.full(T, np.nan),
+                    anees_t_band=np.full((2, T), np.nan), boot_anees=np.full(B, np.nan), run_anees=np.full(M, np.nan),
+                    anees_run_median=np.nan, divergent_frac=np.nan)
+    summ["nis"] = np.nan
+    return PolicyResult(name=name, **summ, wall_time_s=time.perf_counter() - t0)
+
+
+def _runs(env, exp, n_runs: int, seed: int = 0):
+    """The evaluation's trajectories, bootstrap counts and config, as :func:`~adaptfilt.evaluation.evaluate`
+    makes them for ``env`` (the same draws: the pairing of KalmanNet with the filters rests on it)."""
+    from adaptfilt.evaluation import setup_evaluation
+
+    probe = [p for p in exp.baselines() if p.name == "default"]
+    _, _, traj, counts, config = setup_evaluation(env, probe, n_runs, seed, 1000, None, 0.95, None)
+    return traj, counts, config
+
+
+def evaluate_part(experiment: str, regime: str, part: str, kappa: dict[str, str], gains: dict[str, str],
+                  scale: GainScale, seed: int = 0):
+    """One part (:data:`PARTS`) of the evaluation of ``experiment`` under ``regime``: a
+    :class:`~adaptfilt.results.Results` (``"reference"``: also the floor, in ``config["floor"]``).
+    ``kappa``/``gains``: policy name -> file."""
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.kalmannet import load_kalmannet
+    from adaptfilt.results import Results
+
+    if part not in PARTS:
+        raise ValueError(f"unknown part {part!r}; known: {', '.join(PARTS)}")
+    exp = get_experiment(experiment)
+    env = _env(experiment, regime, scale, seed)
+    n = scale.curve_runs if part == "curve" else scale.eval_runs
+    fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
+    if part in ("ukf", "curve"):
+        base = [p for p in exp.baselines() if p.name in ("default", "ml", "greedy")] if part == "ukf" else \
+            [p for p in exp.baselines() if p.name == "default"]
+        res = evaluate(env, base + fixed + _kappa(experiment, kappa), n_runs=n, seed=seed, progress=False)
+    if part != "ukf":
+        traj, counts, config = _runs(env, exp, n, seed)
+        if part != "curve":
+            res = Results(config=dict(config))
+    if part in ("gain", "curve"):
+        for name, f in gains.items():
+            res.policies[name] = kalmannet_result(name, load_kalmannet(f, env.model), env, traj, counts)
+    if part == "reference":
+        res.policies[f"bpf-{scale.pf_particles[experiment]}"] = _pf_result(env, traj, counts, scale.pf_particles[experiment], seed)
+        res.config["floor"] = _floor(env, traj, scale.floor_runs)
+    res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
+    return res
+
+
+def _pf_result(env, traj, counts, N: int, seed: int):
+    """The bootstrap particle filter with ``N`` particles on the runs, knowing the nominal model like the others."""
+    from adaptfilt.evaluation import summarise_rollout
+    from adaptfilt.exact import BootstrapParticleFilter
+    from adaptfilt.gaf import FilterRun
+    from adaptfilt.results import PolicyResult
+
+    T = env.n_steps
+    M = traj.n_runs
+    t0 = time.perf_counter()
+    pf = BootstrapParticleFilter(env.model, n_particles=int(N), seed=np.random.default_rng([_PF_KEY, seed, int(N)]))
+    r = pf.run(traj.z[:, :T])
+    fr = FilterRun(mean=r.mean, cov=r.cov, nis=r.nis, loglik=r.loglik, params=np.full((M, T), np.nan),
+                   info={**r.info, "spent": np.full(M, np.nan), "on_indefinite": "inf"})
+    summ = summarise_rollout(f"bpf-{N}", traj.x[:, :T], fr, None, env.grid, counts, 0, 0.95)
+    return PolicyResult(name=f"bpf-{N}", **summ, wall_time_s=time.perf_counter() - t0)
+
+
+def _floor(env, traj, n: int) -> dict:
+    """RMSE of the point-mass filter with the truth's model on the first ``n`` runs (scalar models; else None)."""
+    from adaptfilt.exact import PointMassFilter
+
+    if env.nx != 1:
+        return {"rmse": None, "runs": 0}
+    T = env.n_steps
+    sub = traj[:n]
+    r = PointMassFilter(env.truth, grid=np.linspace(-45, 45, 1801)).run(sub.z[:, :T])
+    se = ((r.mean - sub.x[:, :T]) ** 2).sum(axis=-1)
+    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "runs": int(n)}
+
+
+def _files(run: Run, experiment: str, budgets_: range) -> tuple[dict, dict]:
+    sc = scale_of(run)
+    kappa = {policy_name(a, b, s): str(run.out / policy_rel(experiment, a, b, s))
+             for a in ("kappa-nis", "kappa-sqerr") for b in budgets_ for s in sc.seeds}
+    gains = {policy_name(a, b, s): str(run.out / policy_rel(experiment, a, b, s))
+             for a in LOSS for b in budgets_ for s in sc.seeds}
+    return kappa, gains
+
+
+def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+    sc = scale_of(run)
+    last = range(len(TARGET_CPU_S), len(TARGET_CPU_S) + 1)
+    specs = []
+    for e in MODELS:
+        for regime in REGIMES:
+            for part in PARTS:
+                kappa, gains = _files(run, e, budgets(sc) if part == "curve" else last)
+                kappa = kappa if part in ("ukf", "curve") else {}
+                gains = gains if part in ("gain", "curve") else {}
+                files = list(kappa.values()) + list(gains.values())
+                specs.append(EvalSpec(NAME, e, evaluate_part, (e, regime, part, kappa, gains, sc),
+                                      job_key("gain", e, regime, part, files, sc.words()),
+                                      order={"ukf": 3, "curve": 2, "reference": 1, "gain": 0}[part], tag=(regime, part)))
+    return specs
+
+
+# ------------------------------------------------------------------ rows
+#: The pairs judged: (a, b, what the pair isolates). ``default`` and ``best fixed`` are the references.
+PAIRS = (("gain-sup", "kappa-sqerr", "what is learned (objective: squared error)"),
+         ("gain-unsup", "kappa-nis", "what is learned (objective: measurements only)"),
+         ("kappa-sqerr", "kappa-nis", "what it is trained on (learning kappa)"),
+         ("gain-sup", "gain-unsup", "what it is trained on (learning the gain)"),
+         *((a, ref, f"{a} vs the {ref}") for a in ARM_NAMES for ref in ("default", "best fixed")))
+
+
+def _mse_db(p) -> float:
+    """``10 log10`` of the mean squared error over runs and steps (``mean_t RMSE_t^2``)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return float(10 * np.log10(np.mean(np.asarray(p.rmse_t, float) ** 2)))
+
+
+def _num(x) -> float | None:
+    """A JSON number, or None for n/a (NaN)."""
+    x = float(x)
+    return None if np.isnan(x) else x
+
+
+def _train_cpu(run: Run, rel: str) -> float | None:
+    """A policy's measured training CPU-s: this run's record, else the manifest's (an earlier run's)."""
+    if rel in run.entries and run.entries[rel].get("cpu_time_s") is not None:
+        return float(run.entries[rel]["cpu_time_s"])
+    man = run.out / "manifest.json"
+    if man.exists():
+        for f in json.loads(man.read_text())["files"]:
+            if f["path"] == rel and f.get("cpu_time_s") is not None:
+                return float(f["cpu_time_s"])
+    p = run.out / rel
+    if p.exists() and "-gain-" in p.name:  # a KalmanNet file records its own
+        from adaptfilt.learned import read_npz
+
+        return float(read_npz(p, what="KalmanNet file")[1]["history"]["cpu_s"])
+    return None
+
+
+def arm_rows(res, arm: str, budget: int, experiment: str, train_cpu: dict) -> dict:
+    """One arm at one budget: RMSE (IQM over seeds, two-level CI), MSE dB per seed and IQM, ANEES and the NIS
+    cost where defined (None: n/a), divergent runs (error rule, every arm; NEES rule, where a covariance
+    exists), training CPU-s per seed, microseconds per run-step."""
+    from adaptfilt.seed_stats import aggregate, iqm
+
+    members = [policy_name(arm, budget, s) for s in sorted(train_cpu)]
+    members = [m for m in members if m in res]
+    M, T = res.config["n_runs"], res.config["n_steps"]
+    row = {"names": members, "rmse": aggregate(res, members, "rmse").to_dict()}
+    db = [_mse_db(res[n]) for n in members]
+    row["mse_db"] = {"values": db, "iqm": float(iqm(db))}
+    has_cov = all(np.isfinite(res[n].anees) for n in members)
+    row["covariance"] = bool(has_cov)
+    row["anees"] = aggregate(res, members, "anees").to_dict() if has_cov else None
+    row["cost"] = aggregate(res, members, "cost").to_dict() if arm.startswith("kappa") else None
+    lim = DIVERGED_RMSE[experiment]
+    row["divergent_error_rule"] = [int(np.sum(~(np.asarray(res[n].run_rmse) <= lim))) for n in members]
+    row["divergent_nees_rule"] = [int(round(res[n].divergent_frac * M)) for n in members] if has_cov else None
+    row["n_runs"] = M
+    row["train_cpu_s"] = [train_cpu[int(n.rsplit("-s", 1)[1])] for n in members]
+    row["us_per_step"] = [1e6 * res[n].wall_time_s / (M * T) for n in members]
+    return row
+
+
+def reference_rows(res, experiment: str) -> dict:
+    """Default, best constant in hindsight by RMSE (update-only), ML, greedy, the particle filter: RMSE,
+    MSE dB, ANEES, the NIS cost (None where not defined), divergent runs by both rules."""
+    fixed = [n for n in res.names if n.startswith("fixed-")]
+    best = min(fixed, key=lambda n: res[n].rmse) if fixed else None
+    out = {}
+    lim = DIVERGED_RMSE[experiment]
+    M, T = res.config["n_runs"], res.config["n_steps"]
+    for label, name in (("default", "default"), ("best fixed", best), ("ml", "ml"), ("greedy", "greedy"),
+                        *((n, n) for n in res.names if n.startswith("bpf-"))):
+        if name in res:
+            p = res[name]
+            out[label] = {"policy": name, "rmse": _num(p.rmse), "rmse_ci": [_num(v) for v in p.rmse_ci],
+                          "mse_db": _mse_db(p), "anees": _num(p.anees), "cost": _num(p.cost),
+                          "divergent_error_rule": int(np.sum(~(np.asarray(p.run_rmse) <= lim))),
+                          "divergent_nees_rule": int(round(p.divergent_frac * M)),
+                          "us_per_step": 1e6 * p.wall_time_s / (M * T)}
+    return out
+
+
+def verdict_rows(res, budget: int, seeds: tuple[int, ...]) -> list[dict]:
+    """Seed-level verdicts on RMSE for :data:`PAIRS` at ``budget``: the IQM difference ``a - b`` with its
+    two-level interval, "a lower than b" and "a not worse than b" (margin :func:`~adaptfilt.seed_stats.margin_for`
+    of b's IQM)."""
+    from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
+
+    fixed = [n for n in res.names if n.startswith("fixed-")]
+    refs = {"default": ["default"], "best fixed": [min(fixed, key=lambda n: res[n].rmse)] if fixed else []}
+    groups = {a: [policy_name(a, budget, s) for s in seeds if policy_name(a, budget, s) in res] for a in ARM_NAMES}
+    out = []
+    for a, b, what in PAIRS:
+        na, nb = groups.get(a) or [], groups.get(b) or refs.get(b) or []
+        if not na or not nb:
+            continue
+        with np.errstate(invalid="ignore", over="ignore"):
+            d = difference(res, na, nb, "rmse")["iqm"]
+            ref = aggregate(res, nb, "rmse").iqm
+        margin = margin_for("rmse", ref) if np.isfinite(ref) else 0.0
+        out.append({"a": a, "b": b if b in groups else f"{b} ({nb[0]})", "isolates": what, "budget": budget,
+                    "rmse_diff": [_num(v) for v in d], "lower": seed_verdict(d, "lower"),
+                    "not_worse": seed_verdict(d, "not worse", margin), "margin": margin})
+    return out
+
+
+def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
+    """Merge each (model, regime)'s parts, save them (``results/gain-<model>-<regime>`` and ``-curve``), and
+    summarise: references, every arm at every budget, verdicts; the floor."""
+    from adaptfilt.results import Results
+
+    sc = scale_of(run)
+    parts: dict = {}
+    for spec, v in zip(specs, values):
+        regime, part = spec.tag
+        parts.setdefault((spec.experiment, regime), {})[part] = v
+    cpu = {}
+    for e in MODELS:
+        for a in ARM_NAMES:
+            for b in budgets(sc):
+                cpu[(e, a, b)] = {s: _train_cpu(run, policy_rel(e, a, b, s)) for s in sc.seeds}
+    out: dict = {"scale": sc.name, "target_cpu_s": list(TARGET_CPU_S), "budgets": {
+        e: {"kappa_episodes": list(sc.kappa_episodes[e]), "knet_epochs": list(sc.knet_epochs[e])} for e in MODELS},
+        "knet": knet_options(sc), "eval_runs": sc.eval_runs, "curve_runs": sc.curve_runs, "models": {}}
+    for (e, regime), p in parts.items():
+        floor = p["reference"].config.pop("floor")
+        final = Results.merge([p["ukf"], p["gain"], p["reference"]])
+        curve = p["curve"]
+        last = len(TARGET_CPU_S)
+        entry = {"references": reference_rows(final, e), "floor": floor,
+                 "final": {a: arm_rows(final, a, last, e, cpu[(e, a, last)]) for a in ARM_NAMES},
+                 "curve": {a: {str(b): arm_rows(curve, a, b, e, cpu[(e, a, b)]) for b in budgets(sc)} for a in ARM_NAMES},
+                 "curve_references": reference_rows(curve, e),
+                 "verdicts": verdict_rows(final, last, sc.seeds) + [v for b in budgets(sc) if b < last
+                                                                     for v in verdict_rows(curve, b, sc.seeds)]}
+        run.save(f"gain-{e}-{regime}", final, drop=COMPACT)
+        run.save(f"gain-{e}-{regime}-curve", curve, drop=COMPACT)
+        out["models"].setdefault(e, {})[regime] = entry
+    return {NAME: out}
+
+
+# ------------------------------------------------------------------ figures and tables
+_COLORS = {"kappa-nis": "C0", "kappa-sqerr": "C1", "gain-unsup": "C2", "gain-sup": "C3"}
+
+
+def figures(run: Run, summary: dict) -> list[str]:
+    """The budget curves: RMSE (IQM over seeds, two-level 95 % interval) against the measured training CPU-s
+    (mean over seeds), per arm, each model and regime; the default, best constant and particle filter as lines."""
+    if NAME not in summary:
+        return []
+    import matplotlib.pyplot as plt
+
+    models = summary[NAME]["models"]
+    cells = [(e, r) for e in models for r in models[e]]
+    fig, axes = plt.subplots(1, len(cells), figsize=(3.6 * len(cells), 3.4), layout="constrained", squeeze=False)
+    for ax, (e, r) in zip(axes[0], cells):
+        m = models[e][r]
+        for a in ARM_NAMES:
+            pts = m["curve"][a]
+            xs = [float(np.mean([c for c in pts[b]["train_cpu_s"] if c is not None] or [np.nan])) for b in sorted(pts, key=int)]
+            ys = [pts[b]["rmse"]["iqm"] for b in sorted(pts, key=int)]
+            lo = [pts[b]["rmse"]["iqm_ci"][0] for b in sorted(pts, key=int)]
+            hi = [pts[b]["rmse"]["iqm_ci"][1] for b in sorted(pts, key=int)]
+            ys, lo, hi = (np.where(np.isfinite(v), v, np.nan) for v in (np.array(ys), np.array(lo), np.array(hi)))
+            ax.errorbar(xs, ys, yerr=[np.maximum(ys - lo, 0), np.maximum(hi - ys, 0)], marker="o", capsize=3,
+                        color=_COLORS[a], label=a)
+        for label, style in (("default", ":"), ("best fixed", "--")):
+            ref = m["curve_references"].get(label)
+            if ref and ref["rmse"] is not None:
+                ax.axhline(ref["rmse"], color="grey", ls=style, lw=1, label=f"{label} ({ref['policy']})")
+        for k, ref in m["references"].items():
+            if k.startswith("bpf-") and ref["rmse"] is not None:
+                ax.axhline(ref["rmse"], color="k", ls="-.", lw=1, label=k)
+        ax.set_xscale("log")
+        ax.set_xlabel("training CPU-s per policy (mean over seeds)")
+        ax.set_ylabel("RMSE")
+        ax.set_title(f"{e}, {r}", fontsize=10)
+    axes[0][0].legend(fontsize=7)
+    return [run.figure(fig, "gain-budget.png")]
+
+
+def _agg(a: dict | None) -> str:
+    if a is None:
+        return "n/a"
+    return f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}]"
+
+
+def markdown(summary: dict) -> str:
+    """The study's tables for REPRODUCTION.md: per model and regime the references, every arm at the final budget
+    and along the budget curve (RMSE, MSE dB, ANEES, cost, divergent runs, training CPU-s beside the budget,
+    microseconds per step), then the seed-level verdicts."""
+    if NAME not in summary:
+        return ""
+    g = summary[NAME]
+    lines = [f"**Learn the parameter or learn the gain** (issue 38; IQM over seeds [two-level 95 % CI]; budgets "
+             f"targeted at {', '.join(f'{c:g}' for c in g['target_cpu_s'])} CPU-s per policy; final budget on "
+             f"{g['eval_runs']} runs, the curve on {g['curve_runs']}; n/a: not defined for the arm)", ""]
+    head = ["model", "regime", "policy", "budget (work units)", "train CPU-s (mean)", "RMSE", "MSE dB", "ANEES",
+            "NIS cost", "divergent runs (error rule)", "us/step"]
+    lines += md_table(head)
+    for e, regimes in g["models"].items():
+        for r, m in regimes.items():
+            for label, ref in m["references"].items():
+                lines.append(f"| {e} | {r} | {label} ({ref['policy']}) | | | {ref['rmse']:.4g} | {ref['mse_db']:.3g} | "
+                             f"{'n/a' if ref['anees'] is None else format(ref['anees'], '.4g')} | "
+                             f"{'n/a' if ref['cost'] is None else format(ref['cost'], '.4g')} | "
+                             f"{ref['divergent_error_rule']} | {ref['us_per_step']:.3g} |")
+            if m["floor"]["rmse"] is not None:
+                lines.append(f"| {e} | {r} | point-mass floor (first {m['floor']['runs']} runs) | | | "
+                             f"{m['floor']['rmse']:.4g} | | | | | |")
+            for a in ARM_NAMES:
+                for b, row in sorted(m["curve"][a].items(), key=lambda kv: int(kv[0])):
+                    lines.append(_arm_line(e, r, a, int(b), row, g["budgets"][e]))
+                lines.append(_arm_line(e, r, a, len(g["target_cpu_s"]), m["final"][a], g["budgets"][e], final=True))
+    lines += ["", "**Learn the parameter or learn the gain: seed-level verdicts on RMSE** (a - b, IQM over seeds "
+              "[two-level 95 % CI]; 'not worse' within 5 % of b's RMSE, seeds.MARGINS)", "",
+              *md_table(["model", "regime", "budget", "a", "b", "isolates", "RMSE a - b", "a lower", "a not worse"])]
+    for e, regimes in g["models"].items():
+        for r, m in regimes.items():
+            for v in sorted(m["verdicts"], key=lambda v: v["budget"]):
+                d = v["rmse_diff"]
+                ds = "n/a" if None in d else diff_ci(d)
+                lines.append(f"| {e} | {r} | {v['budget']} | {v['a']} | {v['b']} | {v['isolates']} | {ds} | "
+                             f"{v['lower']} | {v['not_worse']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _arm_line(e: str, r: str, arm: str, b: int, row: dict, bud: dict, final: bool = False) -> str:
+    units = f"{bud['kappa_episodes'][b - 1]} episodes" if arm.startswith("kappa") else f"{bud['knet_epochs'][b - 1]} epochs"
+    cpu = [c for c in row["train_cpu_s"] if c is not None]
+    where = f"{row['n_runs']} runs" + (", final" if final else "")
+    return (f"| {e} | {r} | {arm} b{b} ({where}) | {units} | {np.mean(cpu) if cpu else float('nan'):.3g} | "
+            f"{_agg(row['rmse'])} | {row['mse_db']['iqm']:.3g} | {_agg(row['anees'])} | {_agg(row['cost'])} | "
+            f"{', '.join(map(str, row['divergent_error_rule']))} | {np.mean(row['us_per_step']):.3g} |")

@@ -1,0 +1,224 @@
+"""The learned-gain study (issue 38, item 2): the squared-error cost of the UKF's MDP, its experiments, and the
+study ``gain`` of ``adaptfilt beyond`` at quick scale (every arm x budget x model x regime, KalmanNet paired with
+the filters on the same runs, a journaled resume)."""
+import json
+
+import numpy as np
+import pytest
+
+from adaptfilt.costs import Cost
+
+
+# ------------------------------------------------------------------ the cost
+def test_sqerr_cost_is_the_squared_error_against_the_rollouts_truth():
+    """Charged by a FilterEnv, the cost of every step is ||x_filt - x||^2 computed here from the rollout's own
+    truth and means; greedy's candidates are charged the same truth (tiled over the grid)."""
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.mdp import rollout
+    from adaptfilt.models import Trajectory
+
+    for name in ("ungm-ukf-sqerr", "ctm-ukf-sqerr"):
+        exp = get_experiment(name)
+        env = exp.make_env(n_steps=12)
+        traj = env.truth.simulate(7, 12, rng=np.random.default_rng(3))
+        pols = {p.name: p for p in exp.baselines()}
+        for pol in (pols["default"], pols["greedy"]):
+            run, cost = rollout(env, pol, traj=traj)
+            want = ((run.mean - traj.x) ** 2).sum(axis=-1)
+            np.testing.assert_allclose(cost, want, rtol=1e-12, atol=1e-12)
+        # greedy on the squared error is the one-step oracle: never above the default's one-step cost
+        # at the first step (same prior, same measurement)
+        _, c_def = rollout(env, pols["default"], traj=traj)
+        _, c_gr = rollout(env, pols["greedy"], traj=traj)
+        assert (c_gr[:, 0] <= c_def[:, 0] + 1e-9).all()
+        # without the truth the cost refuses, naming what is missing
+        blind = Trajectory(x=np.full_like(traj.x, np.nan), z=traj.z)
+        with pytest.raises(ValueError, match="sqerr.*true state"):
+            rollout(env, pols["default"], traj=blind)
+
+
+def test_sqerr_cost_direct_and_errors():
+    from types import SimpleNamespace
+
+    u = SimpleNamespace(x_filt=np.array([[1.0, 2.0, -1.0], [0.0, 1.0, 3.0]]), nis=np.zeros(3))
+    truth = np.array([[0.0, 2.0, 1.0], [1.0, 1.0, 0.0]])
+    np.testing.assert_array_equal(Cost("sqerr")(u, np.zeros(3), 1, truth=truth), [2.0, 0.0, 13.0])
+    assert Cost("sqerr").needs_truth and not Cost("nis").needs_truth and Cost("sqerr").name == "sqerr"
+    with pytest.raises(ValueError, match="needs the true state"):
+        Cost("sqerr")(u, np.zeros(3), 1)
+    with pytest.raises(ValueError, match="run-last"):
+        Cost("sqerr")(u, np.zeros(3), 1, truth=truth.T)
+    with pytest.raises(ValueError, match="unknown cost"):
+        Cost("mse")
+
+
+def test_existing_costs_are_charged_as_before():
+    """The NIS cost through the env equals (NIS - nz)^2 of the rollout's NIS (no truth passed to it)."""
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.mdp import rollout
+
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=10)
+    run, cost = rollout(env, exp.baselines()[0], n_runs=5, rng=np.random.default_rng(0))
+    np.testing.assert_array_equal(cost, (run.nis - 1) ** 2)
+
+
+def test_sqerr_experiments_pass_check_env_and_refuse_cand_features():
+    from adaptfilt.experiment_registry import VARIANTS, get_experiment
+    from adaptfilt.features import FeatureSet
+    from adaptfilt.paramenv import check_env
+
+    for name, twin in (("ungm-ukf-sqerr", "ungm-ukf"), ("ctm-ukf-sqerr", "ctm-ukf")):
+        e, n = get_experiment(name), get_experiment(twin)
+        assert name in VARIANTS and e.grid == n.grid and e.features == n.features and e.cost == Cost("sqerr")
+        check_env(e.make_env(n_steps=4))
+    env = get_experiment("ungm-ukf-sqerr").make_env(n_steps=4)
+    d = env.reset(n_runs=3, rng=0)
+    with pytest.raises(ValueError, match="true state"):
+        d.observe(FeatureSet.parse("paper+cand"))
+
+
+# ------------------------------------------------------------------ KalmanNet snapshots
+def test_kalmannet_snapshot_is_the_shorter_training():
+    import adaptfilt as af
+    from adaptfilt.kalmannet import train_kalmannet
+
+    model = af.models.linear_gaussian(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
+    kw = dict(n_train=8, n_val=4, n_steps=10, batch_size=4, seed=3, progress=False)
+    long = train_kalmannet(model, epochs=3, snapshots=(1, 2), **kw)
+    short = train_kalmannet(model, epochs=2, **kw)
+    snap = long.snapshot(2)
+    for a, b in zip(snap.net.parameters(), short.net.parameters()):
+        np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+    assert snap.history["val_loss"] == short.history["val_loss"] and snap.history["epochs"] == 2
+    assert snap.history["cpu_s"] <= long.history["cpu_s"]
+    with pytest.raises(ValueError, match="no snapshot at epoch 3"):
+        long.snapshot(3)
+    with pytest.raises(ValueError, match="snapshots must be epochs"):
+        train_kalmannet(model, epochs=2, snapshots=(3,), **kw)
+
+
+# ------------------------------------------------------------------ the quick study
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    from adaptfilt.experiments.beyond import run
+
+    root = tmp_path_factory.mktemp("gain")
+    summary = run(root, quick=True, workers=1, studies=("gain",), progress=False)
+    return root, summary
+
+
+def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
+    from adaptfilt.experiments.beyond import summary_md
+    from adaptfilt.experiments.reproduce import sha256
+    from adaptfilt.experiments.studies.gain import ARM_NAMES, MODELS, QUICK, REGIMES, TARGET_CPU_S
+
+    root, summary = quick
+    g = summary["gain"]
+    assert set(g["models"]) == set(MODELS)
+    for e in MODELS:
+        assert set(g["models"][e]) == set(REGIMES)
+        for r in REGIMES:
+            m = g["models"][e][r]
+            assert set(m["final"]) == set(ARM_NAMES) == set(m["curve"])
+            for a in ARM_NAMES:
+                assert set(m["curve"][a]) == {str(b) for b in range(1, len(TARGET_CPU_S) + 1)}
+                row = m["final"][a]
+                assert row["rmse"]["n_seeds"] == len(QUICK.seeds)
+                assert all(c is not None and c > 0 for c in row["train_cpu_s"])
+                if a.startswith("gain"):  # plain KalmanNet: no covariance, no NIS cost, said so
+                    assert row["anees"] is None and row["cost"] is None and row["divergent_nees_rule"] is None
+                    assert row["covariance"] is False
+                else:
+                    assert row["anees"]["n_seeds"] == len(QUICK.seeds) and row["cost"] is not None
+            assert {"default", "best fixed", "ml", "greedy", f"bpf-{QUICK.pf_particles[e]}"} <= set(m["references"])
+            assert (m["floor"]["rmse"] is not None) == (e == "ungm-ukf")
+            pairs = {(v["a"], v["b"].split(" (")[0], v["budget"]) for v in m["verdicts"]}
+            for b in range(1, len(TARGET_CPU_S) + 1):
+                assert {("gain-sup", "kappa-sqerr", b), ("gain-unsup", "kappa-nis", b),
+                        ("kappa-sqerr", "kappa-nis", b), ("gain-sup", "gain-unsup", b)} <= pairs
+                assert all((a, ref, b) in pairs for a in ARM_NAMES for ref in ("default", "best fixed"))
+    man = json.loads((root / "beyond" / "manifest.json").read_text())
+    for f in man["files"]:
+        assert sha256(root / "beyond" / f["path"]) == f["sha256"] and f["command"]
+    assert any(f["path"].endswith("ungm-ukf-gain-sup-b3-s1.npz") and "train_kalmannet" in f["command"] for f in man["files"])
+    assert (root / "beyond" / "figures" / "gain-budget.png").exists()
+    md = summary_md(summary, ("gain",))
+    assert "| ungm-ukf | q4 | gain-sup b3" in md and "what is learned" in md
+
+
+def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):
+    """The stored evaluation's default is a direct UKF run on the trajectories the study's KalmanNet entries
+    were computed on, run for run; and the KalmanNet entry is the file's filter on those runs."""
+    import adaptfilt as af
+    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiments.studies.gain import QUICK, _env, evaluate_part, policy_rel
+    from adaptfilt.kalmannet import load_kalmannet
+
+    root, _ = quick
+    e = "ungm-ukf"
+    for regime in ("nominal", "q4"):
+        env = _env(e, regime, QUICK)
+        traj = env.truth.simulate(QUICK.eval_runs, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
+        f = str(root / "beyond" / policy_rel(e, "gain-sup", 3, 0))
+        gains = {"gain-sup-b3-s0": f}
+        kappa = {}
+        ukf_part = evaluate_part(e, regime, "ukf", kappa, {}, QUICK)
+        gain_part = evaluate_part(e, regime, "gain", kappa, gains, QUICK)
+        ukf = af.UKF(get_experiment(e).make_model())
+        run = ukf.run(traj.z)
+        direct = np.sqrt(((run.mean - traj.x) ** 2).sum(-1).mean(axis=1))
+        np.testing.assert_allclose(ukf_part["default"].run_rmse, direct, rtol=1e-12)
+        knet = load_kalmannet(f, env.model).run(traj.z)
+        want = np.sqrt(((knet.mean - traj.x) ** 2).sum(-1).mean(axis=1))
+        np.testing.assert_array_equal(gain_part["gain-sup-b3-s0"].run_rmse, want)
+        # the study merged them into one Results: its bootstrap replicates share the runs' resamples
+        from adaptfilt.results import Results
+
+        both = Results.merge([ukf_part, gain_part])
+        d, lo, hi = both.paired_difference("gain-sup-b3-s0", "default", "rmse")
+        assert lo <= d <= hi and np.isnan(both["gain-sup-b3-s0"].anees)
+
+
+def test_quick_gain_study_resumes_from_its_journal(quick, tmp_path, monkeypatch):
+    """Stopped after its fourth job, the run again takes those from the journal and ends with the same summary's
+    numbers; run once more, it trains and evaluates nothing new (the manifest lists every policy)."""
+    from adaptfilt.experiments.beyond import run
+    from adaptfilt.experiments.journal import Journal
+
+    _, reference = quick
+    add = Journal.add
+    done = []
+
+    def add_then_stop(self, *a, **kw):
+        rec = add(self, *a, **kw)
+        done.append(a[0])
+        if len(done) == 4:
+            raise KeyboardInterrupt
+        return rec
+
+    monkeypatch.setattr(Journal, "add", add_then_stop)
+    with pytest.raises(BaseException):
+        run(tmp_path, quick=True, workers=1, studies=("gain",), progress=False)
+    assert len(done) == 4 and (tmp_path / "beyond" / "journal.jsonl").exists()
+    ran = []
+
+    def record(self, *a, **kw):
+        ran.append(a[0])
+        return add(self, *a, **kw)
+
+    monkeypatch.setattr(Journal, "add", record)
+    summary = run(tmp_path, quick=True, workers=1, studies=("gain",), progress=False)
+    assert ran and not set(done) & set(ran)  # the four finished jobs were taken from the journal
+    g, h = summary["gain"]["models"], reference["gain"]["models"]
+    for e in g:  # same runs, same policies: the same numbers (training CPU-s aside: measured)
+        for r in g[e]:
+            for a in g[e][r]["final"]:
+                assert g[e][r]["final"][a]["rmse"]["values"] == h[e][r]["final"][a]["rmse"]["values"]
+    ran.clear()
+    again = run(tmp_path, quick=True, workers=1, studies=("gain",), progress=False)
+    # the manifest lists every policy and KalmanNet file: nothing is trained again
+    assert not [k for k in ran if "adaptfilt train" in k or "kalmannet" in k]
+    assert again["gain"]["models"]["ctm-ukf"]["q4"]["final"]["kappa-nis"]["rmse"]["values"] == \
+        summary["gain"]["models"]["ctm-ukf"]["q4"]["final"]["kappa-nis"]["rmse"]["values"]
