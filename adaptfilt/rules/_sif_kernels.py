@@ -31,7 +31,8 @@ import os
 
 import numpy as np
 
-__all__ = ["BACKEND", "SUMS", "available", "gram_schmidt", "gram_schmidt_numpy", "points", "sums_available", "weighted_sums"]
+__all__ = ["BACKEND", "SUMS", "available", "fused_available", "gram_schmidt", "gram_schmidt_numpy", "points", "rule3_points",
+           "rule3_accumulate", "sums_available", "weighted_sums"]
 
 #: ``"auto"`` (the compiled kernel where numba is installed), ``"numba"`` (required) or ``"numpy"``
 BACKEND: str = os.environ.get("ADAPTFILT_SIF_BACKEND", "auto")
@@ -42,6 +43,7 @@ SUMS: bool = True
 
 _kernel = None  # the compiled kernel once built; False where numba is missing
 _sums = None  # (points kernel, sums kernel) once built and checked against numpy; False where unusable
+_fused = None  # (points of a degree-3 draw, sums and recursion state) once built; False where unusable
 _BLOCK = 256  # runs per block of the compiled sums (operands of a block stay in the first-level caches)
 
 
@@ -294,3 +296,122 @@ def weighted_sums(D: np.ndarray, A: np.ndarray, weight, cross: bool, work: dict 
     EXD = np.empty((n, ng, M)) if cross else np.empty((0, ng, M))
     _sums[1](D, np.broadcast_to(w, (K, M)), A, cross, _buffer(work, "sums wD", D.shape), ED, EDD, EXD)
     return ED, EDD, EXD if cross else None
+
+
+# ------------------------------------------------------------------ one SIR iteration in two calls
+def _build_fused():
+    """The kernels of one degree-3 iteration of the SIR recursion (:func:`rule3_points`,
+    :func:`rule3_accumulate`), made of the kernels above (the same compiled arithmetic), or False where
+    those are unusable."""
+    global _fused, _gs_jit, _points_jit, _sums_jit
+    if _fused is None:
+        if not _build_sums():
+            _fused = False
+            return _fused
+        import numba
+
+        # module globals, so that the kernels below call them as compiled functions (and can be cached)
+        _gs_jit, (_points_jit, _sums_jit) = _kernel, _sums
+
+        @numba.njit(cache=True, nogil=True)
+        def _rule3_points(G, chi2, sel, m, L, Q, V, s, scale, weight, X, A):  # pragma: no cover - compiled
+            """The degree-3 point set of the draw ``(G, chi2)`` for its runs ``sel``: ``Q`` = the Q factor
+            of ``G[:, :, sel]`` (:func:`gram_schmidt`), ``scale = sqrt(chi2[sel])``, ``weight = 0.5 /
+            chi2[sel]``, then the points as :func:`points` makes them."""
+            _gs_jit(G, sel, Q, V, s)
+            for c in range(sel.shape[0]):
+                r2 = chi2[sel[c]]
+                scale[c] = np.sqrt(r2)
+                weight[c] = 0.5 / r2
+            _points_jit(m, L, Q, True, scale, X, A)
+
+        @numba.njit(cache=True, nogil=True)
+        def _rule3_accumulate(D, A, weight, W, cross, wD, ED, EDD, EXD, compute, runs, n_runs, S0, S1, S2, N, track, I,
+                              V, full, Vfull, dv):  # pragma: no cover - compiled
+            """``(ED, EDD, EXD)`` of the draw (:func:`weighted_sums`; ``compute`` False: given), added to the
+            running sums ``S0, S1, S2`` of the runs ``runs[:n_runs]`` (columns of the whole batch) and, with
+            ``track``, the Welford state of the mean, at the draw count ``N`` (the same for every run still
+            iterating):  ``D = (e - I) / N``, ``I = I + D``, ``V = (N - 2) / N V + D D`` for ``N >= 2``, and
+            ``Vfull`` likewise with ``D D^T`` (``full``); element by element the numpy expressions of the
+            recursion."""
+            if compute:
+                K = A.shape[1]
+                for k in range(K):
+                    for c in range(weight.shape[0]):
+                        W[k, c] = weight[c]
+                _sums_jit(D, W, A, cross, wD, ED, EDD, EXD)
+            ng = ED.shape[0]
+            later = N >= 2
+            f = (N - 2) / N
+            for c in range(n_runs):
+                r = runs[c]
+                for i in range(ng):
+                    S0[i, r] = S0[i, r] + ED[i, c]
+                for i in range(ng):
+                    for j in range(ng):
+                        S1[i, j, r] = S1[i, j, r] + EDD[i, j, c]
+                if cross:
+                    for i in range(S2.shape[0]):
+                        for j in range(ng):
+                            S2[i, j, r] = S2[i, j, r] + EXD[i, j, c]
+                if track:
+                    for i in range(ng):
+                        d = (ED[i, c] - I[i, r]) / N
+                        dv[i] = d
+                        I[i, r] = I[i, r] + d
+                        if later:
+                            V[i, r] = f * V[i, r] + d * d
+                    if full and later:
+                        for i in range(ng):
+                            for j in range(ng):
+                                Vfull[i, j, r] = f * Vfull[i, j, r] + dv[i] * dv[j]
+
+        _fused = (_rule3_points, _rule3_accumulate)
+    return _fused
+
+
+def fused_available() -> bool:
+    """Whether :func:`rule3_points` and :func:`rule3_accumulate` apply: :func:`sums_available` (imports numba the
+    first time)."""
+    return sums_available() and bool(_build_fused())
+
+
+def rule3_points(G, chi2, sel, m, L, work: dict) -> tuple:
+    """The points ``X (n, 2n, K)`` and directions ``A (n, n, K)`` of one degree-3 draw for the runs ``sel``
+    of its variates (``G (n, n, M0)``, ``chi2 (M0,)``) at ``m (n, K)``, ``L (n, n, K)``, and the weights
+    ``0.5 / chi2[sel]``: bit for bit :func:`gram_schmidt`, ``np.sqrt``, the division and :func:`points`.
+    Needs :func:`fused_available`. ``work`` holds the buffers (valid until the next call with the same
+    ``work`` and ``K``; the caller keeps one ``work`` per run set)."""
+    bufs = work.get("rule3 points")
+    if bufs is None:
+        n, K = m.shape
+        bufs = work["rule3 points"] = (np.empty((n, n, K)), np.empty((n, K)), np.empty(K), np.empty(K), np.empty(K),
+                                       np.empty((n, 2 * n, K)), np.empty((n, n, K)))
+    Q, V, s, scale, weight, X, A = bufs
+    _fused[0](G, chi2, sel, m, L, Q, V, s, scale, weight, X, A)
+    return X, A, weight
+
+
+def rule3_accumulate(D, A, weight, cross: bool, runs, n_runs: int, sums: tuple, N: float, welford: tuple | None,
+                     work: dict, given: tuple | None = None) -> None:
+    """Add the draw's weighted sums (:func:`weighted_sums` of ``D``, ``A``, ``weight``; or ``given``,
+    ``(ED, EDD, EXD)`` of the runs, made elsewhere) to ``sums = (S0, S1, S2)`` at the columns
+    ``runs[:n_runs]`` and update ``welford = (I, V, Vfull or None)`` (None: not tracked) at draw count
+    ``N``, in place. ``D`` C-contiguous float64 ``(ng, 2n, K)``."""
+    S0, S1, S2 = sums
+    ng, K = S0.shape[0], A.shape[2]
+    bufs = work.get("rule3 sums")
+    if bufs is None or bufs[1].shape != D.shape:
+        n = A.shape[0]
+        bufs = work["rule3 sums"] = (np.empty((n, K)), np.empty(D.shape), np.empty((ng, K)), np.empty((ng, ng, K)),
+                                     np.empty((n if cross else 0, ng, K)), np.empty(ng))
+    W, wD, ED, EDD, EXD, dv = bufs
+    compute = given is None
+    if not compute:
+        ED, EDD = given[0], given[1]
+        EXD = given[2] if cross else EXD
+    track = welford is not None
+    I, V, Vfull = welford if track else (S0, S0, None)
+    full = Vfull is not None
+    _fused[1](D, A, weight, W, cross, wD, ED, EDD, EXD, compute, runs, n_runs, S0, S1, S2, float(N), track, I, V, full,
+              Vfull if full else S1, dv)

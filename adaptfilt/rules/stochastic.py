@@ -12,8 +12,9 @@ import numpy as np
 
 from adaptfilt.linalg import chol, sym
 from adaptfilt.rules._sif_kernels import gram_schmidt as _gram_schmidt_runs
-from adaptfilt.rules.base import (BatchFn, MomentRule, Moments, Residual, _active_runs, _check_tile, _PointSet, _take_runs,
-                                  _weighted_sums)
+import adaptfilt.rules._sif_kernels as _kernels
+from adaptfilt.rules.base import (BatchFn, MomentRule, Moments, Residual, _active_runs, _check_tile, _PointSet, _sums_numpy,
+                                  _take_runs, _weighted_sums)
 
 __all__ = ["StochasticIntegrationRule", "haar_rotations", "stochastic_rule_points"]
 
@@ -450,6 +451,68 @@ class StochasticIntegrationRule(MomentRule):
         return self._averaged(state["sums"], N, cross, state["mean"][1] if want_var else None,
                               state["Vfull"][0] if "Vfull" in state else None)
 
+    def _fused_applies(self, m: np.ndarray, L: np.ndarray, g0: np.ndarray) -> bool:
+        """Whether :meth:`_recursion_fused` computes this call: degree 3, a fixed count (per call or per
+        run), ``n >= 2``, ``M >= 2``, float64 throughout, the compiled kernels there."""
+        n, M = m.shape
+        return (self.order == 3 and self.tol is None and n >= 2 and M >= 2 and m.dtype == np.float64
+                and L.dtype == np.float64 and L.shape == (n, n, M) and g0.dtype == np.float64 and g0.ndim == 2
+                and _kernels.fused_available())
+
+    def _recursion_fused(self, rng, g, residual, m, g0, L, n_iter: np.ndarray, M: int, tile: int, what: str,
+                         cross: bool, at: tuple[int, ...] | None = None) -> dict | dict[int, dict]:
+        """:meth:`_recursion` over :meth:`_point_sets` for the degree-3 rule with a fixed count (scalar or per
+        run), bit for bit, in two compiled calls per draw around the function ``g`` (and ``residual``):
+        the point set (:func:`~adaptfilt.rules._sif_kernels.rule3_points`) and the sums with the Welford
+        state (:func:`~adaptfilt.rules._sif_kernels.rule3_accumulate`). The draws are the same (``_draw``
+        for all ``M / tile`` runs, ``max(n_iter)`` of them); the state is kept for the whole batch and
+        updated at the columns of the runs still iterating, each element by the operations
+        :meth:`_recursion` applies to it. Without ``tol`` every run still iterating has made the same
+        number of draws, so the active set after draw ``k`` is the runs with ``n_iter > k``."""
+        n = m.shape[0]
+        ng = g0.shape[0]
+        per_run = n_iter.ndim > 0
+        want_mean = what != "cov"
+        cross = cross and what != "mean"
+        track = want_mean and self.integration_error != "none"
+        full = track and self.integration_error == "full"
+        cap = int(n_iter.max())
+        M0 = M // tile
+        sums = (np.zeros((ng, M)), np.zeros((ng, ng, M)), np.zeros((n if cross else 0, ng, M)))
+        welford = (np.zeros((ng, M)), np.zeros((ng, M)), np.zeros((ng, ng, M)) if full else None) if track else None
+        every = np.arange(M)
+        sel = np.tile(np.arange(M0), tile) if tile > 1 else every  # the draws' columns of the runs
+        runs, n_runs, ms, Ls, g0s = every, M, m, L, g0
+        stops = set(np.unique(n_iter).tolist()) if per_run else set()
+        work: dict = {}
+        snaps: dict[int, dict] = {}
+        for k in range(1, cap + 1):
+            G, chi2 = self._draw(n, M0, rng)
+            X, A, weight = _kernels.rule3_points(G, chi2, sel, ms, Ls, work)
+            Gx = g(X)
+            D = Gx - g0s[:, None, :] if residual is None else residual(Gx, g0s[:, None, :])
+            given = None
+            if not (isinstance(D, np.ndarray) and D.dtype == np.float64 and D.shape == (ng,) + X.shape[1:]):
+                # not the kernels' case: numpy's sums (as _pair_sums_made takes them then)
+                given = _sums_numpy(np.ascontiguousarray(D), np.concatenate([A, -A], axis=1) if cross else None, weight)
+                given = tuple(None if a is None else np.ascontiguousarray(a, dtype=np.float64) for a in given)
+            else:
+                D = np.ascontiguousarray(D)
+            _kernels.rule3_accumulate(D, A, weight, cross, runs, n_runs, sums, float(k), welford, work, given)
+            if at is not None and k in at:
+                snaps[k] = self._averaged(sums, float(k), cross, None if not track else welford[1].copy(),
+                                          None if not full else welford[2].copy())
+            if float(k) in stops and k < cap:  # some runs are done: gather those still iterating
+                idx = _active_runs(n_iter > k)
+                runs, n_runs = idx, 1 if idx.size == 2 and idx[0] == idx[1] else idx.size
+                sel = idx % M0 if tile > 1 else idx
+                ms, Ls, g0s = (_take_runs(a, idx) for a in (m, L, g0))
+                work = {}
+        if at is not None:
+            return snaps
+        N = np.array(n_iter, dtype=float) if per_run else float(cap)
+        return self._averaged(sums, N, cross, None if not track else welford[1], None if not full else welford[2])
+
     @staticmethod
     def _averaged(sums: list, N, cross: bool, V, Vfull) -> dict:
         """The recursion's result after ``N`` draws: the sums averaged (new arrays; ``sums`` is left as it is)."""
@@ -564,9 +627,15 @@ class StochasticIntegrationRule(MomentRule):
                 taken[:] = runs, tuple(_take_runs(a, runs) for a in (m, g0, L))
             return _weighted_sums(g, *taken[1], ps, residual, cr, work)
 
-        draws = lambda r: lambda runs: self._point_sets(n, M, n_iter, r, tile, runs)  # noqa: E731  (see _recursion)
+        if self._fused_applies(m, L, g0):  # the same numbers from two compiled calls per draw
+            def recursion(r, what, cr, c=None, at=None):
+                return self._recursion_fused(r, g, residual, m, g0, L, n_iter, M, tile, what, cr, at)
+        else:
+            def recursion(r, what, cr, c=None, at=None):
+                draws = lambda runs: self._point_sets(n, M, n_iter, r, tile, runs)  # noqa: E731  (see _recursion)
+                return self._recursion(draws, evaluate, n_iter, M, what, cr, c=c, at=at)
         if self.passes == 1:
-            joint = self._recursion(draws(rng), evaluate, n_iter, M, "joint", cross, at=at)
+            joint = recursion(rng, "joint", cross, at=at)
             if at is None:
                 return self._finish(g0, joint, None, n_iter, M)
             return [self._finish(g0, joint[k], None, n_iter, M) for k in at]
@@ -574,14 +643,13 @@ class StochasticIntegrationRule(MomentRule):
             rng2 = rng.spawn(1)[0]
         except (AttributeError, TypeError, ValueError) as err:
             raise ValueError("passes=2 needs a numpy Generator with a SeedSequence (np.random.default_rng(seed))") from err
-        mean_pass = self._recursion(draws(rng), evaluate, n_iter, M, "mean", False, at=at)
+        mean_pass = recursion(rng, "mean", False, at=at)
         if at is None:
-            cov_pass = self._recursion(draws(rng2), evaluate, n_iter, M, "cov", cross,
-                                       c=mean_pass["ED"])
+            cov_pass = recursion(rng2, "cov", cross, c=mean_pass["ED"])
             return self._finish(g0, mean_pass, cov_pass, n_iter, M)
         # without tol the covariance pass's sums do not depend on the centre c, so one
         # recursion serves every count (c only enters the tolerance test)
-        cov_pass = self._recursion(draws(rng2), evaluate, n_iter, M, "cov", cross, at=at)
+        cov_pass = recursion(rng2, "cov", cross, at=at)
         return [self._finish(g0, mean_pass[k], cov_pass[k], n_iter, M) for k in at]
 
     def _finish(self, g0: np.ndarray, mean_pass: dict, cov_pass: dict | None, n_iter, M: int) -> Moments:
