@@ -1,4 +1,4 @@
-"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4 and 5
+"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 16
 (adaptfilt.course.exercises): each accepts the right answer and rejects wrong ones, naming the
 slip where it can (issue 37, item 6)."""
 import numpy as np
@@ -110,3 +110,27 @@ def test_paired_ci(capsys):
     assert not ex.check_paired_ci(normal)
     assert not ex.check_paired_ci(lambda a, b, c: (0.0, 0.0))
     assert "three numbers" in capsys.readouterr().out
+
+
+def kalmannet_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred, wrap=True, first=True, f4="prev"):
+    diff = model.diff_z if wrap else (lambda a, b: a - b)
+    m0 = np.broadcast_to(model.m0, x_filt.shape).copy()
+    x_pred_new = m0 if (t == 0 and first) else model.f(x_filt, t)
+    innov = diff(z_t, model.h(x_pred_new, t + 1))
+    F4 = x_filt - (x_pred if f4 == "prev" else x_pred_new)
+    K = gain(diff(z_t, z_prev), innov, x_filt - x_filt_prev, F4)
+    return x_pred_new, x_pred_new + (K @ innov[..., None])[..., 0]
+
+
+def test_kalmannet_step(capsys):
+    assert ex.check_kalmannet_step(kalmannet_step)
+    assert "right" in capsys.readouterr().out
+    for kw, says in ((dict(wrap=False), "must be wrapped"),
+                     (dict(first=False), "at the first step the prediction is the prior mean"),
+                     (dict(f4="new"), "F4 = x_{t-1|t-1} - x_{t-1|t-2}")):
+        assert not ex.check_kalmannet_step(lambda *a, kw=kw: kalmannet_step(*a, **kw))
+        assert says in capsys.readouterr().out
+    assert not ex.check_kalmannet_step(lambda *a: None)
+    assert "returned None" in capsys.readouterr().out
+    assert not ex.check_kalmannet_step(lambda *a: (1, 2))
+    assert "expected two of" in capsys.readouterr().out

@@ -47,6 +47,7 @@ CHAPTERS = [
     "13-beyond-the-paper",
     "14-looking-ahead",
     "15-adaptive-particle-count",
+    "16-learning-the-gain",
 ]
 #: Chapters that must have at least this many widgets (with static stand-ins).
 MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "06-actor-critic": 1}

@@ -1,4 +1,4 @@
-r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4 and 5.
+r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 16.
 
 Each chapter of 1-6 has one exercise in which the reader writes a function in an empty cell and
 hands it to a checker, which compares it with the library on several fixed cases, says what
@@ -15,6 +15,7 @@ check_bayes_step                1            one step of the Bayesian recursion 
 check_discounted_choice         3            the per-run kappa of least discounted cost
 check_nis_cost                  4            the one-step NIS cost of a batch of updates
 check_paired_ci                 5            a paired bootstrap interval of a difference
+check_kalmannet_step            16           one step of KalmanNet: features, gain, update
 ==============================  ===========  ==============================================
 """
 from __future__ import annotations
@@ -23,7 +24,8 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["check_bayes_step", "check_discounted_choice", "check_nis_cost", "check_paired_ci"]
+__all__ = ["check_bayes_step", "check_discounted_choice", "check_nis_cost", "check_paired_ci",
+           "check_kalmannet_step"]
 
 
 def _run(fn, args):
@@ -257,3 +259,83 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
     return _verdict(problems, "your paired interval is the library's (bootstrap_mean, percentile_ci)",
                     "the replicates are counts @ (a - b) / M, one per row of counts; the interval is "
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
+
+
+# ======================================================================== chapter 16
+def _kalmannet_cases():
+    """``(name, model, z)``: the chapter's linear model and the bearing-only CTM (wrapped bearings), with
+    an untrained KalmanNet of seed 0 (any weights test the update; untrained ones keep it short)."""
+    from adaptfilt.course.learned_gain import linear_model
+    from adaptfilt.models import coordinated_turn
+
+    lin, ctm = linear_model(), coordinated_turn()
+    return [("linear model, 4 runs x 12 steps", lin, lin.simulate(4, 12, rng=3).z),
+            ("bearing-only CTM, 4 runs x 12 steps", ctm, ctm.simulate(4, 12, rng=3).z)]
+
+
+def check_kalmannet_step(my_step: Callable) -> bool:
+    r"""Chapter 16: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
+    x_filt_new)``, one step of KalmanNet (``x_filt`` is :math:`\hat x_{t-1|t-1}`, ``x_filt_prev``
+    :math:`\hat x_{t-2|t-2}`, ``x_pred`` :math:`\hat x_{t-1|t-2}`, each ``(M, nx)``; ``gain(F1, F2, F3,
+    F4)`` the network, :func:`adaptfilt.course.learned_gain.gain_function`). Run over 12 steps on two
+    models and compared with :meth:`adaptfilt.kalmannet.KalmanNet.run`; names the first step that
+    differs and the likely slip (the first step's convention, the bearing's wrap, a feature)."""
+    from adaptfilt.course.learned_gain import gain_function
+    from adaptfilt.kalmannet import KalmanNet
+
+    problems = []
+    for name, model, z in _kalmannet_cases():
+        knet = KalmanNet(model, seed=0)
+        ref = knet.run(z).mean
+        M, T, _ = z.shape
+        gain = gain_function(knet, M)
+        m0 = np.broadcast_to(model.m0, (M, model.nx)).copy()
+        x_filt, x_filt_prev, x_pred = m0.copy(), m0.copy(), m0.copy()
+        z_prev = np.asarray(model.h(m0, 1), dtype=float)
+        for t in range(T):
+            out, why = _run(my_step, (model, gain, t, z[:, t].copy(), z_prev.copy(), x_filt.copy(),
+                                      x_filt_prev.copy(), x_pred.copy()))
+            if why is None:
+                try:
+                    new_pred, new_filt = (np.asarray(a, dtype=float) for a in out)
+                except (TypeError, ValueError):
+                    why = f"returned {type(out).__name__}, not the pair (x_pred_new, x_filt_new)"
+                else:
+                    if new_pred.shape != (M, model.nx) or new_filt.shape != (M, model.nx):
+                        why = f"returned shapes {new_pred.shape} and {new_filt.shape}, expected two of {(M, model.nx)}"
+            if why:
+                problems.append(f"{name}, step {t}: your function {why}")
+                break
+            if not np.allclose(new_filt, ref[:, t], rtol=1e-8, atol=1e-8):
+                hint = ("at the first step the prediction is the prior mean m0 itself (no f), and the "
+                        "differences F3, F4 are zero" if t == 0 else
+                        "the bearing's differences (innovation and F1) must be wrapped to [-pi, pi): "
+                        "model.diff_z(a, b)" if model.residual is not None and np.allclose(
+                            new_filt, _unwrapped(model, gain_function(KalmanNet(model, seed=0), M), z, t), atol=1e-8)
+                        else "F3 = x_{t-1|t-1} - x_{t-2|t-2}, F4 = x_{t-1|t-1} - x_{t-1|t-2}; the update "
+                             "x_pred + K (z - h(x_pred)), with h at time t + 1")
+                problems.append(f"{name}: step {t} differs from the library's (max |difference| "
+                                f"{np.abs(new_filt - ref[:, t]).max():.3g}); {hint}")
+                break
+            z_prev, x_filt_prev, x_filt, x_pred = z[:, t], x_filt, new_filt, new_pred
+    return _verdict(problems, "your KalmanNet step is the library's, on the linear model and on the "
+                              "bearing-only CTM",
+                    "x_pred_new = m0 at t = 0, else f(x_filt, t); innovation = diff_z(z_t, h(x_pred_new, "
+                    "t + 1)); K = gain(diff_z(z_t, z_prev), innovation, x_filt - x_filt_prev, x_filt - x_pred); "
+                    "x_filt_new = x_pred_new + K @ innovation (per run)")
+
+
+def _unwrapped(model, gain, z, t_stop: int) -> np.ndarray:
+    """The reference recursion with plain (unwrapped) measurement differences, up to step ``t_stop``: what a
+    step that forgets the bearing's wrap gives (to name that slip)."""
+    M = z.shape[0]
+    m0 = np.broadcast_to(model.m0, (M, model.nx)).copy()
+    x_filt, x_filt_prev, x_pred = m0.copy(), m0.copy(), m0.copy()
+    z_prev = np.asarray(model.h(m0, 1), dtype=float)
+    for t in range(t_stop + 1):
+        new_pred = m0.copy() if t == 0 else model.f(x_filt, t)
+        innov = z[:, t] - model.h(new_pred, t + 1)
+        K = gain(z[:, t] - z_prev, innov, x_filt - x_filt_prev, x_filt - x_pred)
+        new_filt = new_pred + (K @ innov[..., None])[..., 0]
+        z_prev, x_filt_prev, x_filt, x_pred = z[:, t], x_filt, new_filt, new_pred
+    return x_filt

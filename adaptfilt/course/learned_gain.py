@@ -1,0 +1,162 @@
+r"""What chapter 16 (Learning the gain instead) builds: KalmanNet (:mod:`adaptfilt.kalmannet`) beside the
+Kalman filter on a linear-Gaussian model, over training seeds; the learned gain over time against the
+Kalman gain; the Bayesian variant's consistency; and the gain function the chapter's exercise calls.
+
+The linear model is the one ``tests/test_kalmannet.py`` holds KalmanNet to: ``x_{k+1} = 0.9 x_k + w``,
+``z_k = x_k + v``, ``Q = R = 1``, ``x_1 ~ N(0, 1)``. Its Kalman filter is the MMSE filter, so the
+KF's mean squared error is a floor no gain can pass, and the distance to it in dB (KalmanNet's unit) is
+what a trained network has left to learn.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from adaptfilt.course.common import figure_axes
+from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
+
+__all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
+           "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains"]
+
+#: The chapter's linear-Gaussian model (scalar): F, H, Q, R, m0, P0.
+LINEAR = dict(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
+#: Training on that model: 40 trajectories of 30 steps (40 more to validate), minibatches of 10, Adam at
+#: 3e-3, 10 epochs, truncated back-propagation over windows of 10 steps (tests/test_kalmannet.py's sizes).
+TRAIN = dict(n_train=40, n_val=40, n_steps=30, batch_size=10, lr=3e-3, epochs=10, tbptt=10, progress=False)
+
+
+def linear_model() -> StateSpaceModel:
+    """The chapter's linear-Gaussian model (:data:`LINEAR`), horizon 30."""
+    return linear_gaussian(**LINEAR, name="lin1", n_steps=30)
+
+
+def steady_state_gain(F: float = 0.9, H: float = 1.0, Q: float = 1.0, R: float = 1.0) -> float:
+    """The scalar Kalman filter's steady-state gain, from the Riccati recursion of the predicted variance."""
+    P = Q
+    for _ in range(500):
+        P = F * F * P * R / (H * H * P + R) + Q
+    return P * H / (H * H * P + R)
+
+
+def db(mse: float, reference: float) -> float:
+    """``10 log10(mse / reference)``: how many dB an MSE lies above a reference MSE."""
+    return float(10 * np.log10(mse / reference))
+
+
+def train_seeds(model: StateSpaceModel, test: Trajectory, seeds: Sequence[int],
+                losses: Sequence[str] = ("supervised", "unsupervised"), progress: bool = True,
+                **train) -> dict[tuple[str, int], dict]:
+    """Train one KalmanNet per loss and seed (:data:`TRAIN`, overridden by ``train``) and score it on
+    ``test``: ``{(loss, seed): {"knet", "mse", "db" (from the KF), "gain" (time-averaged, steps 5 on),
+    "cpu_s"}}``. The KF's own MSE on ``test`` is under the key ``("kf", 0)``."""
+    from tqdm.auto import tqdm
+
+    from adaptfilt.exact import KalmanFilter
+    from adaptfilt.kalmannet import train_kalmannet
+
+    kf = KalmanFilter(model).run(test.z)
+    kf_mse = float(((kf.mean - test.x) ** 2).mean())
+    out: dict[tuple[str, int], dict] = {("kf", 0): {"mse": kf_mse, "run": kf}}
+    kw = {**TRAIN, **train}
+    for loss, s in tqdm([(loss, s) for loss in losses for s in seeds], desc="KalmanNet seeds", disable=not progress):
+        c0 = time.process_time()
+        knet = train_kalmannet(model, loss=loss, seed=int(s), **kw)
+        cpu = time.process_time() - c0
+        run = knet.run(test.z, keep_gain=True)
+        mse = float(((run.mean - test.x) ** 2).mean())
+        out[(loss, int(s))] = {"knet": knet, "run": run, "mse": mse, "db": db(mse, kf_mse),
+                               "gain": float(run.info["K"][:, 5:].mean()), "cpu_s": cpu}
+    return out
+
+
+def seed_table(results: Mapping[tuple[str, int], dict]) -> str:
+    """One line per loss: each seed's dB above the KF, their median and range, and the time-averaged gain."""
+    lines = []
+    for loss in dict.fromkeys(k[0] for k in results if k[0] != "kf"):
+        rows = [v for k, v in sorted(results.items()) if k[0] == loss]
+        d = np.array([r["db"] for r in rows])
+        g = np.array([r["gain"] for r in rows])
+        lines.append(f"{loss:12s} {len(rows)} seeds: dB above the KF median {np.median(d):+.3f}, "
+                     f"range [{d.min():+.3f}, {d.max():+.3f}]; gain {g.min():.3f}-{g.max():.3f}")
+    return "\n".join(lines)
+
+
+def plot_gains(results: Mapping[tuple[str, int], dict], seeds: Sequence[int] = (0, 1, 2), ax=None,
+               kalman: Sequence[float] | None = None, title: str | None = None):
+    """The gain over time (mean over the test runs) of a few seeds of each loss, beside the Kalman
+    filter's gain ``kalman`` (per step; the steady state when None)."""
+    _, ax = figure_axes(ax)
+    styles = {"supervised": "-", "unsupervised": "--"}
+    for (loss, s), r in sorted(results.items()):
+        if loss == "kf" or s not in seeds:
+            continue
+        K = r["run"].info["K"][..., 0, 0].mean(0)
+        ax.plot(np.arange(1, K.size + 1), K, ls=styles.get(loss, ":"), label=f"{loss}, seed {s}")
+    T = next(r["run"].mean.shape[1] for k, r in results.items() if k[0] != "kf")
+    if kalman is None:
+        ax.axhline(steady_state_gain(), color="k", lw=2, label="Kalman gain (steady state)")
+    else:
+        ax.plot(np.arange(1, T + 1), kalman, color="k", lw=2, label="Kalman gain")
+    ax.set(xlabel="step $k$", ylabel="gain $K_k$ (mean over runs)", title=title)
+    ax.legend(fontsize="small", ncol=2)
+    return ax
+
+
+def plot_seed_spread(results: Mapping[tuple[str, int], dict], ax=None, title: str | None = None):
+    """Each seed's MSE above the Kalman filter's (dB), one column per loss."""
+    _, ax = figure_axes(ax)
+    losses = list(dict.fromkeys(k[0] for k in results if k[0] != "kf"))
+    for i, loss in enumerate(losses):
+        d = [r["db"] for k, r in sorted(results.items()) if k[0] == loss]
+        ax.plot(np.full(len(d), i) + np.linspace(-0.15, 0.15, len(d)), d, "o", label=loss)
+    ax.axhline(0.0, color="k", lw=1)
+    ax.set(xticks=range(len(losses)), xticklabels=losses, ylabel="MSE above the Kalman filter (dB)",
+           title=title, xlim=(-0.6, len(losses) - 0.4))
+    return ax
+
+
+def gain_function(knet, n_runs: int) -> Callable[..., np.ndarray]:
+    r"""``gain(F1, F2, F3, F4) -> K (n_runs, nx, nz)``: the trained (or untrained) network of ``knet`` as
+    a function of the four features of one step, for ``n_runs`` runs filtered together. It normalises
+    each feature as ``knet`` does (``feature_norm``) and keeps the recurrent states between calls, so
+    it must be called once per step, in order, from the first step on (as the exercise of chapter 16
+    does)."""
+    import torch
+    from torch import nn
+
+    mode = knet.options["feature_norm"]
+    if knet.options["n_samples"] > 1:
+        raise ValueError("gain_function takes a plain KalmanNet (n_samples = 1), not the Bayesian variant")
+    nx, nz = knet.model.nx, knet.model.nz
+    states = list(knet.net.initial_states(int(n_runs)))
+    bounds = np.cumsum([0, nz, nz, nx, nx])
+
+    def prepare(F, i):
+        F = torch.from_numpy(np.asarray(F, dtype=float).reshape(int(n_runs), -1).copy())
+        if mode == "l2":
+            return nn.functional.normalize(F, p=2.0, dim=-1, eps=1e-12)
+        if mode == "scale":
+            return F / torch.from_numpy(knet.scales[bounds[i]:bounds[i + 1]])
+        return F
+
+    def gain(F1, F2, F3, F4) -> np.ndarray:
+        with torch.no_grad():
+            K, *new = knet.net.step(*(prepare(F, i) for i, F in enumerate((F1, F2, F3, F4))), *states)
+        states[:] = new
+        return K.numpy()
+
+    return gain
+
+
+
+def kalman_gains(n_steps: int, F: float = 0.9, H: float = 1.0, Q: float = 1.0, R: float = 1.0,
+                 P0: float = 1.0) -> np.ndarray:
+    """The scalar Kalman filter's gain at steps 1..``n_steps`` from the prior variance ``P0`` (the library's
+    convention: the prior is the first prediction)."""
+    K, P = np.empty(n_steps), float(P0)
+    for k in range(n_steps):
+        K[k] = P * H / (H * H * P + R)
+        P = F * F * (1 - K[k] * H) * P + Q
+    return K
