@@ -56,11 +56,17 @@ covariance exists, training CPU-s, microseconds per run-step (the evaluation's w
 ``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level with
 :data:`adaptfilt.seed_stats.MARGINS` for the pairs of :data:`PAIRS`, at every budget, model and regime.
 
-**Size of the full run** (measured on this machine, 2 cores, ``nice -n 19``, other work running; see
-:data:`CALIBRATION`): trainings: KalmanNet 2 models x 2 arms x 8 seeds at the top budget (about 45
-CPU-s each, the snapshots free) = 32 x 45 ~ 1,450 CPU-s; kappa 2 x 2 x 8 x (5 + 15 + 45) ~ 2,100 CPU-s;
-evaluations: see :data:`SIZE`. Total about 5,000-6,300 CPU-s, i.e. about 45-55 minutes of wall time on
-2 cores. Not run yet.
+**Size of the full run** (measured on this machine, 2 cores, ``nice -n 19`` beside other timed work, seed 0,
+:data:`SIZE`): trainings per seed on UNGM, the three budgets: kappa-nis 6.1 + 16.0 + 50.5 CPU-s, kappa-sqerr
+5.5 + 13.8 + 45.8, gain-unsup 54.5 and gain-sup 60.1 (one training each, snapshots at 6.2/17.2/54.5 and
+5.0/17.1/60.1 CPU-s); on the CTM kappa-nis b1 10.5, b2 21.3 CPU-s (the calibration under-estimated the CTM's
+kappa learner by about 1.5-2x: its episodes should be cut to about (700, 2900, 8500) before the full run).
+So about 250 CPU-s per seed and model, 8 seeds x 2 models ~ 4,000 CPU-s of training (~34 min on 2 cores).
+The evaluations (2 models x 2 regimes x 4 parts, the final budget on 10^4 runs: 16 UKF policies, 16 constants
+and baselines, 16 KalmanNets, the particle filter; the curve on 2000 runs with 48 policies) were **not timed
+yet**; the estimate of the whole run, 45-60 minutes on 2 cores, holds only if they stay under about 2,000
+CPU-s: time one part (``evaluate_part``) at full scale before the run, and cut ``curve_runs`` or the
+particle count if not. Not run.
 """
 from __future__ import annotations
 
@@ -117,8 +123,13 @@ CALIBRATION = {
     "kalmannet ungm-ukf unsupervised, n_train=200": {"snapshot CPU-s": [8.94, 19.84, 30.32]},
     "kalmannet ctm-ukf supervised, n_train=200": {"snapshot CPU-s": [2.95, 5.98, 9.5, 13.03, 16.53, 19.94]},
 }
-#: The full run's measured sizes (filled in from :data:`CALIBRATION` and one timed evaluation job).
-SIZE: dict = {}
+#: The full run's measured sizes: one training per arm and budget at full scale, seed 0 (process CPU-s;
+#: KalmanNet's per snapshot of its one training). The CTM's rest and the evaluation parts: not measured yet.
+SIZE: dict = {
+    "ungm-ukf": {"kappa-nis": (6.11, 16.03, 50.45), "kappa-sqerr": (5.5, 13.84, 45.81),
+                 "gain-unsup": (6.24, 17.21, 54.54), "gain-sup": (5.01, 17.10, 60.10)},
+    "ctm-ukf": {"kappa-nis": (10.47, 21.27, None)},
+}
 
 
 @dataclass(frozen=True)
