@@ -1,4 +1,4 @@
-r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles]``.
+r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain]``.
 
 Studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
 into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json``).
@@ -7,7 +7,7 @@ Each study is one file of :mod:`adaptfilt.experiments.studies` (its docstring sa
 ``cand`` (a candidate-aware information state), ``sif`` (SIF policies and divergence: a repair penalty, a safe
 action set), ``ood`` (out of distribution and retuning), ``raw`` (training on the untransformed cost),
 ``anchor`` (policies anchored on greedy), ``look`` (the look-ahead references), ``particles`` (the particle
-count). Each declares what it trains, what it evaluates, its rows, tables and figures
+count), ``gain`` (the learned kappa against KalmanNet's learned gain). Each declares what it trains, what it evaluates, its rows, tables and figures
 (:class:`adaptfilt.experiments.study.Study`); :func:`run` is the loop over the chosen ones.
 
 Every training and evaluation is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or
@@ -28,7 +28,8 @@ from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.studies import ALL
 from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions, selection_md
 # study_rows: REPRODUCTION.md cites it as beyond.study_rows
-from adaptfilt.experiments.study import FULL, QUICK, BeyondScale, Run, run_evaluations, study_rows  # noqa: F401
+from adaptfilt.experiments.study import (FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations,  # noqa: F401
+                                         same_training, study_rows)
 from adaptfilt.files import atomic_write, sha256
 
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "command", "summary_md", "STUDIES", "JOURNAL", "SELECTION_SEED",
@@ -82,8 +83,8 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
 
 def _train(r: Run, policies: list[tuple[str, TrainSpec]]) -> None:
     """Train what neither the manifest (an earlier run's, same command) nor the journal holds."""
-    listed = _listed_policies(r.out)
-    todo = [(rel, t) for rel, t in policies if not _same_training(listed.get(rel), t.command, r.out / rel)]
+    listed = listed_policies(r.out)
+    todo = [(rel, t) for rel, t in policies if not same_training(listed.get(rel), t.command, r.out / rel)]
     keys = [t.key for _, t in todo]
     resumed = r.journal.count(keys)
     r.say(f"[beyond] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
@@ -113,21 +114,6 @@ def _write(r: Run, summary: dict, version: str) -> dict:
     atomic_write(out / "manifest.json", json.dumps({"scale": r.scale.name, "files": [files[k] for k in sorted(files)]},
                                                    indent=1) + "\n")
     return summary
-
-
-def _listed_policies(out: Path) -> dict[str, dict]:
-    """The policies ``out/manifest.json`` lists (an earlier run's), by path."""
-    p = out / "manifest.json"
-    files = json.loads(p.read_text())["files"] if p.exists() else []
-    return {f["path"]: f for f in files if f["path"].startswith("policies/")}
-
-
-def _same_training(entry: dict | None, command: str, path: Path) -> bool:
-    """A listed policy made by ``command`` (its --out aside: the folder may have moved) and unchanged since."""
-    if entry is None or not path.is_file():
-        return False
-    recorded = str(entry.get("command", "")).rsplit(" --out ", 1)[0]
-    return recorded == command.rsplit(" --out ", 1)[0] and sha256(path) == entry["sha256"]
 
 
 def summary_md(summary: dict, studies: tuple[str, ...] = STUDIES) -> str:

@@ -15,6 +15,7 @@ jobs of all studies share the workers:
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
@@ -23,9 +24,10 @@ import numpy as np
 
 from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, evaluate_spec, job_key, load_learned, take_times
 from adaptfilt.experiments.report import md_table
+from adaptfilt.files import sha256
 
 __all__ = ["Study", "Run", "BeyondScale", "FULL", "QUICK", "GROUPS", "COMPACT", "study_rows", "groups_md",
-           "evaluation", "evaluate_job", "divergence"]
+           "evaluation", "evaluate_job", "divergence", "listed_policies", "same_training"]
 
 
 class Study(Protocol):
@@ -258,3 +260,17 @@ def run_evaluations(run: Run, specs: list[EvalSpec]) -> list:
         out[i] = v
     return out
 
+
+def listed_policies(out: Path) -> dict[str, dict]:
+    """The policies ``out/manifest.json`` lists (an earlier run's), by path."""
+    p = out / "manifest.json"
+    files = json.loads(p.read_text())["files"] if p.exists() else []
+    return {f["path"]: f for f in files if f["path"].startswith("policies/")}
+
+
+def same_training(entry: dict | None, command: str, path: Path) -> bool:
+    """A listed policy made by ``command`` (its --out aside: the folder may have moved) and unchanged since."""
+    if entry is None or not path.is_file():
+        return False
+    recorded = str(entry.get("command", "")).rsplit(" --out ", 1)[0]
+    return recorded == command.rsplit(" --out ", 1)[0] and sha256(path) == entry["sha256"]

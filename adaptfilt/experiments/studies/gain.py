@@ -26,7 +26,10 @@ separately at each budget, as the other studies' ``adaptfilt train`` jobs.
 **KalmanNet's recipe** (:data:`KNET`, fixed before any evaluation): 100 training and 50 validation
 trajectories of the full horizon simulated per seed (``data_seed`` = the seed: both gain arms of a seed
 see the same trajectories; the kappa learner simulates its own episodes from its seed), minibatches of
-20 whole trajectories (full back-propagation through time), Adam 1e-3, weight decay 1e-4, gradient
+20 trajectories, truncated back-propagation through time over windows of 100 steps (the estimate and the GRU
+states carried over, detached; chosen on UNGM, seed 0, 500 test runs of seed 999, before the study: with whole
+500-step sequences the unsupervised loss never improved on the untrained network in 10 epochs, best epoch 0,
+RMSE 5.965, where windows of 100 reached 5.35 at epoch 3; supervised 5.31 and 5.28; the default UKF 7.58), Adam 1e-3, weight decay 1e-4, gradient
 norm clipped at 10, the best validation model kept, a non-finite loss restoring the best weights at half
 the learning rate (recorded in the file's history). Inputs scaled by fixed scales from a pilot
 simulation (``feature_norm="scale"``), not the public code's per-sample L2 norm, which leaves only the
@@ -79,7 +82,7 @@ import numpy as np
 
 from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, job_key
 from adaptfilt.experiments.report import md_table
-from adaptfilt.experiments.study import COMPACT, Run, diff_ci
+from adaptfilt.experiments.study import COMPACT, Run, diff_ci, listed_policies, same_training
 
 NAME = "gain"
 
@@ -98,7 +101,7 @@ REGIMES = {"nominal": (1.0, 1.0), "q4": (4.0, 1.0)}
 TARGET_CPU_S = (5.0, 15.0, 45.0)
 #: KalmanNet's training recipe (module docstring); ``n_steps`` is the model's horizon (the scale's at quick).
 KNET = dict(n_train=100, n_val=50, batch_size=20, lr=1e-3, weight_decay=1e-4, clip=10.0, feature_norm="scale",
-            on_diverged="restore")
+            on_diverged="restore", tbptt=100)
 #: Particles of the bootstrap particle filter reference (the reproduction's references: bpf-500 on UNGM,
 #: bpf-1000 on the CTM).
 PF_PARTICLES = {"ungm-ukf": 500, "ctm-ukf": 1000}
@@ -122,6 +125,13 @@ CALIBRATION = {
     "kalmannet ungm-ukf supervised, n_train=200": {"snapshot CPU-s": [8.36, 17.97, 27.2]},
     "kalmannet ungm-ukf unsupervised, n_train=200": {"snapshot CPU-s": [8.94, 19.84, 30.32]},
     "kalmannet ctm-ukf supervised, n_train=200": {"snapshot CPU-s": [2.95, 5.98, 9.5, 13.03, 16.53, 19.94]},
+    # the CTM's kappa learner at the first calibration's budgets, full scale: a fixed ~5.3 CPU-s (scaler fit,
+    # set-up) plus ~3.9 ms per episode, so its first budget cannot go below ~6 CPU-s; (300, 2500, 10300)
+    # episodes aim at about 6.5, 15 and 45
+    "kappa ctm-ukf, full scale": {"1350 episodes": 10.47, "4150 episodes": 21.27},
+    # KNET with windows of 100 steps (tbptt=100), UNGM, seed 0: snapshot CPU-s at epochs 1, 3, 10
+    "kalmannet ungm-ukf supervised, tbptt=100": {"snapshot CPU-s": [7.5, 19.3, 53.8]},
+    "kalmannet ungm-ukf unsupervised, tbptt=100": {"snapshot CPU-s": [6.6, 15.7, 50.8]},
 }
 #: The full run's measured sizes: one training per arm and budget at full scale, seed 0 (process CPU-s;
 #: KalmanNet's per snapshot of its one training). The CTM's rest and the evaluation parts: not measured yet.
@@ -157,7 +167,7 @@ class GainScale:
 
 #: The full scale: budgets from :data:`CALIBRATION` for :data:`TARGET_CPU_S`.
 FULL = GainScale("full", tuple(range(8)), None, 10_000, 2000, 200,
-                 {"ungm-ukf": (400, 1250, 4000), "ctm-ukf": (1350, 4150, 12500)},
+                 {"ungm-ukf": (400, 1250, 4000), "ctm-ukf": (300, 2500, 10300)},
                  {"ungm-ukf": (1, 3, 10), "ctm-ukf": (3, 8, 25)}, {}, PF_PARTICLES)
 #: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (one PPO rollout each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": (2, 4, 6), "ctm-ukf": (2, 4, 6)},
@@ -224,17 +234,15 @@ def train_gain_job(experiment: str, arm: str, seed: int, scale: GainScale, paths
 def prepare(run: Run) -> dict:
     """KalmanNet's trainings (one per model, gain arm and seed, snapshotted at the budgets), as journaled jobs;
     files an earlier run listed in the manifest with the same command and sha256 are reused."""
-    from adaptfilt.experiments.beyond import _listed_policies, _same_training
-
     sc = scale_of(run)
-    listed = _listed_policies(run.out)
+    listed = listed_policies(run.out)
     jobs, keys, files = [], [], []
     for e in MODELS:
         for arm in LOSS:
             for s in sc.seeds:
                 rels = [policy_rel(e, arm, b, s) for b in budgets(sc)]
                 cmds = [knet_command(e, arm, s, sc, ep) for ep in sc.knet_epochs[e]]
-                if all(_same_training(listed.get(r), c, run.out / r) for r, c in zip(rels, cmds)):
+                if all(same_training(listed.get(r), c, run.out / r) for r, c in zip(rels, cmds)):
                     continue
                 paths = [str(run.out / r) for r in rels]
                 jobs.append((e, arm, s, sc, paths))
