@@ -121,16 +121,26 @@ class PointMassFilter:
     def _gauss(self, r, var):
         return np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
 
-    def run(self, z, keep_density_at: tuple[int, ...] = ()) -> FilterRun:
+    def run(self, z, keep_density_at: tuple[int, ...] = (), chunk: int | None = None) -> FilterRun:
         """Filter ``z (M, T, 1)``; ``keep_density_at`` lists steps whose
-        filtering densities ``(M, N)`` go into ``run.info["density"][t]``."""
+        filtering densities ``(M, N)`` go into ``run.info["density"][t]``.
+
+        ``chunk``: filter the runs in groups of this many (the last may be smaller), each group's
+        arrays ``(N, chunk)`` on their own, as separate calls ``run(z[a:a + chunk])`` would, with the
+        same numbers (every operation on the same operands and shapes), but the transition kernel
+        (``N x N``, the same for every run) computed once per step for all groups. None: one group."""
         model, x, dx = self.model, self.grid, self.dx
         z = np.asarray(z, dtype=float)
         if z.ndim == 3:
             z = z[..., 0]
         M, T = z.shape
+        size = M if chunk is None else int(chunk)
+        if size < 1:
+            raise ValueError(f"chunk must be a positive number of runs, got {chunk!r}")
+        groups = [(a, min(a + size, M)) for a in range(0, M, size)] or [(0, 0)]
         Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
-        p = self._gauss(x - model.m0[0], float(model.P0[0, 0]))[:, None] * np.ones((1, M))  # (N, M)
+        p0 = self._gauss(x - model.m0[0], float(model.P0[0, 0]))[:, None]
+        ps = [p0 * np.ones((1, b - a)) for a, b in groups]  # (N, runs of the group)
         edge = max(1, x.size // 100)
         mean, var, ll = np.empty((M, T)), np.empty((M, T)), np.empty((M, T))
         dens = {}
@@ -138,23 +148,27 @@ class PointMassFilter:
             if t:
                 fx = model.f(x[:, None], t)[:, 0]
                 Kt = self._gauss(x[:, None] - fx[None, :], Q) * dx  # Kt[i, j] = p(x_i | x_j)
-                p = Kt @ p
             hx = model.h(x[:, None], t + 1)[:, 0]
-            lik = self._gauss(z[:, t][None, :] - hx[:, None], R)
-            p = lik * p
-            c = p.sum(0) * dx
-            if not (c > 0).all():
-                raise ValueError(f"point-mass filter lost all mass at step t={t} in runs {np.flatnonzero(~(c > 0))[:10]}: widen the grid")
-            ll[:, t] = np.log(c)
-            p = p / c
-            mass_edge = (p[:edge].sum(0) + p[-edge:].sum(0)) * dx
-            if (mass_edge > self.edge_tol).any():
-                r = np.flatnonzero(mass_edge > self.edge_tol)
-                raise ValueError(f"point-mass filter: probability mass {mass_edge.max():.2g} at the grid's edge at step t={t} (runs {r[:10]}); widen the grid")
-            mean[:, t] = (x[:, None] * p).sum(0) * dx
-            var[:, t] = ((x[:, None] - mean[:, t]) ** 2 * p).sum(0) * dx
+            for k, (a, b) in enumerate(groups):
+                p = ps[k]
+                if t:
+                    p = Kt @ p
+                lik = self._gauss(z[a:b, t][None, :] - hx[:, None], R)
+                p = lik * p
+                c = p.sum(0) * dx
+                if not (c > 0).all():
+                    raise ValueError(f"point-mass filter lost all mass at step t={t} in runs {a + np.flatnonzero(~(c > 0))[:10]}: widen the grid")
+                ll[a:b, t] = np.log(c)
+                p = p / c
+                mass_edge = (p[:edge].sum(0) + p[-edge:].sum(0)) * dx
+                if (mass_edge > self.edge_tol).any():
+                    r = a + np.flatnonzero(mass_edge > self.edge_tol)
+                    raise ValueError(f"point-mass filter: probability mass {mass_edge.max():.2g} at the grid's edge at step t={t} (runs {r[:10]}); widen the grid")
+                mean[a:b, t] = (x[:, None] * p).sum(0) * dx
+                var[a:b, t] = ((x[:, None] - mean[a:b, t]) ** 2 * p).sum(0) * dx
+                ps[k] = p
             if t in keep_density_at:
-                dens[t] = p.T.copy()
+                dens[t] = np.concatenate([p.T for p in ps]) if len(ps) > 1 else ps[0].T.copy()
         return FilterRun(
             mean=mean[..., None], cov=var[..., None, None], nis=np.full((M, T), np.nan), loglik=ll,
             params=np.full((M, T), np.nan), info={"density": dens, "grid": x},

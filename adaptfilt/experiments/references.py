@@ -38,8 +38,8 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
     traj = env.model.simulate(max(int(eval_runs), n_runs), T, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
     x, z = traj.x[:n_runs], traj.z[:n_runs]
     pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
-    se = np.concatenate([metrics.squared_error(x[i:i + chunk], pmf.run(z[i:i + chunk]).mean)
-                         for i in range(0, n_runs, chunk)])
+    mean = pmf.run(z, chunk=chunk).mean  # chunk by chunk, the kernel once per step: as a call per chunk
+    se = np.concatenate([metrics.squared_error(x[i:i + chunk], mean[i:i + chunk]) for i in range(0, n_runs, chunk)])
     counts = metrics.bootstrap_counts(n_runs, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 2]))
     boot = metrics.bootstrap_rmse(se, counts)
     lo, hi = metrics.percentile_ci(boot)
