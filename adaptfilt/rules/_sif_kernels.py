@@ -19,6 +19,9 @@ same arithmetic in the same order and gives the same bits:
   numbers are the same on any CPU. numba compiles without ``fastmath``, so LLVM neither contracts
   ``v - s q`` into a fused multiply-add nor reorders the sums
   (``tests/test_sif_kernels.py`` checks the bits against numpy, also with numpy's SIMD code disabled).
+  The kernels that divide are compiled with numba's ``error_model="numpy"``: a zero divisor gives
+  ``inf``/``nan`` as numpy does instead of raising ``ZeroDivisionError``, and without that check per
+  division LLVM vectorises the divisions (each still correctly rounded: the same bits).
 
 The kernel also gathers the runs it is asked for (``runs``: a subset of the draws' runs, or the copies
 of a tiled batch), which the numpy form does with an explicit ``G[..., runs]`` first. numba is
@@ -56,7 +59,7 @@ def _build():
             _kernel = False
             return _kernel
 
-        @numba.njit(cache=True, nogil=True)
+        @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _gram_schmidt_runs(G, runs, Q, V, s):  # pragma: no cover - compiled
             """``Q[:, :, r]`` = the Q factor of ``G[:, :, runs[r]]``, numpy's operation order; ``V (n, K)``,
             ``s (K,)``: scratch. The run loop innermost, as numpy's elementwise loops run."""
@@ -313,7 +316,7 @@ def _build_fused():
         # module globals, so that the kernels below call them as compiled functions (and can be cached)
         _gs_jit, (_points_jit, _sums_jit) = _kernel, _sums
 
-        @numba.njit(cache=True, nogil=True)
+        @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _rule3_points(G, chi2, sel, m, L, Q, V, s, scale, weight, X, A):  # pragma: no cover - compiled
             """The degree-3 point set of the draw ``(G, chi2)`` for its runs ``sel``: ``Q`` = the Q factor
             of ``G[:, :, sel]`` (:func:`gram_schmidt`), ``scale = sqrt(chi2[sel])``, ``weight = 0.5 /
@@ -325,7 +328,7 @@ def _build_fused():
                 weight[c] = 0.5 / r2
             _points_jit(m, L, Q, True, scale, X, A)
 
-        @numba.njit(cache=True, nogil=True)
+        @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _rule3_accumulate(D, A, weight, W, cross, wD, ED, EDD, EXD, compute, runs, n_runs, S0, S1, S2, N, track, I,
                               V, full, Vfull, dv):  # pragma: no cover - compiled
             """``(ED, EDD, EXD)`` of the draw (:func:`weighted_sums`; ``compute`` False: given), added to the
@@ -333,7 +336,7 @@ def _build_fused():
             ``track``, the Welford state of the mean, at the draw count ``N`` (the same for every run still
             iterating):  ``D = (e - I) / N``, ``I = I + D``, ``V = (N - 2) / N V + D D`` for ``N >= 2``, and
             ``Vfull`` likewise with ``D D^T`` (``full``); element by element the numpy expressions of the
-            recursion."""
+            recursion. The run loops innermost (``dv (ng, K)``: scratch)."""
             if compute:
                 K = A.shape[1]
                 for k in range(K):
@@ -341,30 +344,38 @@ def _build_fused():
                         W[k, c] = weight[c]
                 _sums_jit(D, W, A, cross, wD, ED, EDD, EXD)
             ng = ED.shape[0]
-            later = N >= 2
-            f = (N - 2) / N
-            for c in range(n_runs):
-                r = runs[c]
-                for i in range(ng):
+            for i in range(ng):
+                for c in range(n_runs):
+                    r = runs[c]
                     S0[i, r] = S0[i, r] + ED[i, c]
-                for i in range(ng):
-                    for j in range(ng):
+            for i in range(ng):
+                for j in range(ng):
+                    for c in range(n_runs):
+                        r = runs[c]
                         S1[i, j, r] = S1[i, j, r] + EDD[i, j, c]
-                if cross:
-                    for i in range(S2.shape[0]):
-                        for j in range(ng):
+            if cross:
+                for i in range(S2.shape[0]):
+                    for j in range(ng):
+                        for c in range(n_runs):
+                            r = runs[c]
                             S2[i, j, r] = S2[i, j, r] + EXD[i, j, c]
-                if track:
-                    for i in range(ng):
+            if track:
+                later = N >= 2
+                f = (N - 2) / N
+                for i in range(ng):
+                    for c in range(n_runs):
+                        r = runs[c]
                         d = (ED[i, c] - I[i, r]) / N
-                        dv[i] = d
+                        dv[i, c] = d
                         I[i, r] = I[i, r] + d
                         if later:
                             V[i, r] = f * V[i, r] + d * d
-                    if full and later:
-                        for i in range(ng):
-                            for j in range(ng):
-                                Vfull[i, j, r] = f * Vfull[i, j, r] + dv[i] * dv[j]
+                if full and later:
+                    for i in range(ng):
+                        for j in range(ng):
+                            for c in range(n_runs):
+                                r = runs[c]
+                                Vfull[i, j, r] = f * Vfull[i, j, r] + dv[i, c] * dv[j, c]
 
         _fused = (_rule3_points, _rule3_accumulate)
     return _fused
@@ -404,7 +415,7 @@ def rule3_accumulate(D, A, weight, cross: bool, runs, n_runs: int, sums: tuple, 
     if bufs is None or bufs[1].shape != D.shape:
         n = A.shape[0]
         bufs = work["rule3 sums"] = (np.empty((n, K)), np.empty(D.shape), np.empty((ng, K)), np.empty((ng, ng, K)),
-                                     np.empty((n if cross else 0, ng, K)), np.empty(ng))
+                                     np.empty((n if cross else 0, ng, K)), np.empty((ng, K)))
     W, wD, ED, EDD, EXD, dv = bufs
     compute = given is None
     if not compute:
