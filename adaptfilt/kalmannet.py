@@ -558,7 +558,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     clip: float | None = None, seed: int = 0, data_seed: int | None = None,
                     train: Trajectory | None = None, val: Trajectory | None = None, progress: bool = True,
                     calibration: float = 1.0, init: KalmanNet | None = None,
-                    on_diverged: Literal["raise", "restore"] = "raise", max_restores: int = 5,
+                    on_diverged: Literal["raise", "restore", "stop"] = "raise", max_restores: int = 5,
                     max_cpu_s: float | None = None, snapshots: Sequence[int] = (),
                     **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
@@ -602,12 +602,16 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         ``e`` is the filter of ``epochs=e`` (weights bit for bit; the CPU seconds are those spent up to
         it). One training then serves a budget curve (the learned-gain study). ValueError for an epoch
         outside ``1..epochs``.
-    on_diverged : "raise" or "restore"
+    on_diverged : "raise", "restore" or "stop"
         What a non-finite training loss, gradient or validation loss does: ``"raise"`` (default)
         :class:`TrainingDiverged` naming the epoch and optimiser step; ``"restore"`` (a documented
         fallback, never silent) warns, goes back to the best weights so far, halves the learning
         rate with a fresh Adam state, skips the rest of that minibatch and records the event in
-        ``history["restores"]``; more than ``max_restores`` such events raise.
+        ``history["restores"]``; more than ``max_restores`` such events raise. ``"stop"``: as
+        ``"restore"``, but the event after ``max_restores`` ends the training with the best weights so
+        far instead of raising, recorded in ``history["stopped_by_divergence"]`` (epoch, step, what)
+        with a warning; the snapshots of later epochs are that filter (a training of that many epochs
+        would have stopped there too). For studies that must report a diverged training, not lose it.
 
     Returns the filter with the best validation loss; ``knet.history`` holds the per-epoch training
     and validation losses, the best epoch and the training CPU seconds. Raises
@@ -629,8 +633,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     snaps = sorted({int(e) for e in snapshots})
     if any(e < 1 or e > int(epochs) for e in snaps) or any(int(e) != e for e in snapshots):
         raise ValueError(f"snapshots must be epochs in 1..epochs={int(epochs)}, got {list(snapshots)}")
-    if on_diverged not in ("raise", "restore"):
-        raise ValueError(f"on_diverged must be 'raise' or 'restore', got {on_diverged!r}")
+    if on_diverged not in ("raise", "restore", "stop"):
+        raise ValueError(f"on_diverged must be 'raise', 'restore' or 'stop', got {on_diverged!r}")
     if not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be positive, got {lr}")
     cpu0 = time.process_time()
@@ -656,7 +660,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
             "batch_size": int(batch_size), "lr": lr, "weight_decay": weight_decay, "tbptt": tbptt, "clip": clip,
             "n_train": train.n_runs, "n_val": val.n_runs, "n_steps": train.n_steps, "data_seed": ds,
             "calibration": calibration, "on_diverged": on_diverged, "restores": [], "max_cpu_s": max_cpu_s,
-            "stopped_by_budget": False}
+            "stopped_by_budget": False, "stopped_by_divergence": None}
     M, Tn = train.n_runs, train.n_steps
     L = Tn if tbptt is None else int(tbptt)
     z_prev_all = knet._z_prev(train.z)
@@ -669,7 +673,13 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         """Raise, or restore the best weights with half the learning rate (``on_diverged``)."""
         msg = f"KalmanNet training: {what}"
         if on_diverged == "raise" or len(hist["restores"]) >= int(max_restores):
-            extra = f" after {len(hist['restores'])} restores" if on_diverged == "restore" else ""
+            extra = f" after {len(hist['restores'])} restores" if on_diverged != "raise" else ""
+            if on_diverged == "stop":
+                warnings.warn(msg + extra + "; training stopped with the best weights so far", RuntimeWarning,
+                              stacklevel=3)
+                hist["stopped_by_divergence"] = {"epoch": epoch, "step": step, "what": what}
+                knet.net.load_state_dict(state)
+                return opt
             raise TrainingDiverged(msg + extra + "; try clip=..., a smaller lr, tbptt=... or another feature_norm")
         lr_now = opt.param_groups[0]["lr"] * 0.5
         warnings.warn(msg + f"; restored the best weights so far, learning rate halved to {lr_now:.3g}",
@@ -722,13 +732,17 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     if max_cpu_s is not None and time.process_time() - cpu0 >= max_cpu_s:
                         hist["stopped_by_budget"] = True
                         break
-                if hist["stopped_by_budget"]:
+                if hist["stopped_by_budget"] or hist["stopped_by_divergence"]:
                     break
+            if hist["stopped_by_divergence"]:
+                break
             hist["train_loss"].append(float(np.mean(losses)) if losses else math.nan)
             v = _evaluate(knet, val, loss, calibration)
             hist["val_loss"].append(v)
             if not math.isfinite(v):
                 opt = diverged(f"non-finite validation loss after epoch {epoch}", epoch, step, best_state, opt)
+                if hist["stopped_by_divergence"]:
+                    break
                 continue
             if v < best:
                 best, hist["best_epoch"] = v, epoch
@@ -742,6 +756,13 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     "optimiser_steps": step, "cpu_s": time.process_time() - cpu0})
             if hist["stopped_by_budget"]:
                 break
+    if hist["stopped_by_divergence"]:  # the later snapshots are the filter a longer training would return
+        for e in snaps:
+            if e not in kept:
+                kept[e] = (copy.deepcopy(best_state), {
+                    **hist, "train_loss": list(hist["train_loss"]), "val_loss": list(hist["val_loss"]),
+                    "restores": list(hist["restores"]), "epochs": e, "best_val_loss": best,
+                    "optimiser_steps": step, "cpu_s": time.process_time() - cpu0})
     knet.net.load_state_dict(best_state)
     knet.net.eval()
     hist["best_val_loss"] = best

@@ -263,5 +263,24 @@ def test_restore_fallback_warns_records_and_gives_up():
                         on_diverged="restore", max_restores=2)
 
 
+def test_stop_fallback_keeps_the_best_weights_and_fills_later_snapshots():
+    """on_diverged="stop": after max_restores the training ends with the best weights so far (here the
+    untrained ones: every epoch diverges), recorded and warned, and the snapshots of later epochs are that
+    filter, as a training of that many epochs would return it."""
+    model = af.models.linear_gaussian(F=[[1e3]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[1.0], P0=[[1.0]], name="unstable")
+    traj = af.Trajectory(x=np.zeros((2, 200, 1)), z=np.zeros((2, 200, 1)))
+    untrained = KalmanNet(model, seed=0, feature_norm="none")
+    with pytest.warns(RuntimeWarning, match="training stopped with the best weights so far"):
+        knet = train_kalmannet(model, train=traj, val=traj, epochs=5, progress=False, feature_norm="none",
+                               on_diverged="stop", max_restores=2, snapshots=(1, 5))
+    h = knet.history
+    assert h["stopped_by_divergence"]["epoch"] < 5 and len(h["restores"]) == 2 and h["best_epoch"] == 0
+    for a, b in zip(knet.net.state_dict().values(), untrained.net.state_dict().values()):
+        assert torch.equal(a, b)
+    assert knet.snapshot(5).history["stopped_by_divergence"] == h["stopped_by_divergence"]
+    with pytest.raises(ValueError, match="on_diverged must be"):
+        train_kalmannet(model, train=traj, val=traj, on_diverged="ignore", progress=False)
+
+
 def test_lazy_export():
     assert af.kalmannet.KalmanNet is KalmanNet

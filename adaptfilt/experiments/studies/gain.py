@@ -31,7 +31,9 @@ states carried over, detached; chosen on UNGM, seed 0, 500 test runs of seed 999
 500-step sequences the unsupervised loss never improved on the untrained network in 10 epochs, best epoch 0,
 RMSE 5.965, where windows of 100 reached 5.35 at epoch 3; supervised 5.31 and 5.28; the default UKF 7.58), Adam 1e-3, weight decay 1e-4, gradient
 norm clipped at 10, the best validation model kept, a non-finite loss restoring the best weights at half
-the learning rate (recorded in the file's history). Inputs scaled by fixed scales from a pilot
+the learning rate (recorded in the file's history); after 5 such restores the training stops with the best
+weights so far (``on_diverged="stop"``: a diverged training is a result to report, not a job to lose; the
+study counts such trainings per arm and budget, ``stopped_trainings``). Inputs scaled by fixed scales from a pilot
 simulation (``feature_norm="scale"``), not the public code's per-sample L2 norm, which leaves only the
 sign of UNGM's and the bearing's one-dimensional features. Plain KalmanNet: it gives **no covariance**,
 so its ANEES and its NEES-based divergence are *n/a* (``None`` in the summary, NaN in the stored
@@ -101,7 +103,7 @@ REGIMES = {"nominal": (1.0, 1.0), "q4": (4.0, 1.0)}
 TARGET_CPU_S = (5.0, 15.0, 45.0)
 #: KalmanNet's training recipe (module docstring); ``n_steps`` is the model's horizon (the scale's at quick).
 KNET = dict(n_train=100, n_val=50, batch_size=20, lr=1e-3, weight_decay=1e-4, clip=10.0, feature_norm="scale",
-            on_diverged="restore", tbptt=100)
+            on_diverged="stop", tbptt=100)
 #: Particles of the bootstrap particle filter reference (the reproduction's references: bpf-500 on UNGM,
 #: bpf-1000 on the CTM).
 PF_PARTICLES = {"ungm-ukf": 500, "ctm-ukf": 1000}
@@ -227,7 +229,8 @@ def train_gain_job(experiment: str, arm: str, seed: int, scale: GainScale, paths
         snap.save(p)
         h = snap.history
         out[p] = {"cpu_time_s": float(h["cpu_s"]), "epochs": int(e), "best_epoch": int(h["best_epoch"]),
-                  "restores": len(h["restores"]), "optimiser_steps": int(h["optimiser_steps"])}
+                  "restores": len(h["restores"]), "optimiser_steps": int(h["optimiser_steps"]),
+                  "stopped_by_divergence": h.get("stopped_by_divergence")}
     return out
 
 
@@ -480,7 +483,15 @@ def _train_cpu(run: Run, rel: str) -> float | None:
     return None
 
 
-def arm_rows(res, arm: str, budget: int, experiment: str, train_cpu: dict) -> dict:
+def _stopped(run: Run, rel: str) -> bool:
+    """Whether a KalmanNet file's training ended by divergence (its history says so)."""
+    from adaptfilt.learned import read_npz
+
+    p = run.out / rel
+    return p.exists() and bool(read_npz(p, what="KalmanNet file")[1]["history"].get("stopped_by_divergence"))
+
+
+def arm_rows(res, arm: str, budget: int, experiment: str, train_cpu: dict, stopped: int | None = None) -> dict:
     """One arm at one budget: RMSE (IQM over seeds, two-level CI), MSE dB per seed and IQM, ANEES and the NIS
     cost where defined (None: n/a), divergent runs (error rule, every arm; NEES rule, where a covariance
     exists), training CPU-s per seed, microseconds per run-step."""
@@ -501,6 +512,7 @@ def arm_rows(res, arm: str, budget: int, experiment: str, train_cpu: dict) -> di
     row["divergent_nees_rule"] = [int(round(res[n].divergent_frac * M)) for n in members] if has_cov else None
     row["n_runs"] = M
     row["train_cpu_s"] = [train_cpu[int(n.rsplit("-s", 1)[1])] for n in members]
+    row["stopped_trainings"] = stopped  # KalmanNet trainings ended by divergence (on_diverged="stop"); None: kappa
     row["us_per_step"] = [1e6 * res[n].wall_time_s / (M * T) for n in members]
     return row
 
@@ -559,11 +571,13 @@ def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
     for spec, v in zip(specs, values):
         regime, part = spec.tag
         parts.setdefault((spec.experiment, regime), {})[part] = v
-    cpu = {}
+    cpu, stopped = {}, {}
     for e in MODELS:
         for a in ARM_NAMES:
             for b in budgets(sc):
                 cpu[(e, a, b)] = {s: _train_cpu(run, policy_rel(e, a, b, s)) for s in sc.seeds}
+                stopped[(e, a, b)] = (sum(_stopped(run, policy_rel(e, a, b, s)) for s in sc.seeds)
+                                      if a in LOSS else None)
     out: dict = {"scale": sc.name, "target_cpu_s": list(TARGET_CPU_S), "budgets": {
         e: {"kappa_episodes": list(sc.kappa_episodes[e]), "knet_epochs": list(sc.knet_epochs[e])} for e in MODELS},
         "knet": knet_options(sc), "eval_runs": sc.eval_runs, "curve_runs": sc.curve_runs, "models": {}}
@@ -573,8 +587,9 @@ def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
         curve = p["curve"]
         last = len(TARGET_CPU_S)
         entry = {"references": reference_rows(final, e), "floor": floor,
-                 "final": {a: arm_rows(final, a, last, e, cpu[(e, a, last)]) for a in ARM_NAMES},
-                 "curve": {a: {str(b): arm_rows(curve, a, b, e, cpu[(e, a, b)]) for b in budgets(sc)} for a in ARM_NAMES},
+                 "final": {a: arm_rows(final, a, last, e, cpu[(e, a, last)], stopped[(e, a, last)]) for a in ARM_NAMES},
+                 "curve": {a: {str(b): arm_rows(curve, a, b, e, cpu[(e, a, b)], stopped[(e, a, b)]) for b in budgets(sc)}
+                           for a in ARM_NAMES},
                  "curve_references": reference_rows(curve, e),
                  "verdicts": verdict_rows(final, last, sc.seeds) + [v for b in budgets(sc) if b < last
                                                                      for v in verdict_rows(curve, b, sc.seeds)]}
@@ -672,6 +687,8 @@ def markdown(summary: dict) -> str:
 
 def _arm_line(e: str, r: str, arm: str, b: int, row: dict, bud: dict, final: bool = False) -> str:
     units = f"{bud['kappa_episodes'][b - 1]} episodes" if arm.startswith("kappa") else f"{bud['knet_epochs'][b - 1]} epochs"
+    if row.get("stopped_trainings"):
+        units += f" ({row['stopped_trainings']} of {len(row['names'])} trainings stopped by divergence)"
     cpu = [c for c in row["train_cpu_s"] if c is not None]
     where = f"{row['n_runs']} runs" + (", final" if final else "")
     return (f"| {e} | {r} | {arm} b{b} ({where}) | {units} | {np.mean(cpu) if cpu else float('nan'):.3g} | "
