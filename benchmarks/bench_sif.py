@@ -33,7 +33,7 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
 4. **The rule's implementation, before and after** (``--speed``: this part alone):
    CPU time (``time.process_time``, best of ``--speed-repeat``, the variants
    interleaved) of (a) training a SIF policy, ``train_policy("ctm-sif-nis",
-   "fast", 0.5, 100, 0)``, and (b) the default SIF (``on_indefinite="clip"``) on ``M = 10^4`` CTM runs,
+   "fast", 0.5, 100, 0)``, (c) the moments at 256 runs (below), and (b) the default SIF (``on_indefinite="clip"``) on ``M = 10^4`` CTM runs,
    ``T = 150``, 10 iterations, under three implementations of the rule: the
    baseline (the methods of ``adaptfilt/rules/stochastic.py`` at
    ``--baseline``, a git revision, swapped in: numpy Gram-Schmidt, scattered
@@ -55,6 +55,15 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    sums: 0.95x, within the noise of that load; per call the kernels are 0.99x
    at 20 runs, 1.2x at 200, 1.4x at 1000); (b) 8.74 -> 8.49 -> 7.87 -> 7.13
    CPU-s, the sums 1.10x, 1.23x in all.
+   The fourth variant is now the fused draw (``StochasticIntegrationRule._recursion_fused``: per draw one
+   compiled call for the points, the model's ``h`` and residual, one compiled call for the sums and the
+   recursion's state; degree 3, fixed counts), and (c) times the training's case alone: 20 moment
+   computations at ``M = 256`` with per-run counts from the SIF grid, ``passes=2, integration_error="diag"``.
+   Measured (load about 1.5-3.5, best of 3): (a) 3.63 -> 2.54 -> 1.86 -> 1.48 CPU-s (the fused draws
+   alone 1.26x); (b) 9.90 -> 9.93 -> 9.51 -> 7.14 (1.33x); (c) 0.30 -> 0.25 -> 0.17 -> 0.12 (1.42x).
+   Against the rule before the fused draws (the previous compiled points and sums, a checkout of that
+   commit, same session): one such moment computation 8.7-8.9 -> 6.0-6.2 ms (145-149 -> 100-103 us per
+   draw, of which the random draws themselves are 62-77 us).
 
 The benchmark imports ``adaptfilt`` as installed; from a checkout that is not
 the installed one, run it as ``PYTHONPATH=. python benchmarks/bench_sif.py``.
@@ -271,7 +280,7 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         print(f"(baseline {baseline} unavailable: {str(err).strip()[:200]})")
         old = None
     variants = {"baseline " + baseline: (old, "numpy"), "numpy Gram-Schmidt": (None, "numpy"),
-                "compiled Gram-Schmidt": (None, "auto", False), "compiled GS, points, sums": (None, "auto")}
+                "compiled Gram-Schmidt": (None, "auto", False), "compiled, fused draws": (None, "auto")}
     if old is None:
         del variants["baseline " + baseline]
     model = af.models.coordinated_turn()
@@ -285,10 +294,26 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         r = af.SIF(model, seed=0, on_indefinite="clip").run(z, params=10)
         return [r.mean, r.cov, r.nis, r.loglik]
 
+    # (c) the training's case: one update's moments at 256 runs, per-run counts from the SIF grid, the experiments'
+    # form (2 passes, diag), 20 calls
+    sif = af.SIF(model, seed=0)
+    g, res = sif._wrap(model.h, 1), sif._residual_rl()
+    m256, P256 = sif.initial(256)
+    counts = np.random.default_rng(1).choice([1, 2, 3, 5, 7, 10, 15, 20, 30], 256).astype(float)
+    rule = StochasticIntegrationRule(passes=2, integration_error="diag")
+
+    def moments256():
+        out = []
+        for i in range(20):
+            mo = rule.moments(g, m256, P256, counts, residual=res, rng=np.random.default_rng(i))
+            out += [mo.mean, mo.cov, mo.cross, mo.mean_var, mo.n_iter]
+        return out
+
     with _Implementation(None, "auto"):
-        af.SIF(model, seed=0).run(z[:4, :2], params=2)  # compile (or load) the kernel outside the timings
+        af.SIF(model, seed=0, passes=2, integration_error="diag").run(z[:4, :2], params=np.array([1.0, 2, 3, 2]))  # compile (or load) the kernels outside the timings
     for label, work in ((f"(a) train_policy('ctm-sif-nis', 'fast', 0.5, {episodes}, 0)", train),
-                        (f"(b) SIF(ctm, seed=0, on_indefinite='clip').run(z, params=10), M = {M}, T = {T}", run)):
+                        (f"(b) SIF(ctm, seed=0, on_indefinite='clip').run(z, params=10), M = {M}, T = {T}", run),
+                        ("(c) 20 x rule.moments at M = 256, per-run counts (grid, max 30), passes=2, diag", moments256)):
         best = {k: np.inf for k in variants}
         outputs = {}
         for _ in range(repeat):
@@ -306,7 +331,7 @@ def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:
         for name, sec in best.items():
             print(f"  {name:32s} {sec:8.2f} CPU-s   {first / sec:5.2f}x")
         if "compiled Gram-Schmidt" in best:
-            print(f"  (the compiled points and sums alone: {best['compiled Gram-Schmidt'] / best['compiled GS, points, sums']:.2f}x)")
+            print(f"  (the fused draws alone: {best['compiled Gram-Schmidt'] / best['compiled, fused draws']:.2f}x)")
 
 
 def _policy_arrays(policy) -> list:
