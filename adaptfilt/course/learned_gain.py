@@ -18,7 +18,8 @@ from adaptfilt.course.common import figure_axes
 from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
-           "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains"]
+           "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains",
+           "final_table", "verdict_table"]
 
 #: The chapter's linear-Gaussian model (scalar): F, H, Q, R, m0, P0.
 LINEAR = dict(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
@@ -160,3 +161,50 @@ def kalman_gains(n_steps: int, F: float = 0.9, H: float = 1.0, Q: float = 1.0, R
         K[k] = P * H / (H * H * P + R)
         P = F * F * (1 - K[k] * H) * P + Q
     return K
+
+
+# ------------------------------------------------------------------ the head-to-head study (data/beyond)
+def _ci(agg: dict | None, fmt: str = ".3g") -> str:
+    if agg is None or agg.get("iqm") is None or not np.isfinite(agg["iqm"]):
+        return "n/a"
+    lo, hi = agg["iqm_ci"]
+    return f"{agg['iqm']:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
+
+
+def final_table(g: Mapping, regime: str = "nominal") -> str:
+    """The study's final budget under ``regime`` (``summary["gain"]`` of ``data/beyond``), a Markdown table:
+    per model every arm (IQM over seeds [two-level 95 % CI]) and the references, with the MSE in dB, the
+    mean training CPU-s and the runs whose RMSE passed the divergence bound (per seed for the arms)."""
+    lines = ["| model | policy | RMSE | MSE (dB) | training CPU-s | divergent runs |", "|---|---|---|---|---|---|"]
+    for e, regimes in g["models"].items():
+        m = regimes[regime]
+        for a, row in m["final"].items():
+            cpu = [c for c in row["train_cpu_s"] if c is not None]
+            stop = f" ({row['stopped_trainings']} stopped)" if row.get("stopped_trainings") else ""
+            lines.append(f"| {e} | {a}{stop} | {_ci(row['rmse'])} | {row['mse_db']['iqm']:.3g} | "
+                         f"{np.mean(cpu):.3g} | {', '.join(map(str, row['divergent_error_rule']))} |")
+        for label, ref in m["references"].items():
+            name = label if label == ref["policy"] else f"{label} ({ref['policy']})"
+            lines.append(f"| {e} | {name} | {ref['rmse']:.3g} | {ref['mse_db']:.3g} | | "
+                         f"{ref['divergent_error_rule']} |")
+        if m["floor"]["rmse"] is not None:
+            lines.append(f"| {e} | point-mass floor ({m['floor']['runs']} runs) | {m['floor']['rmse']:.3g} | | | |")
+    return "\n".join(lines)
+
+
+def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[str, str]] | None = None) -> str:
+    """The study's seed-level verdicts on RMSE at ``budget`` (default: the last) for ``pairs`` (default: the
+    four of the 2 x 2 design), every model and regime: ``a - b`` (IQM over seeds [two-level 95 % CI]), "a lower"
+    and "a not worse" (within the project's margin)."""
+    budget = budget or len(g["target_cpu_s"])
+    pairs = pairs or (("gain-sup", "kappa-sqerr"), ("gain-unsup", "kappa-nis"), ("kappa-sqerr", "kappa-nis"),
+                      ("gain-sup", "gain-unsup"))
+    lines = ["| model, regime | a - b | RMSE a - b | a lower | a not worse |", "|---|---|---|---|---|"]
+    for e, regimes in g["models"].items():
+        for r, m in regimes.items():
+            for v in m["verdicts"]:
+                if v["budget"] == budget and (v["a"], v["b"].split(" (")[0]) in pairs:
+                    d = v["rmse_diff"]
+                    ds = "n/a" if None in d else f"{d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}]"
+                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {v['not_worse']} |")
+    return "\n".join(lines)

@@ -604,13 +604,19 @@ _COLORS = {"kappa-nis": "C0", "kappa-sqerr": "C1", "gain-unsup": "C2", "gain-sup
 
 
 def figures(run: Run, summary: dict) -> list[str]:
-    """The budget curves: RMSE (IQM over seeds, two-level 95 % interval) against the measured training CPU-s
-    (mean over seeds), per arm, each model and regime; the default, best constant and particle filter as lines."""
+    """The budget curves (:func:`plot_budget_curves`) into ``figures/gain-budget.png``."""
     if NAME not in summary:
         return []
+    return [run.figure(plot_budget_curves(summary[NAME]), "gain-budget.png")]
+
+
+def plot_budget_curves(g: dict):
+    """The budget curves of the study's summary ``g`` (``summary["gain"]``): RMSE (IQM over seeds, two-level 95 %
+    interval) against the measured training CPU-s (mean over seeds), per arm, one panel per model and regime;
+    the default, best constant and particle filter as lines. Returns the figure."""
     import matplotlib.pyplot as plt
 
-    models = summary[NAME]["models"]
+    models = g["models"]
     cells = [(e, r) for e in models for r in models[e]]
     fig, axes = plt.subplots(1, len(cells), figsize=(3.6 * len(cells), 3.4), layout="constrained", squeeze=False)
     for ax, (e, r) in zip(axes[0], cells):
@@ -636,7 +642,7 @@ def figures(run: Run, summary: dict) -> list[str]:
         ax.set_ylabel("RMSE")
         ax.set_title(f"{e}, {r}", fontsize=10)
     axes[0][0].legend(fontsize=7)
-    return [run.figure(fig, "gain-budget.png")]
+    return fig
 
 
 def _agg(a: dict | None) -> str:
