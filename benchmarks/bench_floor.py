@@ -7,7 +7,10 @@ Run with ``python benchmarks/bench_floor.py`` (``--runs 500 --steps 100`` for a 
 Measured (shared 2-core Intel Xeon, load about 3, nice 10): ``ungm_floor(500)`` 99.1 -> 90.0 CPU-s
 (HEAD before the change vs after, one run each). Per chunk-step of 250 runs the matrix product
 ``Kt @ p`` is about 50 CPU-ms (its products underflow to subnormal numbers, which the CPU handles
-slowly), the kernel 8-17 ms, the likelihood and normalisation about 10 ms.
+slowly), the kernel 8-17 ms, the likelihood and normalisation about 10 ms. The third variant, the
+default since then, sets transition and likelihood values below 1e-150 to zero (``negligible``): on 500
+runs of 500 steps (seed 11, 2 BLAS threads, loaded machine) 92.2 -> 43.0 CPU-s, means, variances and
+log-likelihoods bit for bit equal.
 """
 from __future__ import annotations
 
@@ -33,11 +36,15 @@ def main(argv=None) -> None:
     env = get_experiment("ungm-ukf").make_env(seed=0, n_steps=args.steps)
     traj = env.model.simulate(10_000, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
     z = traj.z[: args.runs]
-    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
+    grid = np.linspace(-45, 45, 901)
+    pmf = PointMassFilter(env.model, grid=grid, negligible=0.0)
+    cut = PointMassFilter(env.model, grid=grid)  # the default: values below 1e-150 are zero
     c = args.chunk
     variants = {
-        "a call per chunk": lambda: np.concatenate([pmf.run(z[i:i + c]).mean for i in range(0, args.runs, c)]),
-        "one call, chunk=": lambda: pmf.run(z, chunk=c).mean,
+        "a call per chunk, every value": lambda: np.concatenate([pmf.run(z[i:i + c]).mean
+                                                                 for i in range(0, args.runs, c)]),
+        "one call, chunk=, every value": lambda: pmf.run(z, chunk=c).mean,
+        "one call, chunk=, negligible=1e-150": lambda: cut.run(z, chunk=c).mean,
     }
     print(f"# bench_floor  numpy {np.__version__}  cpus {os.cpu_count()}  {platform.processor() or platform.machine()}  "
           f"load {os.getloadavg()[0]:.1f}  runs {args.runs}  steps {env.n_steps}  chunk {c}")
@@ -50,7 +57,7 @@ def main(argv=None) -> None:
     same = len({v.tobytes() for v in out.values()}) == 1
     first = next(iter(best.values()))
     for name, sec in best.items():
-        print(f"  {name:20s} {sec:8.2f} CPU-s  {first / sec:5.2f}x")
+        print(f"  {name:36s} {sec:8.2f} CPU-s  {first / sec:5.2f}x")
     print("means bit for bit equal:", "yes" if same else "NO")
 
 

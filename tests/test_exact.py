@@ -123,8 +123,28 @@ def test_point_mass_beats_ukf_on_ungm():
     assert 0.5 < af.metrics.anees(traj.x, pmf.mean, pmf.cov).mean() < 2.0
 
 
+@pytest.mark.crosscpu
+def test_negligible_values_change_no_bit_of_the_point_mass_filter():
+    """Setting transition and likelihood values below 1e-150 to zero (the default, for speed: their products
+    would be subnormal) leaves means, variances and log-likelihoods bit for bit as with every value kept, on
+    UNGM's two-mode densities; a coarse cut (1e-16) does change them, so the check can fail."""
+    model = af.models.ungm()
+    traj = model.simulate(40, 150, rng=5)
+    grid = np.linspace(-45, 45, 901)
+    every = af.PointMassFilter(model, grid=grid, negligible=0.0).run(traj.z)
+    cut = af.PointMassFilter(model, grid=grid).run(traj.z)
+    for k in ("mean", "cov", "loglik"):
+        assert np.array_equal(getattr(every, k), getattr(cut, k)), k
+    coarse = af.PointMassFilter(model, grid=grid, negligible=1e-16).run(traj.z)
+    assert not np.array_equal(every.mean, coarse.mean)
+
+
 def test_point_mass_argument_errors():
     ungm = af.models.ungm()
+    with pytest.raises(ValueError, match="negligible must be"):
+        af.PointMassFilter(ungm, negligible=0.1)
+    with pytest.raises(ValueError, match="negligible must be"):
+        af.PointMassFilter(ungm, negligible=-1e-200)
     with pytest.raises(ValueError, match="scalar models"):
         af.PointMassFilter(af.models.coordinated_turn())
     with pytest.raises(ValueError, match="equally spaced"):
