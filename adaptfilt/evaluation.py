@@ -135,7 +135,7 @@ def summarise_rollout(name: str, x: np.ndarray, run, cost: np.ndarray | None, gr
     a = (1.0 - level) / 2.0
     # RMSE: bootstrap the per-step mean squared error, then sqrt and time-average
     # (RMSE is not a mean over runs, so it is resampled through se, not per run).
-    boot_mse_t = counts @ se / M  # (B, T)
+    boot_mse_t = metrics.resampled_sums(counts, se) / M  # (B, T); a run with an infinite error: see there
     boot_rmse_t = np.sqrt(boot_mse_t)
     rmse_t = np.sqrt(se.mean(axis=0))
     run_anees = ne.mean(axis=1)

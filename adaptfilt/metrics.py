@@ -19,7 +19,7 @@ from adaptfilt.linalg import NotPositiveDefinite, chol, solve_spd
 
 __all__ = [
     "errors", "squared_error", "rmse", "nees", "anees", "time_average", "rmse_time_average",
-    "bootstrap_counts", "bootstrap_rmse", "bootstrap_mean", "percentile_ci", "mean_ci", "chi2_bounds",
+    "bootstrap_counts", "resampled_sums", "bootstrap_rmse", "bootstrap_mean", "percentile_ci", "mean_ci", "chi2_bounds",
     "rate_ci", "DIVERGED_NEES", "divergent", "divergence_step",
 ]
 
@@ -240,16 +240,39 @@ def bootstrap_counts(n_runs: int, n_boot: int = 1000, rng: np.random.Generator |
     return rng.multinomial(n_runs, np.full(n_runs, 1.0 / n_runs), size=n_boot).astype(float)
 
 
+def resampled_sums(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``counts @ values``: per resample, the sum of the runs' values (``values (M,)`` or ``(M, T)``), each
+    run as often as the resample draws it. A run whose value is not finite (a diverged filter's infinite
+    error) makes the sums of the resamples that draw it infinite (NaN for NaN, or for +inf and -inf
+    together) and leaves the others alone: in the plain product a count of 0 times ``inf`` would be NaN.
+    With finite values it is the plain product, bit for bit.
+
+    >>> counts = np.array([[2.0, 0.0], [1.0, 1.0]])
+    >>> resampled_sums(counts, np.array([1.0, np.inf])).tolist()
+    [2.0, inf]
+    """
+    finite = np.isfinite(values)
+    if finite.all():
+        return counts @ values
+    out = counts @ np.where(finite, values, 0.0)
+    for bad, fill in ((np.isposinf(values), np.inf), (np.isneginf(values), -np.inf), (np.isnan(values), np.nan)):
+        if bad.any():
+            out = np.where(counts @ bad.astype(float) > 0, out + fill, out)
+    return out
+
+
 def bootstrap_rmse(se: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Bootstrap replicates ``(n_boot,)`` of the time-averaged RMSE from squared errors ``se (M, T)``."""
+    """Bootstrap replicates ``(n_boot,)`` of the time-averaged RMSE from squared errors ``se (M, T)``
+    (a resample that draws a run with an infinite error has an infinite RMSE: :func:`resampled_sums`)."""
     M = se.shape[0]
-    return np.sqrt(counts @ se / M).mean(axis=1)
+    return np.sqrt(resampled_sums(counts, se) / M).mean(axis=1)
 
 
 def bootstrap_mean(per_run: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Bootstrap replicates ``(n_boot,)`` of the mean over runs of ``per_run (M,)``
-    (e.g. a time-averaged NEES per run: the time-averaged ANEES is its mean)."""
-    return counts @ per_run / per_run.shape[0]
+    (e.g. a time-averaged NEES per run: the time-averaged ANEES is its mean; non-finite values:
+    :func:`resampled_sums`)."""
+    return resampled_sums(counts, per_run) / per_run.shape[0]
 
 
 def percentile_ci(replicates: np.ndarray, level: float = 0.95) -> tuple[float, float]:

@@ -154,3 +154,27 @@ def test_nees_marks_every_indefinite_covariance_whatever_column_it_fails_at():
         out = metrics.nees(x, np.zeros_like(x), P[:, None], on_indefinite=mode)
         np.testing.assert_array_equal(out[:2, 0], [mark, mark])
         assert out[2, 0] == pytest.approx(3.0)
+
+
+def test_a_run_with_an_infinite_error_makes_infinite_only_the_resamples_that_draw_it():
+    """0 * inf is NaN in a plain matrix product: a diverged run (infinite error) must make the replicates that
+    draw it infinite and leave the others as they are (and finite values give the plain product's bits)."""
+    from adaptfilt.metrics import bootstrap_counts, bootstrap_mean, bootstrap_rmse, resampled_sums
+
+    rng = np.random.default_rng(0)
+    counts = bootstrap_counts(50, 200, rng=1)
+    v = rng.random(50)
+    assert np.array_equal(resampled_sums(counts, v), counts @ v)
+    w = v.copy()
+    w[7] = np.inf
+    drawn = counts[:, 7] > 0
+    assert 0 < drawn.sum() < len(drawn)
+    b = bootstrap_mean(w, counts)
+    assert np.isposinf(b[drawn]).all() and np.array_equal(b[~drawn], (counts @ np.where(np.isfinite(w), w, 0))[~drawn] / 50)
+    se = rng.random((50, 4))
+    se[7, 2] = np.inf
+    r = bootstrap_rmse(se, counts)
+    assert np.isposinf(r[drawn]).all() and np.isfinite(r[~drawn]).all()
+    w[9] = -np.inf
+    both = drawn & (counts[:, 9] > 0)
+    assert np.isnan(resampled_sums(counts, w)[both]).all()
