@@ -19,7 +19,7 @@ from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
            "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains",
-           "final_table", "verdict_table"]
+           "final_table", "verdict_table", "curve_lines"]
 
 #: The chapter's linear-Gaussian model (scalar): F, H, Q, R, m0, P0.
 LINEAR = dict(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
@@ -207,4 +207,20 @@ def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[s
                     d = v["rmse_diff"]
                     ds = "n/a" if None in d else f"{d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}]"
                     lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {v['not_worse']} |")
+    return "\n".join(lines)
+
+
+def curve_lines(g: Mapping, regime: str = "nominal") -> str:
+    """The budget curves of the stored study as text: per model and arm, at each budget the mean training
+    CPU-s over seeds and the RMSE (IQM over seeds), and how many KalmanNet trainings divergence stopped."""
+    lines = []
+    for e, regimes in g["models"].items():
+        for a, pts in regimes[regime]["curve"].items():
+            cells = []
+            for b in sorted(pts, key=int):
+                row = pts[b]
+                cpu = np.mean([c for c in row["train_cpu_s"] if c is not None])
+                stop = f", {row['stopped_trainings']} stopped" if row.get("stopped_trainings") else ""
+                cells.append(f"{cpu:4.1f} CPU-s: {row['rmse']['iqm']:.3g}{stop}")
+            lines.append(f"{e:8s} {regime:7s} {a:11s} " + "; ".join(cells))
     return "\n".join(lines)

@@ -612,36 +612,56 @@ def figures(run: Run, summary: dict) -> list[str]:
 
 def plot_budget_curves(g: dict):
     """The budget curves of the study's summary ``g`` (``summary["gain"]``): RMSE (IQM over seeds, two-level 95 %
-    interval) against the measured training CPU-s (mean over seeds), per arm, one panel per model and regime;
-    the default, best constant and particle filter as lines. Returns the figure."""
+    interval) against the measured training CPU-s (mean over seeds), per arm; a row per model, a column per
+    regime; the default, best constant and particle filter as lines. An interval that reaches infinity (a seed
+    with a diverged run among the resampled ones) ends in a triangle at the panel's top. Returns the figure."""
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
 
     models = g["models"]
-    cells = [(e, r) for e in models for r in models[e]]
-    fig, axes = plt.subplots(1, len(cells), figsize=(3.6 * len(cells), 3.4), layout="constrained", squeeze=False)
-    for ax, (e, r) in zip(axes[0], cells):
-        m = models[e][r]
-        for a in ARM_NAMES:
-            pts = m["curve"][a]
-            xs = [float(np.mean([c for c in pts[b]["train_cpu_s"] if c is not None] or [np.nan])) for b in sorted(pts, key=int)]
-            ys = [pts[b]["rmse"]["iqm"] for b in sorted(pts, key=int)]
-            lo = [pts[b]["rmse"]["iqm_ci"][0] for b in sorted(pts, key=int)]
-            hi = [pts[b]["rmse"]["iqm_ci"][1] for b in sorted(pts, key=int)]
-            ys, lo, hi = (np.where(np.isfinite(v), v, np.nan) for v in (np.array(ys), np.array(lo), np.array(hi)))
-            ax.errorbar(xs, ys, yerr=[np.maximum(ys - lo, 0), np.maximum(hi - ys, 0)], marker="o", capsize=3,
-                        color=_COLORS[a], label=a)
-        for label, style in (("default", ":"), ("best fixed", "--")):
-            ref = m["curve_references"].get(label)
-            if ref and ref["rmse"] is not None:
-                ax.axhline(ref["rmse"], color="grey", ls=style, lw=1, label=f"{label} ({ref['policy']})")
-        for k, ref in m["references"].items():
-            if k.startswith("bpf-") and ref["rmse"] is not None:
-                ax.axhline(ref["rmse"], color="k", ls="-.", lw=1, label=k)
-        ax.set_xscale("log")
-        ax.set_xlabel("training CPU-s per policy (mean over seeds)")
-        ax.set_ylabel("RMSE")
-        ax.set_title(f"{e}, {r}", fontsize=10)
-    axes[0][0].legend(fontsize=7)
+    regimes = list(dict.fromkeys(r for e in models for r in models[e]))
+    fig, axes = plt.subplots(len(models), len(regimes), figsize=(4.6 * len(regimes), 3.3 * len(models)),
+                             layout="constrained", squeeze=False)
+    for i, e in enumerate(models):
+        for j, r in enumerate(regimes):
+            ax, m = axes[i][j], models[e][r]
+            tops = []
+            for a in ARM_NAMES:
+                pts = m["curve"][a]
+                bs = sorted(pts, key=int)
+                xs = np.array([float(np.mean([c for c in pts[b]["train_cpu_s"] if c is not None] or [np.nan])) for b in bs])
+                ys, lo, hi = (np.array([pts[b]["rmse"][k] if k == "iqm" else pts[b]["rmse"]["iqm_ci"][k]
+                                        for b in bs], dtype=float) for k in ("iqm", 0, 1))
+                up = np.where(np.isfinite(hi), np.maximum(hi - ys, 0), 0.0)
+                ax.errorbar(xs, ys, yerr=[np.maximum(ys - lo, 0), up], marker="o", capsize=3, color=_COLORS[a],
+                            label=a)
+                tops += [(x, _COLORS[a]) for x, h in zip(xs, hi) if np.isposinf(h)]
+            for label, style in (("default", ":"), ("best fixed", "--")):
+                ref = m["curve_references"].get(label)
+                if ref and ref["rmse"] is not None:
+                    ax.axhline(ref["rmse"], color="grey", ls=style, lw=1, label=f"{label} ({ref['policy']})")
+            for k, ref in m["references"].items():
+                if k.startswith("bpf-") and ref["rmse"] is not None:
+                    ax.axhline(ref["rmse"], color="k", ls="-.", lw=1, label=f"particle filter ({k})")
+            y1 = ax.get_ylim()[1]
+            for x, c in tops:
+                ax.plot([x], [y1], marker="^", color=c, clip_on=False, ls="none")
+            ax.set_xscale("log")
+            ax.set_xticks([1, 2, 5, 10, 20, 50])
+            ax.xaxis.set_major_formatter(ScalarFormatter())
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_xlabel("training CPU-s per policy (mean over seeds)")
+            ax.set_ylabel("RMSE")
+            ax.set_title(f"{e}, {'nominal model' if r == 'nominal' else 'truth with Q x 4'}", fontsize=10)
+    by_label = {}
+    for ax in axes.ravel():
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            key = "default" if lab.startswith("default") else "best constant" if lab.startswith("best") else \
+                "particle filter" if lab.startswith("particle") else lab
+            by_label.setdefault(key, h)
+    order = [*ARM_NAMES, "default", "best constant", "particle filter"]
+    fig.legend([by_label[k] for k in order if k in by_label], [k for k in order if k in by_label],
+               loc="outside lower center", ncol=4, fontsize=8)
     return fig
 
 
