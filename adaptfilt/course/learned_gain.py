@@ -184,7 +184,8 @@ def final_table(g: Mapping, regime: str = "nominal") -> str:
             lines.append(f"| {e} | {a}{stop} | {_ci(row['rmse'])} | {row['mse_db']['iqm']:.3g} | "
                          f"{np.mean(cpu):.3g} | {', '.join(map(str, row['divergent_error_rule']))} |")
         for label, ref in m["references"].items():
-            name = label if label == ref["policy"] else f"{label} ({ref['policy']})"
+            name = label if label == ref["policy"] else ref["policy"] if ref["policy"].startswith(label) else \
+                f"{label} ({ref['policy']})"
             lines.append(f"| {e} | {name} | {ref['rmse']:.3g} | {ref['mse_db']:.3g} | | "
                          f"{ref['divergent_error_rule']} |")
         if m["floor"]["rmse"] is not None:

@@ -278,7 +278,10 @@ def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
 # ------------------------------------------------------------------ evaluation
 #: The parts of one (model, regime) evaluation, each its own job: the final budget's UKF policies and
 #: baselines, KalmanNet's, the references (particle filter, floor), and the budget curve.
-PARTS = ("ukf", "gain", "reference", "curve")
+PARTS = ("ukf", "gain", "reference", "curve", "anchored")
+#: The anchored learner of study 5 (``adaptive-anchored``: candidate-aware state, a residual over greedy), a
+#: reference evaluated on the study's runs where ``DIR/beyond`` holds its policies.
+ANCHORED = "adaptive-anchored"
 
 
 def _env(experiment: str, regime: str, scale: GainScale, seed: int = 0):
@@ -369,6 +372,12 @@ def evaluate_part(experiment: str, regime: str, part: str, kappa: dict[str, str]
     exp = get_experiment(experiment)
     env = _env(experiment, regime, scale, seed)
     n = scale.curve_runs if part == "curve" else scale.eval_runs
+    if part == "anchored":  # kappa: the anchored learner's files (study 5's), evaluated as any policy
+        from adaptfilt.experiments.jobs import load_learned
+
+        res = evaluate(env, load_learned(exp, list(kappa.values())), n_runs=n, seed=seed, progress=False)
+        res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
+        return res
     fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
     if part in ("ukf", "curve"):
         base = [p for p in exp.baselines() if p.name in ("default", "ml", "greedy")] if part == "ukf" else \
@@ -435,6 +444,14 @@ def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -
     for e in MODELS:
         for regime in REGIMES:
             for part in PARTS:
+                if part == "anchored":
+                    files = sorted(run.out.glob(f"policies/{e}-{ANCHORED}-s*.npz"))
+                    if files:
+                        specs.append(EvalSpec(NAME, e, evaluate_part, (e, regime, part, {f.stem: str(f) for f in files},
+                                                                       {}, sc),
+                                              job_key("gain", e, regime, part, [str(f) for f in files], sc.words()),
+                                              order=2.5, tag=(regime, part)))
+                    continue
                 kappa, gains = _files(run, e, budgets(sc) if part == "curve" else last)
                 kappa = kappa if part in ("ukf", "curve") else {}
                 gains = gains if part in ("gain", "curve") else {}
@@ -534,6 +551,17 @@ def reference_rows(res, experiment: str) -> dict:
                           "divergent_error_rule": int(np.sum(~(np.asarray(p.run_rmse) <= lim))),
                           "divergent_nees_rule": int(round(p.divergent_frac * M)),
                           "us_per_step": 1e6 * p.wall_time_s / (M * T)}
+    seeds = sorted(n for n in res.names if n.startswith(f"{ANCHORED}-s"))
+    if seeds:  # the anchored learner: a group of seeds, IQM [two-level CI] as the arms
+        from adaptfilt.seed_stats import aggregate, iqm
+
+        agg = {k: aggregate(res, seeds, k) for k in ("rmse", "anees", "cost")}
+        out[ANCHORED] = {"policy": f"{ANCHORED}, {len(seeds)} seeds (IQM)", "rmse": agg["rmse"].iqm,
+                         "rmse_ci": list(agg["rmse"].iqm_ci), "mse_db": float(iqm([_mse_db(res[n]) for n in seeds])),
+                         "anees": agg["anees"].iqm, "cost": agg["cost"].iqm,
+                         "divergent_error_rule": int(sum(np.sum(~(np.asarray(res[n].run_rmse) <= lim)) for n in seeds)),
+                         "divergent_nees_rule": int(sum(round(res[n].divergent_frac * M) for n in seeds)),
+                         "us_per_step": float(np.mean([1e6 * res[n].wall_time_s / (M * T) for n in seeds]))}
     return out
 
 
@@ -583,7 +611,7 @@ def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
         "knet": knet_options(sc), "eval_runs": sc.eval_runs, "curve_runs": sc.curve_runs, "models": {}}
     for (e, regime), p in parts.items():
         floor = p["reference"].config.pop("floor")
-        final = Results.merge([p["ukf"], p["gain"], p["reference"]])
+        final = Results.merge([p["ukf"], p["gain"], p["reference"]] + ([p["anchored"]] if "anchored" in p else []))
         curve = p["curve"]
         last = len(TARGET_CPU_S)
         entry = {"references": reference_rows(final, e), "floor": floor,
