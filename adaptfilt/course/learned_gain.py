@@ -164,10 +164,15 @@ def kalman_gains(n_steps: int, F: float = 0.9, H: float = 1.0, Q: float = 1.0, R
 
 
 # ------------------------------------------------------------------ the head-to-head study (data/beyond)
+def _end(v) -> float:
+    """An interval's end: NaN from percentiles between infinite replicates (seeds with a diverged run) is inf."""
+    return np.inf if v is None or np.isnan(v) else float(v)
+
+
 def _ci(agg: dict | None, fmt: str = ".3g") -> str:
     if agg is None or agg.get("iqm") is None or not np.isfinite(agg["iqm"]):
         return "n/a"
-    lo, hi = agg["iqm_ci"]
+    lo, hi = (_end(v) for v in agg["iqm_ci"])
     return f"{agg['iqm']:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
 
 
@@ -206,7 +211,8 @@ def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[s
             for v in m["verdicts"]:
                 if v["budget"] == budget and (v["a"], v["b"].split(" (")[0]) in pairs:
                     d = v["rmse_diff"]
-                    ds = "n/a" if None in d else f"{d[0]:+.3g} [{d[1]:+.3g}, {d[2]:+.3g}]"
+                    ds = "n/a" if d[0] is None or d[1] is None else \
+                        f"{d[0]:+.3g} [{d[1]:+.3g}, {_end(d[2]):+.3g}]"
                     lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {v['not_worse']} |")
     return "\n".join(lines)
 

@@ -151,7 +151,8 @@ def load_beyond_results(name: str, root: str | Path | None = None):
 
 def verify_beyond(root: str | Path | None = None) -> list[str]:
     """Check ``beyond/manifest.json`` like :func:`verify`: every file exists, matches its sha256 and
-    loads (policies against their experiment, results with ``Results.load``). Returns the checked paths."""
+    loads (policies against their experiment, KalmanNet files against its model, results with
+    ``Results.load``). Returns the checked paths."""
     from adaptfilt.results import Results
     from adaptfilt.learned import load_policy as _load
 
@@ -159,8 +160,14 @@ def verify_beyond(root: str | Path | None = None) -> list[str]:
 
     def load(rel: str, p: Path) -> None:
         if p.suffix == ".npz" and rel.startswith("policies/"):
-            _load(p, experiment=next(x for x in sorted(_experiments(), key=len, reverse=True)
-                                     if p.name.startswith(x + "-")))
+            exp = next(x for x in sorted(_experiments(), key=len, reverse=True) if p.name.startswith(x + "-"))
+            if "-gain-" in p.name:  # the gain study's KalmanNets, against their experiment's model
+                from adaptfilt.experiment_registry import get_experiment
+                from adaptfilt.kalmannet import load_kalmannet
+
+                load_kalmannet(p, get_experiment(exp).make_model())
+            else:  # the gain study's kappa-sqerr files are named after the model, trained on its -sqerr twin
+                _load(p, experiment=exp + "-sqerr" if "-kappa-sqerr-" in p.name else exp)
         elif p.name == "results.json":
             Results.load(p.parent)
         elif p.suffix == ".json":

@@ -660,6 +660,7 @@ def plot_budget_curves(g: dict):
                 xs = np.array([float(np.mean([c for c in pts[b]["train_cpu_s"] if c is not None] or [np.nan])) for b in bs])
                 ys, lo, hi = (np.array([pts[b]["rmse"][k] if k == "iqm" else pts[b]["rmse"]["iqm_ci"][k]
                                         for b in bs], dtype=float) for k in ("iqm", 0, 1))
+                hi = np.where(np.isnan(hi) & np.isfinite(ys), np.inf, hi)  # a percentile between infinite replicates
                 up = np.where(np.isfinite(hi), np.maximum(hi - ys, 0), 0.0)
                 ax.errorbar(xs, ys, yerr=[np.maximum(ys - lo, 0), up], marker="o", capsize=3, color=_COLORS[a],
                             label=a)
