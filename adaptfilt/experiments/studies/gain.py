@@ -61,17 +61,13 @@ covariance exists, training CPU-s, microseconds per run-step (the evaluation's w
 ``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level with
 :data:`adaptfilt.seed_stats.MARGINS` for the pairs of :data:`PAIRS`, at every budget, model and regime.
 
-**Size of the full run** (measured on this machine, 2 cores, ``nice -n 19`` beside other timed work, seed 0,
-:data:`SIZE`): trainings per seed on UNGM, the three budgets: kappa-nis 6.1 + 16.0 + 50.5 CPU-s, kappa-sqerr
-5.5 + 13.8 + 45.8, gain-unsup 54.5 and gain-sup 60.1 (one training each, snapshots at 6.2/17.2/54.5 and
-5.0/17.1/60.1 CPU-s); on the CTM kappa-nis b1 10.5, b2 21.3 CPU-s (the calibration under-estimated the CTM's
-kappa learner by about 1.5-2x: its episodes should be cut to about (700, 2900, 8500) before the full run).
-So about 250 CPU-s per seed and model, 8 seeds x 2 models ~ 4,000 CPU-s of training (~34 min on 2 cores).
-The evaluations (2 models x 2 regimes x 4 parts, the final budget on 10^4 runs: 16 UKF policies, 16 constants
-and baselines, 16 KalmanNets, the particle filter; the curve on 2000 runs with 48 policies) were **not timed
-yet**; the estimate of the whole run, 45-60 minutes on 2 cores, holds only if they stay under about 2,000
-CPU-s: time one part (``evaluate_part``) at full scale before the run, and cut ``curve_runs`` or the
-particle count if not. Not run.
+**Size of the full run.** Estimated before it from one training per arm and budget (seed 0, :data:`SIZE`:
+about 250 CPU-s of training per seed and model, ~4,000 CPU-s in all); the CTM's kappa budgets were then set
+from the measured fixed cost and slope, (300, 2500, 10300) episodes. The run itself (``adaptfilt beyond --out
+data --studies gain``, 2026-11-27, 2 cores shared with other work): KalmanNet 32 trainings in 17 min, the 96
+kappa trainings in 21 min, the 20 evaluation jobs (with the anchored learner's 4) in about 21 min; each
+policy's training CPU-s is in ``data/beyond/manifest.json`` (last budget: kappa 38-54, KalmanNet 37-49 as
+means over seeds; the CTM kappa's first budget took 1.6 CPU-s, not the 5 targeted).
 """
 from __future__ import annotations
 
