@@ -8,8 +8,27 @@ it starts (notebook kernels, command-line runs, pool workers), waits the shortes
 (``OPENBLAS_THREAD_TIMEOUT=4``, which changes no number); a value set in the environment is kept. One
 BLAS thread per process would be as fast, but it changes numbers: OpenBLAS on one thread computes a
 matrix product (even a matrix-vector one) in another order than on two or more.
+
+Stable-Baselines3 makes an empty folder ``SB3-<time>`` in the temporary directory for every model
+that learns without a logger of its own (the tests' and chapter 12's small trainings; the library's
+trainers set one). ``SB3_LOGDIR`` names the one folder they all use instead, removed at the end.
 """
 import os
+import shutil
+import tempfile
+
+
+def pytest_configure(config) -> None:
+    if "SB3_LOGDIR" not in os.environ:
+        os.environ["SB3_LOGDIR"] = config._adaptfilt_sb3 = tempfile.mkdtemp(prefix="adaptfilt-sb3-")
+
+
+def pytest_unconfigure(config) -> None:
+    made = getattr(config, "_adaptfilt_sb3", None)
+    if made:
+        shutil.rmtree(made, ignore_errors=True)
+        os.environ.pop("SB3_LOGDIR", None)
+
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")

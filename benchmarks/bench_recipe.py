@@ -41,6 +41,7 @@ def train_variant(variant: str, seed: int, out: str) -> str:
     else:
         # the same training with one ingredient changed, through the adapter's own options
         from stable_baselines3 import A2C
+        from stable_baselines3.common.logger import Logger
 
         exp = get_experiment("ungm-ukf")
         feats = v.get("features", exp.features)
@@ -54,6 +55,7 @@ def train_variant(variant: str, seed: int, out: str) -> str:
         model = A2C("MlpPolicy", venv, gamma=0.5, seed=seed, device="cpu",
                     policy_kwargs={"activation_fn": torch.nn.ReLU, "net_arch": {"pi": [64, 64], "vf": [64, 64]}},
                     **FAST.kwargs)
+        model.set_logger(Logger(folder=None, output_formats=[]))  # else an SB3-<time> folder in /tmp per policy
         model.learn(1000 * env.n_steps)
         pol = afg.to_learned_policy(model, venv, gamma=0.5, name=f"{variant}-s{seed}")
     pol.save(out)

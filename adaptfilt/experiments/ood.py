@@ -98,6 +98,7 @@ def retune(policy, experiment: str, condition: Condition, episodes: int = 50, se
     """
     import torch
     from stable_baselines3 import A2C
+    from stable_baselines3.common.logger import Logger
 
     import adaptfilt.gym as afg
     from adaptfilt.trainers import A2C_FAST
@@ -111,6 +112,7 @@ def retune(policy, experiment: str, condition: Condition, episodes: int = 50, se
     with torch.random.fork_rng(devices=[]):
         model = A2C("MlpPolicy", venv, gamma=policy.gamma, seed=seed, device="cpu", verbose=0,
                     policy_kwargs={"activation_fn": act, "net_arch": {"pi": hidden, "vf": hidden}}, **A2C_FAST.kwargs)
+        model.set_logger(Logger(folder=None, output_formats=[]))  # else SB3 makes a folder in the temporary directory
         theirs = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
         theirs.append(model.policy.action_net)
         mine = [m for m in policy.actor.net if isinstance(m, torch.nn.Linear)]
