@@ -1,5 +1,5 @@
-"""The stochastic integration rule's compiled Gram-Schmidt (:mod:`adaptfilt.rules._sif_kernels`) gives
-numpy's numbers bit for bit, and the rule gives the same moments with either backend."""
+"""The stochastic integration rule's compiled Gram-Schmidt and random draws (:mod:`adaptfilt.rules._sif_kernels`)
+give numpy's numbers bit for bit, and the rule gives the same moments with either backend."""
 from __future__ import annotations
 
 import subprocess
@@ -86,6 +86,29 @@ def test_sif_runs_are_the_same_with_either_backend(monkeypatch):
     assert a.keys() == b.keys()
     for k in a:
         assert np.array_equal(a[k], b[k], equal_nan=True), k
+
+
+@needs_numba
+@pytest.mark.parametrize("bitgen", [np.random.PCG64, np.random.SFC64, np.random.Philox])
+def test_compiled_draws_are_numpys_variates_and_leave_the_same_state(monkeypatch, bitgen):
+    """``rule3_draws`` (numba's port of numpy's ziggurat and gamma sampler) against numpy's own calls, draw by
+    draw: 1.2 million normals (thousands through the ziggurat's slow paths and its tail), the chi-square
+    radii, and the generator's state afterwards; below the size where the compiled call pays, at one run,
+    into the scratch buffers (views valid until the next call), and with the numpy backend."""
+    a, b = np.random.Generator(bitgen(11)), np.random.Generator(bitgen(11))
+    calls = [(5, 10_000, 4), (5, 256, 30), (2, 1, 1), (3, 7, 2), (5, 10_000, 2)]
+    for i, (n, M, count) in enumerate(calls):
+        G, chi2 = _sif_kernels.rule3_draws(a, n, M, count, scratch=i % 2 == 1)
+        assert G.shape == (count, n, n, M) and chi2.shape == (count, M)
+        for k in range(count):
+            assert np.array_equal(G[k], b.standard_normal((n, n, M))), (n, M, k)
+            assert np.array_equal(chi2[k], b.chisquare(n + 2, size=M)), (n, M, k)
+        assert repr(a.bit_generator.state) == repr(b.bit_generator.state)  # SFC64, Philox: arrays in the state
+    assert _sif_kernels._build_draws()  # the compiled form was used above the threshold
+    monkeypatch.setattr(_sif_kernels, "BACKEND", "numpy")
+    assert not _sif_kernels._build_draws()
+    G, chi2 = _sif_kernels.rule3_draws(a, 5, 10_000)
+    assert np.array_equal(G[0], b.standard_normal((5, 5, 10_000))) and np.array_equal(chi2[0], b.chisquare(7, 10_000))
 
 
 def test_importing_adaptfilt_rules_does_not_compile_the_kernel():

@@ -503,16 +503,17 @@ def _extra_tables(r: _Run, results: dict, cl: dict) -> dict[str, str]:
         extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
         r.entries["results/fast-vs-faithful.json"] = {}
     ref = r.data / "results/claims.json"
-    # a smaller reproduction is a check of the full one in data/
-    if not r.full and not r.same and r.found is not None and ref.exists() and _load_manifest(r.data).get("scale") == "full":
+    # a smaller reproduction, or a full one into another folder (a retrain), is a check of the full one in data/
+    if not r.same and r.found is not None and ref.exists() and _load_manifest(r.data).get("scale") == "full":
         from adaptfilt.experiments.agreement import agreement, agreement_md
 
         agr = agreement(json.loads(json.dumps(cl)), json.loads(ref.read_text()))
         atomic_write(r.out / "results/agreement.json", json.dumps(agr, indent=1) + "\n")
         r.entries["results/agreement.json"] = {}
-        extra[f"Verdicts at {r.scale.name} scale against the full scale (data/)"] = agreement_md(
-            agr, f"{r.scale.name} scale", "full scale (data/)")
-        r.say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as at full scale (results/agreement.json)")
+        here = f"{r.scale.name} scale" if not r.full else "this run"
+        title = f"Verdicts at {here}" if not r.full else "Verdicts of this full-scale run"
+        extra[f"{title} against the full scale (data/)"] = agreement_md(agr, here, "full scale (data/)")
+        r.say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as in data/ (results/agreement.json)")
     return extra
 
 

@@ -31,11 +31,12 @@ imported on first use, not with :mod:`adaptfilt`. ``ADAPTFILT_SIF_BACKEND=numpy`
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 
-__all__ = ["BACKEND", "SUMS", "available", "fused_available", "gram_schmidt", "gram_schmidt_numpy", "points", "rule3_points",
-           "rule3_accumulate", "sums_available", "weighted_sums"]
+__all__ = ["BACKEND", "SUMS", "available", "fused_available", "gram_schmidt", "gram_schmidt_numpy", "points", "rule3_draws",
+           "rule3_points", "rule3_accumulate", "sums_available", "weighted_sums"]
 
 #: ``"auto"`` (the compiled kernel where numba is installed), ``"numba"`` (required) or ``"numpy"``
 BACKEND: str = os.environ.get("ADAPTFILT_SIF_BACKEND", "auto")
@@ -47,6 +48,7 @@ SUMS: bool = True
 _kernel = None  # the compiled kernel once built; False where numba is missing
 _sums = None  # (points kernel, sums kernel) once built and checked against numpy; False where unusable
 _fused = None  # (points of a degree-3 draw, sums and recursion state) once built; False where unusable
+_draws = None  # the compiled random variates of a degree-3 draw once built and checked; False where unusable
 _BLOCK = 256  # runs per block of the compiled sums (operands of a block stay in the first-level caches)
 
 
@@ -426,3 +428,72 @@ def rule3_accumulate(D, A, weight, cross: bool, runs, n_runs: int, sums: tuple, 
     full = Vfull is not None
     _fused[1](D, A, weight, W, cross, wD, ED, EDD, EXD, compute, runs, n_runs, S0, S1, S2, float(N), track, I, V, full,
               Vfull if full else S1, dv)
+
+
+# ------------------------------------------------------------------ the random variates of degree-3 draws
+_DRAWS_MIN = 2048  # normals per call from which the compiled draw pays for numba's unboxing of the generator
+
+
+def _build_draws():
+    """numba's own port of numpy's Generator methods (the bit generator through its ctypes interface,
+    numpy's ziggurat and Marsaglia-Tsang gamma with the same tables and the same calls to the C
+    library's ``exp`` and ``log``), compiled, or False: numba missing, :data:`BACKEND` is numpy, or the
+    port found to draw otherwise than numpy on a throwaway generator."""
+    global _draws
+    if not _use_kernel():
+        return False
+    if _draws is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def _rule3_draws(rng, n, M, df, G, chi2):  # pragma: no cover - compiled
+            for k in range(G.shape[0]):
+                G[k] = rng.standard_normal((n, n, M))
+                chi2[k] = rng.chisquare(df, M)
+
+        a, b = np.random.default_rng(20261127), np.random.default_rng(20261127)
+        G, chi2 = np.empty((2, 5, 5, 2000)), np.empty((2, 2000))
+        _rule3_draws(a, 5, 2000, 7.0, G, chi2)  # 10^5 normals: several hundred take the slow path
+        same = all(np.array_equal(G[k], b.standard_normal((5, 5, 2000))) and np.array_equal(chi2[k], b.chisquare(7.0, 2000))
+                   for k in range(2))
+        _draws = _rule3_draws if same and a.bit_generator.state == b.bit_generator.state else False
+    return _draws
+
+
+def rule3_draws(rng: np.random.Generator, n: int, M: int, count: int = 1,
+                scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The variates of ``count`` degree-3 draws for ``M`` runs, ``G (count, n, n, M)`` and
+    ``chi2 (count, M)``: for each draw in turn ``rng.standard_normal((n, n, M))``, then
+    ``rng.chisquare(n + 2, size=M)``, bit for bit, leaving ``rng`` in the state those calls leave it.
+    numpy spends most of a normal variate outside the ziggurat itself (about 13 ns a variate against
+    3 for the bit generator's raw output on this project's Xeon); numba's compiled port of the same
+    algorithms takes about 4 ns, but unboxing the generator costs some 20 us a call, so the compiled
+    form is used from :data:`_DRAWS_MIN` normals a call (``benchmarks/bench_sif.py --draws``).
+    ``scratch``: the arrays are this thread's scratch buffers, valid until its next such call (a
+    fresh array of a few MB costs about as much in first-touch page faults as drawing into it)."""
+    shape_G, shape_c = (count, n, n, M), (count, M)
+    if scratch:
+        G, chi2 = _scratch_array("draws G", shape_G), _scratch_array("draws chi2", shape_c)
+    else:
+        G, chi2 = np.empty(shape_G), np.empty(shape_c)
+    kernel = _build_draws() if count * n * n * M >= _DRAWS_MIN else False
+    if kernel:
+        kernel(rng, n, M, float(n + 2), G, chi2)
+        return G, chi2
+    for k in range(count):
+        G[k] = rng.standard_normal((n, n, M))
+        chi2[k] = rng.chisquare(n + 2, size=M)
+    return G, chi2
+
+
+_local = threading.local()
+
+
+def _scratch_array(key: str, shape: tuple) -> np.ndarray:
+    """A view of shape ``shape`` into this thread's scratch buffer ``key`` (grown when too small)."""
+    bufs = _local.__dict__.setdefault("buffers", {})
+    size = int(np.prod(shape))
+    a = bufs.get(key)
+    if a is None or a.size < size:
+        a = bufs[key] = np.empty(size)
+    return a[:size].reshape(shape)

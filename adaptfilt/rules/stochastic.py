@@ -267,9 +267,10 @@ class StochasticIntegrationRule(MomentRule):
         :meth:`_point_set` orthogonalises it, for the runs that use the draw only."""
         if self.order == 1:
             return (rng.standard_normal((n, M)),)
+        if self.order == 3:  # numpy's numbers, drawn by compiled code where numba is there
+            G, chi2 = _kernels.rule3_draws(rng, n, M)
+            return G[0], chi2[0]
         G = rng.standard_normal((n, n, M))
-        if self.order == 3:
-            return G, rng.chisquare(n + 2, size=M)
         return G, rng.chisquare(2 * n + 7, size=M), rng.beta(n + 2, 1.5, size=M)
 
     def _basis(self, n: int) -> np.ndarray:
@@ -468,7 +469,9 @@ class StochasticIntegrationRule(MomentRule):
         for all ``M / tile`` runs, ``max(n_iter)`` of them); the state is kept for the whole batch and
         updated at the columns of the runs still iterating, each element by the operations
         :meth:`_recursion` applies to it. Without ``tol`` every run still iterating has made the same
-        number of draws, so the active set after draw ``k`` is the runs with ``n_iter > k``."""
+        number of draws, so the active set after draw ``k`` is the runs with ``n_iter > k``. The variates
+        of several draws are made in one call (:func:`~adaptfilt.rules._sif_kernels.rule3_draws`): ``g``
+        and ``residual`` do not draw from ``rng``."""
         n = m.shape[0]
         ng = g0.shape[0]
         per_run = n_iter.ndim > 0
@@ -486,8 +489,12 @@ class StochasticIntegrationRule(MomentRule):
         stops = set(np.unique(n_iter).tolist()) if per_run else set()
         work: dict = {}
         snaps: dict[int, dict] = {}
+        # the draws' variates a block at a time (nothing else draws from rng in between: the same stream)
+        block = max(1, min(cap, (1 << 21) // (n * n * M0)))  # at most 16 MB of normals a block
         for k in range(1, cap + 1):
-            G, chi2 = self._draw(n, M0, rng)
+            if (k - 1) % block == 0:
+                Gs, chi2s = _kernels.rule3_draws(rng, n, M0, min(block, cap - k + 1), scratch=True)
+            G, chi2 = Gs[(k - 1) % block], chi2s[(k - 1) % block]
             X, A, weight = _kernels.rule3_points(G, chi2, sel, ms, Ls, work)
             Gx = g(X)
             D = Gx - g0s[:, None, :] if residual is None else residual(Gx, g0s[:, None, :])
