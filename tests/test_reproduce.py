@@ -351,6 +351,36 @@ def test_stored_medium_check_matches_and_agrees_with_the_full_reproduction():
     assert f"{stored['n_same']} of the {stored['n']} seed-level comparisons" in report
 
 
+def test_stored_full_retrain_matches_and_agrees_with_data():
+    """data/retrain: the summary files of the latest ``adaptfilt reproduce --out DIR --retrain`` (every fast-mode
+    policy retrained, every evaluation at M = 10^4, the floor and the reconciliation recomputed), kept by
+    ``artefacts.store_check``: they match their manifest, the stored agreement is recomputed from its claims
+    and data/'s, every stage it records sums to its total, and REPRODUCTION.md quotes its count of verdicts
+    (the times it quotes are held to its timings by tests/test_quoted_times.py)."""
+    from pathlib import Path
+
+    from adaptfilt.experiments.agreement import agreement
+
+    d = DATA / "retrain"
+    man = json.loads((d / "manifest.json").read_text())
+    assert man["scale"] == "full" and man["seeds"] == list(SEEDS) and len(man["commit"]) >= 7
+    assert {e["path"] for e in man["files"]} == set(artefacts.CHECK_FILES)
+    for e in man["files"]:
+        assert sha256(d / e["path"]) == e["sha256"], e["path"]
+        assert e["command"] == "adaptfilt reproduce --out DIR --retrain" and e["version"]
+    claims = json.loads((d / "results/claims.json").read_text())
+    stored = json.loads((d / "results/agreement.json").read_text())
+    assert json.loads(json.dumps(agreement(claims, artefacts.load_claims()))) == stored
+    t = json.loads((d / "timings.json").read_text())
+    assert t["scale"]["name"] == "full" and t["scale"]["eval_runs"] == 10_000 and t["scale"]["episodes"] == 1000
+    stages = t["timings"]
+    assert "0 by an earlier run" in stages["train"]["note"]  # nothing resumed from an earlier run's journal
+    total = sum(v["cpu_time_s"] for k, v in stages.items() if k != "total")
+    assert abs(total - stages["total"]["cpu_time_s"]) < 1e-6 * total
+    report = (Path(__file__).resolve().parents[1] / "REPRODUCTION.md").read_text()
+    assert f"{stored['n_same']} of the {stored['n']} seed-level verdicts" in report
+
+
 def test_archived_one_pass_verdicts_are_the_comparison_rows():
     """data/archive/onepass keeps the verdicts before the honest-verdicts change, checked against its
     manifest: there, learned logmaxNIS minus greedy was +0.027 on the uncharged cost of the one-pass SIF,

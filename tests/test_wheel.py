@@ -101,10 +101,10 @@ def test_commands_that_need_the_checkout_say_so_in_one_line(venv):
     err = _one_line_error(_run(venv, [venv["adaptfilt"], "reproduce", "--out", str(out)]))
     assert "no --data DIR given, $ADAPTFILT_DATA not set" in err and "site-packages" in err
     assert "--retrain" in err
-    # what --retrain costs, as data/timings.json (which the installed package cannot read) records it
+    # what --retrain costs, as data/retrain/timings.json (which the installed package cannot read) records it
     cost = re.search(r"\((about \d+ minutes on 2 cores)\)", err)
     assert cost, err
-    why = check_phrase(cost.group(1), "wall of data/timings.json:total", ROOT)
+    why = check_phrase(cost.group(1), "wall of data/retrain/timings.json:total", ROOT)
     assert why is None, why
     err = _one_line_error(_run(venv, [venv["adaptfilt"], "beyond", "--out", str(out)]))
     assert "no stored artefacts" in err and "--data" in err

@@ -21,7 +21,7 @@ from adaptfilt.files import sha256
 
 __all__ = ["data_dir", "find_data", "DataNotFound", "manifest", "load_results", "stored_policy", "stored_policies", "seeds", "load_floor",
            "load_table1", "load_claims", "load_reconciliation", "verify", "load_beyond", "load_beyond_results",
-           "verify_beyond", "load_archive"]
+           "verify_beyond", "load_archive", "CHECK_FILES", "store_check"]
 
 
 def data_dir() -> Path:
@@ -240,3 +240,41 @@ def _check_files(d: Path, files: list[dict], load, label: str) -> list[str]:
     if problems:
         raise ValueError(f"{label} does not match its manifest:\n  " + "\n  ".join(problems))
     return checked
+
+
+#: The summary files of a reproduction that a check keeps (``data/medium``, ``data/retrain``).
+CHECK_FILES = ("results/claims.json", "results/agreement.json", "results/fast-vs-faithful.json", "results/table1.json",
+               "results/table1.md", "timings.json", "report-tables.md")
+
+
+def store_check(run: str | Path, dest: str | Path, note: str = "", commit: str | None = None) -> list[str]:
+    """Keep the summary of a reproduction made in another folder as a check of ``data/``: the files of
+    :data:`CHECK_FILES` that ``run`` holds (its claims, their agreement with data/'s, Table I, the
+    fast-vs-faithful comparison, the report's tables, every stage's and job's time) copied to ``dest``
+    (``data/medium`` for ``--scale medium --retrain``, ``data/retrain`` for ``--retrain``) with a
+    manifest of data/'s form: sha256, the command with ``--out DIR``, seed and version, plus ``note``
+    and the ``commit`` of the code that ran. The run's policies and per-policy results are not kept
+    (the command remakes them). Returns the paths kept; a run without claims is refused."""
+    import shutil
+
+    from adaptfilt.files import atomic_write
+
+    run, dest = Path(run), Path(dest)
+    man = json.loads((run / "manifest.json").read_text())
+    if not (run / "results/claims.json").is_file():
+        raise ValueError(f"{run}: no results/claims.json; not a finished reproduction")
+    cmd = man["generated_by"].replace("--out data ", "--out DIR ")
+    kept = [rel for rel in CHECK_FILES if (run / rel).is_file()]
+    files = []
+    for rel in kept:
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(run / rel, dest / rel)
+        files.append({"path": rel, "sha256": sha256(dest / rel), "command": cmd, "seed": 0,
+                      "version": man["package_version"], "wall_time_s": None, "cpu_time_s": None})
+    out = {"package_version": man["package_version"], "scale": man["scale"], "seeds": man["seeds"], "generated_by": cmd,
+           "note": note or f"the summary files of `{cmd}` (DIR's policies and per-policy results are not stored)"}
+    if commit:
+        out["commit"] = commit
+    out["files"] = files
+    atomic_write(dest / "manifest.json", json.dumps(out, indent=1) + "\n")
+    return kept
