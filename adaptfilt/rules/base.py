@@ -95,7 +95,7 @@ def _pair_sums_lean(g, m, g0, A, w, residual, cross, work: dict):
     np.add(m[:, None, :], A, out=X[:, :K])
     np.subtract(m[:, None, :], A, out=X[:, K:])
     G = g(X)
-    D = np.ascontiguousarray(G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :]))
+    D = _deviations(G, g0) if residual is None else np.ascontiguousarray(residual(G, g0[:, None, :]))
     Dp, Dm = D[:, :K], D[:, K:]
     wDp, wDm = Dp * w, Dm * w
     ED = (wDp + wDm).sum(axis=1)
@@ -120,11 +120,18 @@ def _pair_sums(g, m, g0, A, weight, residual, cross):
         np.negative(A, out=dX[:, K:])
         X = mc + dX
     G = g(X)
-    D = G - g0[:, None, :] if residual is None else residual(G, g0[:, None, :])
-    # A model function returns (..., ng) with ng fastest; moved to run-last
-    # its runs are strided, which makes the einsums below ~6x slower for
-    # ng > 1. One contiguous copy (a no-op when ng = 1) pays for itself.
-    return _sums_numpy(np.ascontiguousarray(D), dX if cross else None, weight)
+    # A model function returns (..., ng) with ng fastest; moved to run-last its runs are strided, which
+    # makes the einsums below ~6x slower, and G - g0 keeps G's layout: the difference is written into a
+    # C-ordered array instead (the same subtractions; no second pass to copy it)
+    D = _deviations(G, g0) if residual is None else np.ascontiguousarray(residual(G, g0[:, None, :]))
+    return _sums_numpy(D, dX if cross else None, weight)
+
+
+def _deviations(G: np.ndarray, g0: np.ndarray) -> np.ndarray:
+    """``G - g0[:, None, :]`` in C order whatever ``G``'s layout (``np.ascontiguousarray`` of it, bit
+    for bit, in one pass)."""
+    return np.subtract(G, g0[:, None, :], out=np.empty(np.broadcast_shapes(G.shape, g0[:, None, :].shape),
+                                                         dtype=np.result_type(G, g0)))
 
 
 def _sums_numpy(D, dX, weight):
