@@ -33,6 +33,19 @@ rules (``adaptfilt.rules._sif_kernels``, used for ``n >= 2`` only: for the scala
 cost more than numpy's few calls, 1.42 against 1.35 when they were used) the ratio is unchanged:
 1.33-1.35 (756-761 us against 566 us, best of 5, load about 5).
 
+**The ratio depends on where the arrays lie in memory** (measured 2026-11-27, idle 2-core Intel Xeon with
+AVX-512, numpy 2.4.6, best of 5-15, the same code run after run): 1.22-1.75. Run from the checkout with
+``PYTHONPATH=.`` the library took 0.37-0.40 s and the kernel 0.31-0.32 s (1.22-1.27); run as installed,
+0.43-0.51 s against 0.27-0.29 s (1.53-1.75); an unrelated edit of a library module moved both again.
+With numpy's AVX-512 loops off (``NPY_DISABLE_CPU_FEATURES="AVX512_ICL AVX512_SPR X86_V4"``) the two
+orders gave the same times, 0.46-0.49 s against 0.30-0.31 s (1.53-1.57), and after the deviations of
+the moment sums were written in one pass (``rules.base._deviations``, 4-10 % of the library's time)
+1.25-1.39. numpy's arrays of 10^4 float64 come from malloc aligned to 16 bytes, and a 64-byte
+AVX-512 load of an array that is not 64-byte aligned splits cache lines: which of the two codes'
+temporaries are aligned is an accident of the heap. So the target of 1.5 is met in some layouts
+and not in others; what the printed ratio says holds for that process only, and a claim needs
+several runs.
+
 Where the remaining factor goes (the per-step split is printed; at 10^4 runs
 the library spends about 250 us per step more than the kernel):
 
