@@ -39,8 +39,9 @@ AVX-512, numpy 2.4.6, best of 5-15, the same code run after run): 1.22-1.75. Run
 0.43-0.51 s against 0.27-0.29 s (1.53-1.75); an unrelated edit of a library module moved both again.
 With numpy's AVX-512 loops off (``NPY_DISABLE_CPU_FEATURES="AVX512_ICL AVX512_SPR X86_V4"``) the two
 orders gave the same times, 0.46-0.49 s against 0.30-0.31 s (1.53-1.57), and after the deviations of
-the moment sums were written in one pass (``rules.base._deviations``, 4-10 % of the library's time)
-1.25-1.39. numpy's arrays of 10^4 float64 come from malloc aligned to 16 bytes, and a 64-byte
+the moment sums were written in one pass (``rules.base._deviations``) 1.25-1.39 in two runs; an A/B
+of the library's run before and after that change gained 5-10 % once and nothing in a later one,
+which is this machine's noise. numpy's arrays of 10^4 float64 come from malloc aligned to 16 bytes, and a 64-byte
 AVX-512 load of an array that is not 64-byte aligned splits cache lines: which of the two codes'
 temporaries are aligned is an accident of the heap. So the target of 1.5 is met in some layouts
 and not in others; what the printed ratio says holds for that process only, and a claim needs
