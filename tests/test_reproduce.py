@@ -325,27 +325,34 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
 
 
 @pytest.mark.crosscpu
+def _stored_check(name: str, scale: str, command: str) -> tuple[dict, dict, dict]:
+    """A check kept by ``artefacts.store_check`` in ``data/<name>``: its files match the manifest and were made
+    by ``command`` at ``scale``, and its stored agreement is recomputed from its claims and data/'s.
+    Returns the manifest, the agreement and the timings."""
+    from adaptfilt.experiments.agreement import agreement
+
+    d = DATA / name
+    man = json.loads((d / "manifest.json").read_text())
+    assert man["scale"] == scale and man["seeds"] == list(SEEDS) and len(man["commit"]) >= 7
+    assert {e["path"] for e in man["files"]} == set(artefacts.CHECK_FILES)
+    for e in man["files"]:
+        assert sha256(d / e["path"]) == e["sha256"], e["path"]
+        assert e["command"] == command and e["version"]
+    claims = json.loads((d / "results/claims.json").read_text())
+    stored = json.loads((d / "results/agreement.json").read_text())
+    assert json.loads(json.dumps(agreement(claims, artefacts.load_claims()))) == stored
+    return man, stored, json.loads((d / "timings.json").read_text())
+
+
 def test_stored_medium_check_matches_and_agrees_with_the_full_reproduction():
     """data/medium: the summary files of ``adaptfilt reproduce --out DIR --scale medium --retrain``. They match
     their manifest, the stored agreement is recomputed from its claims and today's full-scale claims, and
     REPRODUCTION.md quotes its count."""
     from pathlib import Path
 
-    from adaptfilt.experiments.agreement import agreement
-
-    d = DATA / "medium"
-    man = json.loads((d / "manifest.json").read_text())
-    assert man["scale"] == "medium" and man["seeds"] == list(SEEDS)
-    assert {e["path"] for e in man["files"]} >= {"results/claims.json", "results/agreement.json", "timings.json"}
-    for e in man["files"]:
-        assert sha256(d / e["path"]) == e["sha256"], e["path"]
-        assert e["command"] == "adaptfilt reproduce --out DIR --scale medium --retrain" and e["version"]
-    claims = json.loads((d / "results/claims.json").read_text())
-    stored = json.loads((d / "results/agreement.json").read_text())
-    assert json.loads(json.dumps(agreement(claims, artefacts.load_claims()))) == stored
-    scale = json.loads((d / "timings.json").read_text())["scale"]
-    assert scale["name"] == "medium" and scale["eval_runs"] == 2000 and scale["episodes"] == 500
-    ff = json.loads((d / "results/fast-vs-faithful.json").read_text())
+    _, stored, t = _stored_check("medium", "medium", "adaptfilt reproduce --out DIR --scale medium --retrain")
+    assert t["scale"]["name"] == "medium" and t["scale"]["eval_runs"] == 2000 and t["scale"]["episodes"] == 500
+    ff = json.loads((DATA / "medium/results/fast-vs-faithful.json").read_text())
     assert {e: v["n_runs"] for e, v in ff.items()} == {"ungm-ukf": 2000, "ctm-ukf": 2000}
     report = (Path(__file__).resolve().parents[1] / "REPRODUCTION.md").read_text()
     assert f"{stored['n_same']} of the {stored['n']} seed-level comparisons" in report
@@ -359,19 +366,7 @@ def test_stored_full_retrain_matches_and_agrees_with_data():
     (the times it quotes are held to its timings by tests/test_quoted_times.py)."""
     from pathlib import Path
 
-    from adaptfilt.experiments.agreement import agreement
-
-    d = DATA / "retrain"
-    man = json.loads((d / "manifest.json").read_text())
-    assert man["scale"] == "full" and man["seeds"] == list(SEEDS) and len(man["commit"]) >= 7
-    assert {e["path"] for e in man["files"]} == set(artefacts.CHECK_FILES)
-    for e in man["files"]:
-        assert sha256(d / e["path"]) == e["sha256"], e["path"]
-        assert e["command"] == "adaptfilt reproduce --out DIR --retrain" and e["version"]
-    claims = json.loads((d / "results/claims.json").read_text())
-    stored = json.loads((d / "results/agreement.json").read_text())
-    assert json.loads(json.dumps(agreement(claims, artefacts.load_claims()))) == stored
-    t = json.loads((d / "timings.json").read_text())
+    _, stored, t = _stored_check("retrain", "full", "adaptfilt reproduce --out DIR --retrain")
     assert t["scale"]["name"] == "full" and t["scale"]["eval_runs"] == 10_000 and t["scale"]["episodes"] == 1000
     stages = t["timings"]
     assert "0 by an earlier run" in stages["train"]["note"]  # nothing resumed from an earlier run's journal
