@@ -12,6 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from adaptfilt.linalg import chol, mm, sym, sym_fresh
+import adaptfilt.rules._scalar_kernels as _scalar
 import adaptfilt.rules._sif_kernels as _kernels
 
 __all__ = ["Moments", "MomentRule"]
@@ -130,8 +131,11 @@ def _pair_sums(g, m, g0, A, weight, residual, cross):
 def _deviations(G: np.ndarray, g0: np.ndarray) -> np.ndarray:
     """``G - g0[:, None, :]`` in C order whatever ``G``'s layout (``np.ascontiguousarray`` of it, bit
     for bit, in one pass)."""
-    return np.subtract(G, g0[:, None, :], out=np.empty(np.broadcast_shapes(G.shape, g0[:, None, :].shape),
-                                                         dtype=np.result_type(G, g0)))
+    if G.ndim == 3 and G.dtype == g0.dtype == np.float64 and G.shape[::2] == g0.shape:
+        out = np.empty(G.shape)  # the common case, without broadcast_shapes' Python (a tenth of a scalar step)
+    else:
+        out = np.empty(np.broadcast_shapes(G.shape, g0[:, None, :].shape), dtype=np.result_type(G, g0))
+    return np.subtract(G, g0[:, None, :], out=out)
 
 
 def _sums_numpy(D, dX, weight):
@@ -226,6 +230,11 @@ class MomentRule(ABC):
         """Number of function evaluations the rule spends (centre included)."""
         return 1 + 2 * n * np.ones_like(np.asarray(param, dtype=float))
 
+    #: whether a scalar state's moments may come from the compiled kernels of one point set and the
+    #: standard covariance (:mod:`adaptfilt.rules._scalar_kernels`): the rule's point set is one such set
+    #: and :meth:`_cov_from_sums` the standard form
+    _scalar_kernel: bool = False
+
     #: what :meth:`spent` counts: one moment computation of a deterministic rule is one ``"update"``
     compute_unit: str = "update"
 
@@ -266,6 +275,11 @@ class MomentRule(ABC):
         if L is None:
             L = chol(sym(P), "P")
         g0 = g(m[:, None, :])[:, 0, :]
+        if n == 1 and residual is None and self._scalar_kernel:  # a scalar state: one compiled pass, numpy's bits
+            ps = next(iter(self._point_sets(n, M, param, rng)))
+            made = _scalar.moments(g, m, g0, L, ps.scale, ps.weight, cross)
+            if made is not None:
+                return Moments(mean=made[0], cov=made[1], cross=made[2])
         sums = None
         count = 0.0
         for ps in self._point_sets(n, M, param, rng):

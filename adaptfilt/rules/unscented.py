@@ -78,6 +78,10 @@ class UnscentedRule(MomentRule):
         self._default = default_kappa
         self.form = form
 
+    @property
+    def _scalar_kernel(self) -> bool:  # one point set; the compiled kernels take the standard covariance
+        return self.form == "standard"
+
     def default_param(self, n: int) -> float:
         return float(max(0, 3 - n)) if self._default is None else float(self._default)
 
