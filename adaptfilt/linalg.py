@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from adaptfilt import _linalg_kernels
+
 __all__ = [
     "NotPositiveDefinite",
     "sym",
@@ -125,6 +127,9 @@ def _chol_positive(P: np.ndarray) -> np.ndarray | None:
         if not _all_positive(P):
             return None
         return np.sqrt(P, out=np.empty_like(P))
+    L = _linalg_kernels.chol_positive(P)  # compiled, numpy's bits; False: numpy's form below
+    if L is not False:
+        return L
     L = np.zeros_like(P)  # the layout of P, as in the bookkeeping loop: einsum's order follows it
     for j in range(n):
         d = P[j, j] - np.einsum("k...,k...->...", L[j, :j], L[j, :j]) if j else P[j, j]
