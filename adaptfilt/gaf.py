@@ -52,7 +52,7 @@ import numpy as np
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym, sym_fresh
 from adaptfilt.models import StateSpaceModel
 from adaptfilt.rules import MomentRule, Moments, StochasticIntegrationRule, UnscentedRule
-from adaptfilt.rules import _scalar_kernels
+from adaptfilt.rules import scalar_kernels
 
 __all__ = ["FilterError", "Prediction", "Update", "FilterRun", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
 
@@ -449,7 +449,7 @@ class GaussianAssumedFilter:
         if self._nx == 1 and model.nz == 1 and model.residual is None and not callable(z):
             # a scalar state and measurement: the arithmetic below in one compiled pass, numpy's bits
             # (None: not compiled, or a step that raises or repairs below)
-            done = _scalar_kernels.update(m, P, z, z_pred, S, Pxz, self._R, model.nz * _LOG2PI)
+            done = scalar_kernels.update(m, P, z, z_pred, S, Pxz, self._R, model.nz * _LOG2PI)
             if done is not None:
                 Pzz, _, K, innov, nis, loglik, x_filt, P_filt, L_filt = done
                 u = _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_filt, n_iter)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptfilt import _linalg_kernels
+from adaptfilt import linalg_kernels
 
 __all__ = [
     "NotPositiveDefinite",
@@ -127,7 +127,7 @@ def _chol_positive(P: np.ndarray) -> np.ndarray | None:
         if not _all_positive(P):
             return None
         return np.sqrt(P, out=np.empty_like(P))
-    L = _linalg_kernels.chol_positive(P)  # compiled, numpy's bits; False: numpy's form below
+    L = linalg_kernels.chol_positive(P)  # compiled, numpy's bits; False: numpy's form below
     if L is not False:
         return L
     L = np.zeros_like(P)  # the layout of P, as in the bookkeeping loop: einsum's order follows it

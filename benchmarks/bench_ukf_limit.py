@@ -11,7 +11,7 @@ cores, load), then:
   round-off over 500 steps, the two differ only in the order of their sums);
 * the times in this process: best of N of each, CPU time and wall, interleaved
   so that all see the same load: the library as installed (its compiled
-  kernels of the scalar filter, :mod:`adaptfilt.rules._scalar_kernels`, where
+  kernels of the scalar filter, :mod:`adaptfilt.rules.scalar_kernels`, where
   numba is there), the library in numpy's form only (the kernels off, as
   without the ``fast`` extra) and the kernel; the run-steps per second and the
   ratios library / kernel;
@@ -115,7 +115,7 @@ import time
 import numpy as np
 
 import adaptfilt as af
-from adaptfilt.rules import _scalar_kernels, _sif_kernels
+from adaptfilt.rules import _sif_kernels, scalar_kernels
 
 TARGET = 1.5
 
@@ -186,7 +186,7 @@ def timed(fn) -> tuple[float, float]:
 
 #: where a profiled function's own time goes; the first matching (file, name) entry wins
 CATEGORIES = (
-    ("compiled kernels (_scalar_kernels)", lambda f, n: f.endswith("_scalar_kernels.py")),
+    ("compiled kernels (scalar_kernels)", lambda f, n: f.endswith("scalar_kernels.py")),
     ("model f, h (the kernel's work too)", lambda f, n: f.endswith("models.py") and n in ("f", "h")),
     ("small matrix calls (einsum)", lambda f, n: "einsum" in n or n in ("mm", "mv")),
     ("Cholesky, solves, log det", lambda f, n: f.endswith("linalg.py") and n in ("chol", "solve_spd", "logdet_chol",
@@ -276,7 +276,7 @@ def layouts(args, M: int, T: int, rep: int) -> float:
         lib, npf, ker = map(float, subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split())
         rows.append((lib / ker, npf / ker))
         print(f"  {k:>3} {lib:8.3f} {npf:10.3f} {ker:8.3f} {lib / ker:6.2f} {npf / ker:17.2f}", flush=True)
-    for i, what in enumerate((f"library ({'compiled kernels' if _scalar_kernels.available() else 'numpy form: no numba'})",
+    for i, what in enumerate((f"library ({'compiled kernels' if scalar_kernels.available() else 'numpy form: no numba'})",
                               "library, numpy form only")):
         r = [row[i] for row in rows]
         med = statistics.median(r)

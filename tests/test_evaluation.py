@@ -339,3 +339,18 @@ def test_cli_chunk_size_is_recorded_and_changes_no_per_run_value_of_a_determinis
     for name in one.names:
         for k in ("run_rmse", "run_anees", "run_cost"):
             assert getattr(one[name], k).tobytes() == getattr(seven[name], k).tobytes(), (name, k)
+
+
+def test_the_bootstrap_counts_are_drawn_once_per_runs_and_seed():
+    """A worker that evaluates policy after policy on the same runs draws the counts once: the kept counts
+    are the draw of their own runs and seed (another seed, another draw), and nobody can change them."""
+    from adaptfilt import evaluation as ev
+
+    ev._bootstrap_counts.cache_clear()
+    a = ev._bootstrap_counts(50, 20, 3)
+    assert ev._bootstrap_counts(50, 20, 3) is a and not a.flags.writeable
+    np.testing.assert_array_equal(a, metrics.bootstrap_counts(50, 20, rng=np.random.default_rng([ev.TRAJ_SEED_KEY, 3, 1])))
+    assert not np.array_equal(ev._bootstrap_counts(50, 20, 4), a)
+    one = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
+    two = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
+    assert one["default"].boot_rmse.tobytes() == two["default"].boot_rmse.tobytes()

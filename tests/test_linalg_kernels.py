@@ -1,4 +1,4 @@
-"""The compiled Cholesky factor (:mod:`adaptfilt._linalg_kernels`) is numpy's form's bit for bit, over
+"""The compiled Cholesky factor (:mod:`adaptfilt.linalg_kernels`) is numpy's form's bit for bit, over
 dimensions 2-12, batches of runs across the kernel's blocks and conditioning over many decades; a
 pivot that is not positive is handed back to numpy's form, which names the same runs."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from adaptfilt import _linalg_kernels, linalg
+from adaptfilt import linalg, linalg_kernels as _linalg_kernels
 from adaptfilt.rules import _sif_kernels
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)

@@ -1,4 +1,4 @@
-"""The compiled kernels of the scalar unscented filter (:mod:`adaptfilt.rules._scalar_kernels`) give the
+"""The compiled kernels of the scalar unscented filter (:mod:`adaptfilt.rules.scalar_kernels`) give the
 numbers of numpy's form bit for bit: the rule's moments and the filter's update, on values over many
 decades with signed zeros, scalar and per-run kappa, through whole filter runs; where numpy's form raises
 or repairs, the kernels hand the step back to it and the error or repair is the same."""
@@ -12,7 +12,7 @@ import pytest
 
 import adaptfilt as af
 from adaptfilt.gaf import FilterError
-from adaptfilt.rules import _scalar_kernels, _sif_kernels
+from adaptfilt.rules import _sif_kernels, scalar_kernels as _scalar_kernels
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from adaptfilt.linalg import chol, mm, sym, sym_fresh
-import adaptfilt.rules._scalar_kernels as _scalar
+import adaptfilt.rules.scalar_kernels as _scalar
 import adaptfilt.rules._sif_kernels as _kernels
 
 __all__ = ["Moments", "MomentRule"]
@@ -231,7 +231,7 @@ class MomentRule(ABC):
         return 1 + 2 * n * np.ones_like(np.asarray(param, dtype=float))
 
     #: whether a scalar state's moments may come from the compiled kernels of one point set and the
-    #: standard covariance (:mod:`adaptfilt.rules._scalar_kernels`): the rule's point set is one such set
+    #: standard covariance (:mod:`adaptfilt.rules.scalar_kernels`): the rule's point set is one such set
     #: and :meth:`_cov_from_sums` the standard form
     _scalar_kernel: bool = False
 

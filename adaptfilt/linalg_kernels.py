@@ -15,8 +15,8 @@ products ``0 + p_0 + p_1 + ...`` in the order of ``k``, each product rounded fir
 (:func:`adaptfilt.rules._sif_kernels._einsum_is_plain`), then the subtraction, the square root and the
 division, all correctly rounded: the same numbers on any CPU (``tests/test_linalg_kernels.py``, also
 with numpy's SIMD code off). It applies to float64, C-ordered ``(n, n, M)`` batches with ``2 <= n <= 12``
-and ``M >= 2`` (with one run numpy's einsum sums a contiguous axis otherwise), where numba is there and
-:data:`adaptfilt.rules._sif_kernels.BACKEND` allows compiled kernels; it reports whether every pivot
+and ``M >= 2`` (with one run numpy's einsum sums a contiguous axis otherwise), where
+:func:`adaptfilt.rules.compiled_kernels` says so; it reports whether every pivot
 was positive, and where one was not the caller takes numpy's form, which names the runs.
 """
 from __future__ import annotations
@@ -31,12 +31,7 @@ _kernel = None  # the compiled factorisation once built; False where unusable
 def _build():
     global _kernel
     if _kernel is None:
-        from adaptfilt.rules import _sif_kernels
-
-        if not _sif_kernels._build_sums():  # numba missing, or numpy's einsum fuses multiply-adds
-            _kernel = False
-            return _kernel
-        import numba
+        import numba  # the gate has found it
 
         @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _chol(P, L, d):  # pragma: no cover - compiled
@@ -73,16 +68,15 @@ def _build():
     return _kernel
 
 
-_rules_kernels = None  # adaptfilt.rules._sif_kernels, imported on first use (rules import this module's user)
+#: Whether compiled kernels may run: :func:`adaptfilt.rules.compiled_kernels`, the one switch of them all,
+#: which :mod:`adaptfilt.rules` sets here when imported (the rules import :mod:`adaptfilt.linalg`, so this
+#: module does not import them); None: numpy's form.
+gate = None
 
 
 def available() -> bool:
-    """Whether the compiled factorisation is used (numba importable, the backend and numpy's einsum allow
-    it); imports numba the first time."""
-    global _rules_kernels
-    if _rules_kernels is None:
-        from adaptfilt.rules import _sif_kernels as _rules_kernels
-    return _rules_kernels.sums_available() and bool(_build())
+    """Whether the compiled factorisation is used (:data:`gate`); imports numba the first time."""
+    return gate is not None and gate() and bool(_build())
 
 
 def chol_positive(P: np.ndarray) -> np.ndarray | None | bool:
