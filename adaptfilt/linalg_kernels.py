@@ -5,8 +5,8 @@ loop over the columns, each step a few numpy calls over the runs: for column ``j
 
 .. math::
 
-    d = P_{jj} - \sum_{k<j} L_{jk}^2, \quad L_{jj} = \sqrt d, \quad
-    L_{ij} = \Bigl(P_{ij} - \sum_{k<j} L_{ik} L_{jk}\Bigr) / L_{jj} \quad (i > j),
+    d = P_{jj} - \sum_{k \lt j} L_{jk}^2, \quad L_{jj} = \sqrt{d}, \quad
+    L_{ij} = \Bigl(P_{ij} - \sum_{k \lt j} L_{ik} L_{jk}\Bigr) / L_{jj} \quad (i \gt j),
 
 about ``3 n`` numpy calls with temporaries over the runs for a factor (the CTM's ``n = 5``: 15 calls,
 a millisecond at 10^4 runs; its filters factor several covariances a step). The kernel here computes
