@@ -456,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="train + evaluate + figures + tables of the paper")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory")
     p.add_argument("--scale", choices=("quick", "medium", "full"), default=None,
-                   help="full (default): the paper's protocol, M = 10^4, about 18 min on 2 cores; medium: the same "
+                   help="full (default): the paper's protocol, M = 10^4, about 15 min on 2 cores; medium: the same "
                         "8 seeds with half the training episodes and M = 2000, about 6 min; quick: toy scale")
     p.add_argument("--quick", action="store_true", help="toy scale, about a minute (--scale quick)")
     p.add_argument("--retrain", action="store_true", help="retrain the fast-mode policies and recompute every result even where data/ has them (the paper-faithful policies in data/ are reused)")

@@ -103,7 +103,7 @@ class Scale:
     faithful_episodes: int | None = None  # the paper-faithful policies' episodes (None: ``episodes``)
 
 
-#: The paper's protocol: M = 10^4 paired runs, 1000 training episodes per policy (about 18 min on 2 cores).
+#: The paper's protocol: M = 10^4 paired runs, 1000 training episodes per policy (about 15 min on 2 cores).
 FULL = Scale("full", episodes=1000, seeds=SEEDS, train_steps=None, eval_runs=10_000, eval_steps=None,
              floor_runs=2000, floor_steps=None, recon_runs=2000, recon_steps=None)
 #: Every learned policy at 8 seeds in a quarter of the full scale's time: half the training episodes,
@@ -118,7 +118,7 @@ SCALES = {s.name: s for s in (QUICK, MEDIUM, FULL)}
 JOURNAL = "journal.jsonl"
 #: What --retrain costs at full scale, for the message that asks for it (outside a checkout, where
 #: data/timings.json is not there to read; tests/test_quoted_times.py holds it to that record).
-RETRAIN_COST = "about 18 minutes on 2 cores"
+RETRAIN_COST = "about 15 minutes on 2 cores"
 
 
 def policy_rel(experiment: str, kind: str, seed: int) -> str:
