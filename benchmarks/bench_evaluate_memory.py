@@ -16,7 +16,11 @@ Measured (shared 2-core machine, UNGM UKF, T = 500, ``--policies default,fixed-k
 * before streaming (one pass, commit 6d142a5): 10^4 runs 755 MB (15 s), 10^5 runs 5973 MB (308 s):
   59.4 KB per run, so 10^6 runs about 58 GB;
 * streamed (chunks of 10^4): 10^4 runs 755 MB (the one-pass evaluation itself), 10^5 runs 783 MB (170 s):
-  0.32 KB per run (the kept per-run arrays and O(M) draws), 10^6 runs with all 29 baselines about 1.6 GB.
+  0.32 KB per run (the kept per-run arrays and O(M) draws), 10^6 runs with all 29 baselines about 1.6 GB;
+* the same at commit 91ce088 (the scalar UKF compiled, the bootstrap counts kept per process, 2026-11-27,
+  idle cores): 10^4 runs 801 MB (5.7 s), 10^5 runs 815 MB (51.7 s): 0.16 KB per run, 10^6 runs with all 29
+  baselines about 1.5 GB. The compiled kernels' import (numba) and the kept counts (80 MB at 10^4) add to
+  the level, not to the slope.
 """
 from __future__ import annotations
 
