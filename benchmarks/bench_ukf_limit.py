@@ -57,7 +57,10 @@ several runs.
 **The compiled scalar filter** (2026-11-27, idle 2-core Intel Xeon with AVX-512, numpy 2.4.6, numba
 0.68.1, best of 5 in each of 8 layouts): the library's ratio median 1.09 (range 1.06-1.18, 0.29-0.31 s
 against the kernel's 0.26-0.29 s), its numpy form's 1.42 (1.37-1.50) in the same processes; before
-them, the library (then numpy's form only) measured 1.43 (1.24-1.62) over 8 layouts. The kernels make
+them, the library (then numpy's form only) measured 1.43 (1.24-1.62) over 8 layouts. Again at commit
+49b3a51: 1.12 (1.08-1.16), numpy form 1.42 (1.38-1.50); with numpy's SIMD dispatch off
+(``NPY_DISABLE_CPU_FEATURES`` set to every feature it dispatches to, as ``.ci/run``'s cross-CPU phase
+does) 1.15 (1.11-1.19), numpy form 1.43 (1.40-1.48). The kernels make
 each chain of elementwise operations of a step in one loop over the runs, with numpy's operations in
 numpy's order, so every output is the numpy form's bit for bit (``tests/test_scalar_kernels.py``;
 checked on 505 arrays of UNGM runs, evaluations of every baseline and a learned policy, and a trained
