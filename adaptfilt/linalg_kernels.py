@@ -35,9 +35,10 @@ def _build():
 
         @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _chol(P, L, d):  # pragma: no cover - compiled
-            """``L``: the lower factor of every ``P[:, :, r]``, zeros above the diagonal; returns the number of pivots that were not positive (NaN is not). In blocks of runs (``d``:
-            a block's pivots), the runs innermost, as numpy's elementwise loops run: LLVM vectorises
-            them, each operation still correctly rounded."""
+            """``L``: the lower factor of every ``P[:, :, r]``, zeros above the diagonal; returns the
+            number of pivots that were not positive (NaN is not). In blocks of runs (``d``: a block's
+            pivots), the runs innermost, as numpy's elementwise loops run: LLVM vectorises them, each
+            operation still correctly rounded."""
             n, M = P.shape[0], P.shape[2]
             B = d.shape[0]
             bad = 0

@@ -279,8 +279,8 @@ def layouts(args, M: int, T: int, rep: int) -> float:
         lib, npf, ker = map(float, subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split())
         rows.append((lib / ker, npf / ker))
         print(f"  {k:>3} {lib:8.3f} {npf:10.3f} {ker:8.3f} {lib / ker:6.2f} {npf / ker:17.2f}", flush=True)
-    for i, what in enumerate((f"library ({'compiled kernels' if scalar_kernels.available() else 'numpy form: no numba'})",
-                              "library, numpy form only")):
+    form = "compiled kernels" if scalar_kernels.available() else "numpy form: no numba"
+    for i, what in enumerate((f"library ({form})", "library, numpy form only")):
         r = [row[i] for row in rows]
         med = statistics.median(r)
         print(f"{what}: ratio median {med:.2f}, range {min(r):.2f}-{max(r):.2f}, {sum(x <= TARGET for x in r)} of "
