@@ -99,7 +99,7 @@ gradient stops training with :class:`TrainingDiverged` naming the epoch and step
 is abandoned when it diverges (a non-finite loss, gradient or validation loss before it has beaten
 its initial network; after that, first up to ``max_restores`` returns to its best weights at half
 the learning rate) or when no validation within its first ``patience`` optimiser steps beats its
-initial network. The next attempt starts from new weights, minibatch order and dropout draws of the
+initial network (the last attempt allowed trains on instead: it may still improve). The next attempt starts from new weights, minibatch order and dropout draws of the
 seed :func:`restart_seed` ``(seed, a) = seed + 1000 a`` (``a = 1, 2, ...``; the validation set and a
 fixed training set stay), at most ``restarts`` times; every attempt's optimiser steps and CPU
 seconds count against the training's budget (``max_steps``, ``max_cpu_s``: totals over attempts).
@@ -145,6 +145,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -181,6 +182,14 @@ RECIPES: dict = {}
 
 class TrainingDiverged(FloatingPointError):
     """Training produced a non-finite loss or gradient (named by epoch and optimiser step)."""
+
+
+def _warn(msg: str) -> None:
+    """A RuntimeWarning attributed to the first caller outside this module (the user's training call)."""
+    f, level = sys._getframe(1), 2
+    while f is not None and f.f_code.co_filename == __file__:
+        f, level = f.f_back, level + 1
+    warnings.warn(msg, RuntimeWarning, stacklevel=level)
 
 
 def restart_seed(seed: int, attempt: int) -> int:
@@ -567,7 +576,10 @@ class KalmanNet:
                 "options": dict(self.options), "seed": self.seed, "version": __version__,
                 "scales": None if self.scales is None else [float(s) for s in self.scales],
                 "bounds": None if self.bounds is None else self.bounds.tolist(),
-                "n_parameters": self.n_parameters(), "failed": self.failed, "history": self.history}
+                "n_parameters": self.n_parameters(), "failed": self.failed,
+                # the training's CPU seconds vary between reruns: they live in memory (and a study's manifest),
+                # not in the file, which a rerun of its training reproduces byte for byte
+                "history": {k: v for k, v in self.history.items() if k != "cpu_s"}}
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the weights and :meth:`metadata` to one ``.npz`` (no pickles, byte-reproducible)."""
@@ -713,7 +725,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         ``"restore"``, but the event after ``max_restores`` ends the training with the best weights so
         far instead of raising, recorded in ``history["stopped_by_divergence"]``. ``"restart"``: the
         restart rule (module docstring): restore while the attempt has improved (up to
-        ``max_restores``), else abandon the attempt and restart from :func:`restart_seed`.
+        ``max_restores``), else abandon the attempt and restart from :func:`restart_seed`
+        (the last attempt allowed is not abandoned for ``patience``: it trains on to the budget).
     restarts, patience : int
         The restart rule (``on_diverged="restart"`` only): at most ``restarts`` restarts; an attempt
         none of whose validations in its first ``patience`` optimiser steps beats its initial network
@@ -1005,10 +1018,10 @@ class _Training:
     def no_progress(self) -> str | None:
         """The restart rule's patience: "no progress" when the attempt has not beaten its initial network."""
         patience, steps = self.a["patience"], self.step - self.att["first_step"]
-        if patience is None or self.improved or steps < int(patience):
-            return None
-        warnings.warn(f"KalmanNet training: attempt {self.n} (seed {self.att['seed']}) has not beaten its initial "
-                      f"network in {steps} optimiser steps; abandoned", RuntimeWarning, stacklevel=5)
+        if patience is None or self.improved or steps < int(patience) or self.n >= int(self.a["restarts"]):
+            return None  # the last attempt allowed trains on to the budget: it may still improve
+        _warn(f"KalmanNet training: attempt {self.n} (seed {self.att['seed']}) has not beaten its initial "
+              f"network in {steps} optimiser steps; abandoned")
         return "no progress"
 
     def diverged(self, what: str, epoch: int) -> str | None:
@@ -1019,14 +1032,13 @@ class _Training:
         if mode == "restart":
             if self.improved and self.att["restores"] < int(a["max_restores"]):
                 return self.restore(msg, epoch)
-            warnings.warn(msg + f"; attempt {self.n} (seed {self.att['seed']}) abandoned", RuntimeWarning, stacklevel=4)
+            _warn(msg + f"; attempt {self.n} (seed {self.att['seed']}) abandoned")
             self.att["diverged"] = {"epoch": epoch, "step": self.step, "what": what}
             return "diverged"
         if mode == "raise" or n_restores >= int(a["max_restores"]):
             extra = f" after {n_restores} restores" if mode != "raise" else ""
             if mode == "stop":
-                warnings.warn(msg + extra + "; training stopped with the best weights so far", RuntimeWarning,
-                              stacklevel=4)
+                _warn(msg + extra + "; training stopped with the best weights so far")
                 self.hist["stopped_by_divergence"] = {"epoch": epoch, "step": self.step, "what": what}
                 self.knet.net.load_state_dict(self.att_state)
                 return "stopped"
@@ -1036,8 +1048,7 @@ class _Training:
 
     def restore(self, msg: str, epoch: int) -> None:
         lr_now = self.opt.param_groups[0]["lr"] * 0.5
-        warnings.warn(msg + f"; restored the best weights so far, learning rate halved to {lr_now:.3g}",
-                      RuntimeWarning, stacklevel=5)
+        _warn(msg + f"; restored the best weights so far, learning rate halved to {lr_now:.3g}")
         self.hist["restores"].append({"epoch": epoch, "step": self.step, "what": msg.split(": ", 1)[1],
                                       "lr": lr_now})
         self.att["restores"] += 1
@@ -1078,7 +1089,7 @@ class _Training:
         self.hist.update(best_val_loss=self.best, optimiser_steps=self.step, cpu_s=time.process_time() - self.cpu0)
         if not self.best_trained:
             self.hist["failed"] = self.failure()
-            warnings.warn(f"KalmanNet training failed: {self.hist['failed']}", RuntimeWarning, stacklevel=3)
+            _warn(f"KalmanNet training failed: {self.hist['failed']}")
         knet.history = self.hist
         knet._snapshots = self.kept
         return knet
