@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.report import md_table
+from adaptfilt.verdicts import verdict
 
 __all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "plot_look_gain", "look_md", "look_files"]
 
@@ -109,10 +110,9 @@ def look_summary(res) -> dict:
                              **{m: aggregate(res, names, m).iqm for m in metrics},
                              "minus_greedy": {m: list(difference(res, names, ["greedy"], m)["iqm"]) for m in metrics}}
     # Bertsekas' cost improvement: rollout on greedy costs no more than greedy (exact expectations, full
-    # horizon); here truncated and sampled, so measured: "holds" when the paired interval is not above 0
+    # horizon); here truncated and sampled, so measured: the verdict on "the reference is lower than greedy"
     for n, row in out["references"].items():
-        d = row["minus_greedy"][cost]
-        row["improves_on_greedy"] = "yes" if d[2] < 0 else ("no (worse)" if d[1] > 0 else "not separable")
+        row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
     return out
 
 
@@ -217,7 +217,7 @@ def look_md(look: dict) -> str:
              "cost: the experiment's verdict cost, charged for what a policy computes where the cost charges "
              "compute; compute per step in UKF updates or SIF iterations)", "",
              *md_table(["experiment", "policy", "cost", "cost - greedy", "RMSE - greedy", "ANEES - greedy",
-                        "compute per step", "improves on greedy?"])]
+                        "compute per step", "lower cost than greedy"])]
     for e, s in look.items():
         c = s["verdict_cost"]
         g = s["baselines"]["greedy"]

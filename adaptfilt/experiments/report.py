@@ -84,12 +84,10 @@ def metric_label(row: dict) -> str:
 
 
 def verdict_text(row: dict) -> str:
-    """A claim row's verdict, with its margin, and the verdict without it where the two differ."""
+    """A claim row's verdict (:func:`adaptfilt.verdicts.verdict`), with its declared margin where it has one."""
     v = row["verdict"]
     if "margin" in row:
         v += f" (margin {row['margin']:.3g})"
-        if row.get("verdict_no_margin") not in (None, row["verdict"]):
-            v += f"; without a margin: {row['verdict_no_margin']}"
     return v
 
 
@@ -246,7 +244,8 @@ def claims_subset_md(cl: dict, keys=CLAIM_KEYS, experiments=None, metrics=None, 
         for r in rows:
             if r["experiment"] not in results:
                 raise ValueError(f"{r['key']} {r['claim']} ({r['experiment']}): no results given for this experiment")
-            new = compare(results[r["experiment"]], r["a"], r["b"], r["metric"], better=_better(r))
+            new = compare(results[r["experiment"]], r["a"], r["b"], r["metric"], better=_better(r),
+                          declared=r.get("declared"))
             got = [new["a_value"], new["b_value"], new["diff"], *new["ci"]]
             want = [r["a_value"], r["b_value"], r["diff"], *r["ci"]]
             if not np.allclose(got, want, rtol=1e-9, atol=0) or new["verdict"] != r["verdict"]:
