@@ -135,6 +135,12 @@ DECLARED_MARGINS: dict[str, DeclaredMargin] = {m.comparison: m for m in (
         "what the paper measures and on the objective both minimise",
         "2026-11-25, commit ad51a71, before the fast trainer's verdicts were derived with a margin"),
     DeclaredMargin(
+        "anchored vs greedy", "not worse", {"rmse": 0.05, "anees": 0.10},
+        "the greedy-anchored learner's goal: a cost below greedy's on every seed with RMSE and ANEES not worse "
+        "than greedy's (adaptfilt.anchor; the look-ahead study)",
+        "2026-11-25, with the margins of commit ad51a71, before the anchored learner was written (commit 6cfbbe1) "
+        "and evaluated"),
+    DeclaredMargin(
         "learned gain vs learned kappa", "not worse", {"rmse": 0.05},
         "the learned-gain study's design: each arm against the other arms and against the default and best "
         "constant kappa (adaptfilt.experiments.studies.gain.PAIRS), on RMSE",

@@ -47,7 +47,8 @@ from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: the co
 from adaptfilt.seed_stats import aggregate, difference, seed_groups
 from adaptfilt.verdicts import judge, verdict
 
-__all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members"]
+__all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members", "claim_of",
+           "rejudge", "BEST_FIXED"]
 
 
 #: Table I of the paper: {experiment: {policy: (RMSE, ANEES, cost)}}.
@@ -103,6 +104,35 @@ def compare(res, a: str, b: str, metric: str, better: str = "lower", experiment:
     if declared is not None:
         row["margin"], row["declared"] = m, declared
     return row
+
+
+def claim_of(row: dict) -> str:
+    """The claim a stored row makes (``"lower"``, ``"not worse"``, ``"equal"``): its ``claim`` reads
+    "``a`` <claim> than ``b``"."""
+    return row["claim"][len(row["a"]) + 1: len(row["claim"]) - len(row["b"]) - len(" than ")]
+
+
+def rejudge(cl: dict) -> dict:
+    """Stored claims (or Table I's ``differences``) judged again by the one rule from what each row stores:
+    its interval ``ci`` and, for an "equal" claim, its margin (the declared comparison :data:`BEST_FIXED`).
+    For the summaries of a reproduction whose evaluations are not kept (``data/medium``, ``data/retrain``):
+    only the verdict words change (``seeds_holding`` stays, each seed's own interval judged by the same
+    inequalities before and after); rows lose the old ``verdict_no_margin``."""
+    def row(r: dict) -> dict:
+        r = {k: v for k, v in r.items() if k != "verdict_no_margin"}
+        if "margin" in r:
+            r["declared"] = r.get("declared", BEST_FIXED)
+        r["verdict"] = verdict(claim_of(r), r["ci"], r.get("margin"))
+        return r
+
+    def walk(x):
+        if isinstance(x, dict):
+            return row(x) if "verdict" in x and "ci" in x else {k: walk(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [walk(v) for v in x]
+        return x
+
+    return walk(cl)
 
 
 def charges_compute(res) -> bool:

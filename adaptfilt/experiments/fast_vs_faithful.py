@@ -17,9 +17,9 @@ from __future__ import annotations
 from adaptfilt.experiments.claims import members
 from adaptfilt.experiments.report import md_table
 from adaptfilt.seed_stats import aggregate, difference
-from adaptfilt.verdicts import judge
+from adaptfilt.verdicts import judge, verdict
 
-__all__ = ["comparison", "comparison_md", "METRICS", "DECLARED"]
+__all__ = ["comparison", "comparison_md", "rejudge", "METRICS", "DECLARED"]
 
 METRICS = ("cost", "rmse", "anees", "objective")
 #: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) whose margins judge it.
@@ -55,6 +55,21 @@ def comparison(results: dict, train_times: dict | None = None, fast: str = "adap
                                 "mean_cpu_s": sum(x["cpu_time_s"] for x in t) / len(t)}
         out[e] = {"rows": rows, "n_seeds": {fast: len(A), faithful: len(B)}, "train_time": times,
                   "n_runs": res.config["n_runs"]}
+    return out
+
+
+def rejudge(comp: dict) -> dict:
+    """A stored comparison judged again by the one rule from each row's interval and margin (for the summaries
+    of a reproduction whose evaluations are not kept); rows lose the old ``verdict_no_margin``."""
+    out = {}
+    for e, d in comp.items():
+        rows = []
+        for r in d["rows"]:
+            r = {k: v for k, v in r.items() if k != "verdict_no_margin"}
+            r.update(claim="fast not worse than faithful", declared=DECLARED,
+                     verdict=verdict("not worse", r["diff_iqm"], r["margin"]))
+            rows.append(r)
+        out[e] = {**d, "rows": rows}
     return out
 
 

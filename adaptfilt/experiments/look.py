@@ -26,7 +26,8 @@ import numpy as np
 from adaptfilt.experiments.report import md_table
 from adaptfilt.verdicts import verdict
 
-__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "plot_look_gain", "look_md", "look_files"]
+__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "rejudge", "plot_look_gain", "look_md",
+           "look_files"]
 
 #: experiment -> (paired runs, ((H, S), ...)): the rollout references; UNGM also gets the two-step cross-check.
 #: Sized by ``benchmarks/bench_lookahead.py`` (rollout H = 1, S = 4 costs 36x greedy's time on UNGM, 59x on
@@ -113,6 +114,17 @@ def look_summary(res) -> dict:
     # horizon); here truncated and sampled, so measured: the verdict on "the reference is lower than greedy"
     for n, row in out["references"].items():
         row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
+    return out
+
+
+def rejudge(look: dict) -> dict:
+    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` judged again
+    by the one rule from its stored interval of the verdict cost's difference to greedy."""
+    out = {}
+    for e, s in look.items():
+        refs = {n: {**row, "improves_on_greedy": verdict("lower", row["minus_greedy"][s["verdict_cost"]])}
+                for n, row in s["references"].items()}
+        out[e] = {**s, "references": refs}
     return out
 
 
