@@ -261,7 +261,7 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
 
 
-# ======================================================================== chapter 16
+# ======================================================================== chapter 18
 def _kalmannet_cases():
     """``(name, model, z)``: the chapter's linear model and the bearing-only CTM (wrapped bearings), with
     an untrained KalmanNet of seed 0 (any weights test the update; untrained ones keep it short)."""
@@ -274,7 +274,7 @@ def _kalmannet_cases():
 
 
 def check_kalmannet_step(my_step: Callable) -> bool:
-    r"""Chapter 16: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
+    r"""Chapter 18: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
     x_filt_new)``, one step of KalmanNet (``x_filt`` is :math:`\hat x_{t-1|t-1}`, ``x_filt_prev``
     :math:`\hat x_{t-2|t-2}`, ``x_pred`` :math:`\hat x_{t-1|t-2}`, each ``(M, nx)``; ``gain(F1, F2, F3,
     F4)`` the network, :func:`adaptfilt.course.learned_gain.gain_function`). Run over 12 steps on two

@@ -10,7 +10,8 @@ equality" in another. This check holds the words to :func:`adaptfilt.verdicts.ve
   :data:`adaptfilt.verdicts.DECLARED_MARGINS` declares, named with its metric and the reference value it
   is a fraction of: ``<!-- verdict: equal [-0.241, -0.152] margin "adaptive vs best fixed" rmse 3.072 ->
   not confirmed -->``. The check applies the rule to the declared interval and margin and compares the
-  word; the interval must be one the sentence (or, where the sentence names none, its cell) states; the
+  word; the interval must be one the sentence (or, where the sentence names none, its cell) states, or its
+  mirror (a difference stated as a magnitude: "lower by 0.030 [0.017, 0.045]"); the
   sentence must say the word (``confirmed``, or the claim itself: "lower", "not worse", "equal"; for
   "contradicted" also "higher", "worse"; for "not confirmed" also "not shown", "no detectable
   difference"); and an equivalence word ("equal", "tied") that the sentence affirms needs a declared
@@ -65,15 +66,15 @@ _DECL_BODY = re.compile(
 _COMMENT = re.compile(r"<!--.*?-->", re.S)
 _CODE = re.compile(r"```.*?```|`[^`\n]*`", re.S)
 _GENERATED = re.compile(r"<!--\s*BEGIN\s[^>]*-->.*?<!--\s*END\s[^>]*-->", re.S)
-# where one sentence ends: a full stop, question mark or semicolon and a capital after it, a blank line,
+# where one sentence ends: a full stop or question mark and a capital after it, a blank line,
 # a list item, a table row
-_SPLIT = re.compile(r"(?<=[.!?;])\s+(?=[A-Z*($\[])|\n(?=\s*(?:[*-]|\d+\.)\s)")
+_SPLIT = re.compile(r"(?<=[.!?])\s+(?=[A-Z*($\[\"“])|\n(?=\s*(?:[*-]|\d+\.)\s)")
 #: What a sentence may say for each verdict of each claim (besides the word itself).
 SAYS = {
     ("lower", "confirmed"): r"\b(?:lower|better|below|beats?|more accurate|more consistent|cheaper|gain)\b",
     ("not worse", "confirmed"): r"\bnot worse\b",
     ("equal", "confirmed"): r"\b(?:equal|tied|the same)\b",
-    ("lower", "contradicted"): r"\b(?:higher|worse|above|not lower|less accurate|less consistent|fails?)\b",
+    ("lower", "contradicted"): r"\b(?:higher|worse|above|dearer|not lower|less accurate|less consistent|fails?)\b",
     ("not worse", "contradicted"): r"\b(?:worse|above|fails?)\b",
     ("equal", "contradicted"): r"\b(?:differ\w*|not equal|above|below|fails?)\b",
 }
@@ -207,8 +208,9 @@ def _sentence_problems(sentence: str, cell: str, where: str, outputs: str = "") 
                                       + (f" with the margin of {d.comparison!r}" if d.comparison else "")
                                       + f", not '{d.word}'", prose))
         here = intervals or _INTERVAL.findall(" ".join(_COMMENT.sub(" ", cell).split()))
-        if not any(_same(a, d.lo) and _same(b, d.hi) for a, b in here) and \
-                not any(_same(a, d.lo) and _same(b, d.hi) for a, b in _INTERVAL.findall(outputs)):
+        stated = lambda ivs: any(_same(a, d.lo) and _same(b, d.hi) or _same(a, -d.hi) and _same(b, -d.lo)  # noqa: E731
+                                 for a, b in ivs)  # "lower by 0.030 [0.017, 0.045]" states [-0.045, -0.017]
+        if not stated(here) and not stated(_INTERVAL.findall(outputs)):
             out.append(Problem(where, f"the declared interval [{d.lo:g}, {d.hi:g}] is not one the prose or the "
                                       "outputs state", prose))
         if not _says(d.claim, d.word, prose):
