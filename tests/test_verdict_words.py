@@ -61,8 +61,8 @@ def test_the_old_equal_sentence_of_reading_the_stored_policies_fails():
 
 def test_the_old_margin_0_line_of_how_results_are_reported_fails():
     """How results are reported (chapter 5) printed "margin 0.000: not worse -> confirmed; equal -> confirmed" for
-    [-0.048, +0.056]: the rule
-    gives "not confirmed" for "not worse" with margin 0, and no "equal" verdict without a margin."""
+    [-0.048, +0.056]: the rule gives "not confirmed" for "not worse" with margin 0, and no "equal" verdict without
+    a margin."""
     bad = problems(_fixture("old-05-not-worse-margin-0.ipynb"))
     printed = [p for p in bad if "output" in p.where]
     assert any("the rule gives 'not confirmed' for 'not worse' on [-0.048, +0.056] with margin 0, printed 'confirmed'"
