@@ -44,7 +44,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
-from adaptfilt.course.prose_numbers import _output_text, cell_text
+from adaptfilt.course.prose_numbers import output_text, cell_text
 from adaptfilt.verdicts import CLAIMS, WORDS, judge, verdict
 
 __all__ = ["Problem", "Declaration", "declarations", "sentences", "problems", "document_problems",
@@ -302,7 +302,7 @@ def problems(nb: Mapping[str, Any], cells: Iterable[int] | None = None) -> list[
     """Every verdict of notebook ``nb`` (Markdown cells ``cells``, default all, and every output) that
     disagrees with the rule or is not tied to an interval (module docstring)."""
     all_cells = nb["cells"]
-    outputs = "\n".join(_output_text(c) for c in all_cells if c.get("cell_type") == "code")
+    outputs = "\n".join(output_text(c) for c in all_cells if c.get("cell_type") == "code")
     wanted = range(len(all_cells)) if cells is None else cells
     out = []
     for i in wanted:
@@ -310,7 +310,7 @@ def problems(nb: Mapping[str, Any], cells: Iterable[int] | None = None) -> list[
         if c.get("cell_type") == "markdown":
             out += document_problems(cell_text(c), f"cell {i}", outputs)
         elif c.get("cell_type") == "code":
-            out += output_problems(_output_text(c), f"cell {i} (output)")
+            out += output_problems(output_text(c), f"cell {i} (output)")
     return out
 
 
