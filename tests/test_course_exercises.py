@@ -11,23 +11,51 @@ def _gauss(r, var):
     return np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
 
 
-def bayes_step(model, grid, prev, z, t, predict=True, like=True, normalise=True):
+def bayes_step(model, grid, prev, z, t, predict=True, like=True, normalise=True, Q=None, R=None, tf=0, th=1):
     dx = grid[1] - grid[0]
-    Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
-    trans = _gauss(grid[:, None] - model.f(grid[:, None], t)[:, 0][None, :], Q)
+    Q = float(model.Q[0, 0]) if Q is None else Q(float(model.Q[0, 0]))
+    R = float(model.R[0, 0]) if R is None else R(float(model.R[0, 0]))
+    trans = _gauss(grid[:, None] - model.f(grid[:, None], t + tf)[:, 0][None, :], Q)
     pred = trans @ prev * dx if predict else prev
-    post = (_gauss(z - model.h(grid[:, None], t + 1)[:, 0], R) if like else 1.0) * pred
+    post = (_gauss(z - model.h(grid[:, None], t + th)[:, 0], R) if like else 1.0) * pred
     return post / (post.sum() * dx) if normalise else post
 
 
+def bayes_step_loop(model, grid, prev, z, t):
+    """A correct alternative: scipy's normal density with the standard deviation, a loop over the grid
+    points for the prediction and the trapezoid rule for the normalisation."""
+    from scipy.stats import norm
+
+    sq, sr = np.sqrt(model.Q[0, 0]), np.sqrt(model.R[0, 0])
+    fx = model.f(grid[:, None], t)[:, 0]
+    dx = grid[1] - grid[0]
+    pred = np.array([np.sum(norm.pdf(x, loc=fx, scale=sq) * prev) * dx for x in grid])
+    post = norm.pdf(z, loc=model.h(grid[:, None], t + 1)[:, 0], scale=sr) * pred
+    return post / np.trapezoid(post, grid)
+
+
 def test_bayes_step(capsys):
-    assert ex.check_bayes_step(bayes_step)
-    assert "right" in capsys.readouterr().out
-    for kw, says in ((dict(predict=False), "prediction step (3b) is missing"),
-                     (dict(like=False), "predictive density"),
-                     (dict(normalise=False), "integrates to")):
-        assert not ex.check_bayes_step(lambda *a, kw=kw: bayes_step(*a, **kw))
+    for right in (bayes_step, bayes_step_loop):
+        assert ex.check_bayes_step(right)
+        assert "right" in capsys.readouterr().out
+    wrong = {  # the three the readers found accepted when every case had Q = 1 and a fixed h
+             "Q (here 2.5) is ignored": dict(Q=lambda q: 1.0),
+             "Q is a variance, not a standard deviation": dict(Q=lambda q: q * q),
+             "h is taken at step t": dict(th=0),
+             # and the others
+             "prediction step (3b) is missing": dict(predict=False),
+             "predictive density": dict(like=False),
+             "integrates to": dict(normalise=False),
+             "R is a variance, not a standard deviation": dict(R=lambda r: r * r),
+             "R (here 0.1) is ignored": dict(R=lambda r: 1.0),
+             "f is taken at step t + 1": dict(tf=1),
+             "f is taken at step t - 1": dict(tf=-1)}
+    for says, kw in wrong.items():
+        assert not ex.check_bayes_step(lambda *a, kw=kw: bayes_step(*a, **kw)), says
         assert says in capsys.readouterr().out
+    # a slip the checker cannot name is still rejected
+    assert not ex.check_bayes_step(lambda *a: bayes_step(*a, Q=np.sqrt))
+    assert "not yet" in capsys.readouterr().out
     assert not ex.check_bayes_step(lambda *a: None)
     assert "returned None" in capsys.readouterr().out
     assert not ex.check_bayes_step(lambda m, g, p, z, t: bayes_step(m, g, p, z, t + 1))   # off by a step
@@ -51,6 +79,23 @@ def test_discounted_choice(capsys):
         assert not ex.check_discounted_choice(fn)
         assert says in capsys.readouterr().out
     assert not ex.check_discounted_choice(lambda c, t0, g: discounted(c, t0, g)[:-1])   # a run short
+    T = lambda c: c.shape[-1]  # noqa: E731
+    wrong = {"the sum from t0 + 1": lambda c, t0, g: (c[:, :, t0 + 1:] * g ** np.arange(T(c) - t0 - 1)).sum(-1).argmin(0),
+             "stops one step early": lambda c, t0, g: (c[:, :, t0:-1] * g ** np.arange(T(c) - t0 - 1)).sum(-1).argmin(0),
+             "run backwards": lambda c, t0, g: (c[:, :, t0:] * g ** np.arange(T(c) - t0)[::-1]).sum(-1).argmin(0),
+             "not yet": lambda c, t0, g: (c[:, :, t0:] * (1 - g) ** np.arange(T(c) - t0)).sum(-1).argmin(0)}
+    for says, fn in wrong.items():
+        assert not ex.check_discounted_choice(fn)
+        assert says in capsys.readouterr().out
+    # correct alternatives: weights that scale every value's sum alike, a weighted mean, a loop
+    right = [lambda c, t0, g: (c[:, :, t0:] * g ** np.arange(1, T(c) - t0 + 1)).sum(-1).argmin(0),
+             lambda c, t0, g: (c[:, :, t0:] * g ** np.arange(t0, T(c))).sum(-1).argmin(0),
+             lambda c, t0, g: np.average(c[:, :, t0:], axis=-1, weights=g ** np.arange(T(c) - t0)).argmin(0),
+             lambda c, t0, g: np.array([min(range(c.shape[0]), key=lambda i: sum(
+                 g ** j * c[i, m, t0 + j] for j in range(T(c) - t0))) for m in range(c.shape[1])])]
+    for fn in right:
+        assert ex.check_discounted_choice(fn)
+        assert "right" in capsys.readouterr().out
 
 
 def nis_cost(nu, Pzz):
@@ -73,6 +118,21 @@ def test_nis_cost(capsys):
         assert says in capsys.readouterr().out
     # the transpose of the inverse is the same for a symmetric Pzz: only a genuinely wrong form fails
     assert not ex.check_nis_cost(lambda nu, P: (np.einsum("mi,mi->m", nu, nu) - nu.shape[1]) ** 2)
+    wrong = {"Pzz itself, not its inverse": lambda nu, P: (np.einsum("mi,mij,mj->m", nu, P, nu) - nu.shape[1]) ** 2,
+             "the trainers' transform": lambda nu, P: np.log1p((nis(nu, P) - nu.shape[1]) ** 2),
+             "divided by n_z": lambda nu, P: (nis(nu, P) / nu.shape[1] - 1) ** 2,
+             "one cost per run": lambda nu, P: ((nis(nu, P) - nu.shape[1]) ** 2).sum(keepdims=True),
+             "not yet": lambda nu, P: (np.sqrt(nis(nu, P)) - nu.shape[1]) ** 2}
+    for says, fn in wrong.items():
+        assert not ex.check_nis_cost(fn)
+        assert says in capsys.readouterr().out
+    # correct alternatives: the transposed Pzz (symmetric), a Cholesky whitening
+    assert ex.check_nis_cost(lambda nu, P: (np.einsum("mi,mi->m", nu, np.linalg.solve(np.swapaxes(P, 1, 2),
+                                                                                     nu[..., None])[..., 0])
+                                            - nu.shape[1]) ** 2)
+    assert ex.check_nis_cost(lambda nu, P: ((np.linalg.solve(np.linalg.cholesky(P), nu[..., None])[..., 0] ** 2).sum(1)
+                                            - nu.shape[1]) ** 2)
+    assert "right" in capsys.readouterr().out
 
 
 def paired(a, b, counts):
@@ -81,9 +141,23 @@ def paired(a, b, counts):
     return np.mean(a - b), lo, hi
 
 
+def paired_sorted(a, b, counts, lo_hi=(24, 974)):
+    """The percentile interval as order statistics of the sorted replicates (a textbook convention)."""
+    rep = np.sort(counts @ (a - b) / len(a))
+    return np.mean(a - b), rep[lo_hi[0]], rep[lo_hi[1]]
+
+
 def test_paired_ci(capsys):
     assert ex.check_paired_ci(paired)
-    capsys.readouterr()
+    assert "up to the percentile convention" not in capsys.readouterr().out
+    # correct alternatives: the readers' 25th and 975th of 1000 sorted replicates (rejected before at rtol
+    # 1e-9), sorted[int(B a)], the (B + 1) a-th and numpy's other conventions
+    for right in (paired_sorted, lambda a, b, c: paired_sorted(a, b, c, (25, 975)),
+                  lambda a, b, c: paired_sorted(a, b, c, (int(0.025 * 1001) - 1, int(0.975 * 1001) - 1)),
+                  lambda a, b, c: (np.mean(a - b), *np.quantile(c @ (a - b) / len(a), [0.025, 0.975],
+                                                               method="inverted_cdf"))):
+        assert ex.check_paired_ci(right)
+        assert "up to the percentile convention" in capsys.readouterr().out
 
     def unpaired(a, b, counts):
         ia = np.quantile(counts @ a / len(a), [0.025, 0.975])
@@ -98,16 +172,22 @@ def test_paired_ci(capsys):
         rep = (counts @ a - counts[::-1] @ b) / len(a)
         return (np.mean(a - b), *np.quantile(rep, [0.025, 0.975]))
 
-    for fn, says in ((unpaired, "unpaired"), (ninety, "90 %"), (lambda a, b, c: paired(b, a, c), "b - a"),
-                     (independent, "times as wide")):
-        assert not ex.check_paired_ci(fn)
-        assert says in capsys.readouterr().out
     def normal(a, b, counts):        # a normal approximation: close, not the percentile interval
         d = a - b
         s = d.std(ddof=1) / np.sqrt(len(d))
         return d.mean(), d.mean() - 1.96 * s, d.mean() + 1.96 * s
 
-    assert not ex.check_paired_ci(normal)
+    def basic(a, b, counts):         # the reflected interval: on a skewed difference, lopsided the other way
+        m, lo, hi = paired(a, b, counts)
+        return m, 2 * m - hi, 2 * m - lo
+
+    for fn, says in ((unpaired, "unpaired"), (ninety, "90 %"), (lambda a, b, c: paired(b, a, c), "b - a"),
+                     (independent, "times as wide"), (normal, "normal approximation (diff +- 1.96 standard "
+                                                              "errors, ddof = 1)"),
+                     (basic, "basic (reflected)"),
+                     (lambda a, b, c: paired_sorted(a, b, c, (22, 977)), "not yet")):   # three replicates off
+        assert not ex.check_paired_ci(fn)
+        assert says in capsys.readouterr().out
     assert not ex.check_paired_ci(lambda a, b, c: (0.0, 0.0))
     assert "three numbers" in capsys.readouterr().out
 

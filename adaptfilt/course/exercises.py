@@ -50,28 +50,55 @@ def _verdict(problems: list[str], right: str, hint: str) -> bool:
 
 # ======================================================================== chapter 1
 def _bayes_cases():
-    """``(name, model, grid, prev, z, t)``: UNGM at three steps and a linear-Gaussian model."""
-    from adaptfilt.models import linear_gaussian, ungm as ungm_model
+    """``(name, model, grid, prev, z, t)``: UNGM at three steps (its f changes with the step), a
+    linear-Gaussian model, UNGM with Q = 2.5 and R = 0.5 (so that Q ignored, Q as a standard deviation
+    and the same slips of R differ from the right answer) and a model whose sensor changes with the
+    step (so that h at step t, not t + 1, differs)."""
+    from adaptfilt.models import StateSpaceModel, linear_gaussian, ungm as ungm_model
 
     grid = np.linspace(-45, 45, 901)
     ungm = ungm_model()
     prior = np.exp(-0.5 * grid ** 2 / 5) / np.sqrt(2 * np.pi * 5)
     bimodal = 0.5 * (np.exp(-0.5 * (grid - 6) ** 2) + np.exp(-0.5 * (grid + 6) ** 2)) / np.sqrt(2 * np.pi)
     lin = linear_gaussian(F=[[0.9]], H=[[0.5]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[5.0]])
+    drifting = StateSpaceModel(f=lambda x, k: 0.8 * x + 2.0 * np.cos(0.5 * k),
+                               h=lambda x, k: x + 3.0 * np.sin(0.9 * k),     # a sensor whose offset drifts
+                               Q=[[0.5]], R=[[0.3]], m0=[0.0], P0=[[5.0]], name="drifting sensor")
     return [("UNGM from the prior, z = 1, t = 1", ungm, grid, prior, 1.0, 1),
             ("UNGM from a two-peaked density, z = 3, t = 40", ungm, grid, bimodal, 3.0, 40),
             ("UNGM from a two-peaked density, z = 0.2, t = 7", ungm, grid, bimodal, 0.2, 7),
-            ("linear-Gaussian model, z = -1.5, t = 3", lin, grid, prior, -1.5, 3)]
+            ("linear-Gaussian model, z = -1.5, t = 3", lin, grid, prior, -1.5, 3),
+            ("UNGM with Q = 2.5, R = 0.5, z = 2, t = 12", ungm_model(Q=2.5, R=0.5), grid, bimodal, 2.0, 12),
+            ("a sensor drifting with the step (h = x + 3 sin 0.9k), Q = 0.5, z = 1, t = 4", drifting, grid,
+             prior, 1.0, 4)]
+
+
+def _bayes_variant(model, grid, prev, z, t, Q=None, R=None, tf=None, th=None) -> np.ndarray:
+    """The Bayes step with the given transition and measurement variances and time indices (defaults:
+    the model's Q and R, ``f`` at ``t``, ``h`` at ``t + 1``): the right step, or a slip to name."""
+    from adaptfilt.course.bayes import gauss_pdf
+
+    dx = grid[1] - grid[0]
+    Q = float(model.Q[0, 0]) if Q is None else Q
+    R = float(model.R[0, 0]) if R is None else R
+    fx = model.f(grid[:, None], t if tf is None else tf)[:, 0]
+    predictive = gauss_pdf(grid[:, None] - fx[None, :], Q) @ prev * dx
+    posterior = gauss_pdf(z - model.h(grid[:, None], t + 1 if th is None else th)[:, 0], R) * predictive
+    return posterior / (posterior.sum() * dx)
 
 
 def check_bayes_step(my_bayes_step: Callable) -> bool:
     r"""Check a reader's ``my_bayes_step(model, grid, prev, z, t) -> posterior (N,)``, one step of
     eq. (3) on an equally spaced grid (``prev`` the filtering density at ``t - 1``, ``z`` the
-    measurement at ``t``), against :func:`adaptfilt.course.bayes.grid_bayes_step` on four cases.
-    Names the usual slips: a density that does not integrate to 1, the prediction step left out
-    (likelihood times the *previous* posterior), the likelihood left out (the predictive density),
-    and a prediction that forgot the grid spacing without normalising at the end."""
+    measurement at ``t``), against :func:`adaptfilt.course.bayes.grid_bayes_step` on six cases
+    (among them Q = 2.5 and a sensor that changes with the step). Names the usual slips: a density
+    that does not integrate to 1, the prediction step left out (likelihood times the *previous*
+    posterior), the likelihood left out (the predictive density), Q or R ignored or used as a
+    standard deviation, and ``f`` or ``h`` at the wrong step."""
     from adaptfilt.course.bayes import grid_bayes_step
+
+    def close(a, b):
+        return np.allclose(a, b, rtol=1e-6, atol=1e-9 * b.max())
 
     problems = []
     for name, model, grid, prev, z, t in _bayes_cases():
@@ -84,25 +111,40 @@ def check_bayes_step(my_bayes_step: Callable) -> bool:
         if mine.shape != ref.posterior.shape:
             problems.append(f"{name}: your density has shape {mine.shape}, not the grid's {ref.posterior.shape}")
             continue
-        if np.allclose(mine, ref.posterior, rtol=1e-6, atol=1e-9 * ref.posterior.max()):
+        if close(mine, ref.posterior):
             continue
         dx = grid[1] - grid[0]
         area = float(mine.sum() * dx)
         no_predict = ref.likelihood * prev
-        no_predict = no_predict / (no_predict.sum() * dx)
+        Q, R = float(model.Q[0, 0]), float(model.R[0, 0])
+        slips = {"it is likelihood x the previous density: the prediction step (3b) is missing":
+                     no_predict / (no_predict.sum() * dx),
+                 "it is the predictive density: multiply by the likelihood p(z_k | x_k) (3a)": ref.predictive,
+                 f"the transition has variance 1: Q (here {Q:g}) is ignored": dict(Q=1.0),
+                 f"the transition has variance Q^2 = {Q * Q:g}: Q is a variance, not a standard deviation":
+                     dict(Q=Q * Q),
+                 f"the likelihood has variance 1: R (here {R:g}) is ignored": dict(R=1.0),
+                 f"the likelihood has variance R^2 = {R * R:g}: R is a variance, not a standard deviation":
+                     dict(R=R * R),
+                 "h is taken at step t: the measurement at t is h(x, t + 1)": dict(th=t),
+                 "f is taken at step t + 1: the transition from t - 1 to t is f(x, t)": dict(tf=t + 1),
+                 "f is taken at step t - 1: the transition from t - 1 to t is f(x, t)": dict(tf=t - 1)}
         why = f"{name}: your posterior differs from the library's (largest difference " \
               f"{np.abs(mine - ref.posterior).max():.3g}, the posterior's peak {ref.posterior.max():.3g})"
-        if np.allclose(mine, no_predict, rtol=1e-6, atol=1e-9 * no_predict.max()):
-            why += "; it is likelihood x the previous density: the prediction step (3b) is missing"
-        elif np.allclose(mine, ref.predictive, rtol=1e-6, atol=1e-9 * ref.predictive.max()):
-            why += "; it is the predictive density: multiply by the likelihood p(z_k | x_k) (3a)"
-        elif area > 0 and np.allclose(mine / area, ref.posterior, rtol=1e-6, atol=1e-9 * ref.posterior.max()):
-            why += f"; it has the right shape but integrates to {area:.4g}: divide by sum * spacing"
+        for what, variant in slips.items():
+            if isinstance(variant, dict):
+                variant = _bayes_variant(model, grid, prev, z, t, **variant)
+            if close(mine, variant) and not close(variant, ref.posterior):
+                why += "; " + what
+                break
+        else:
+            if area > 0 and close(mine / area, ref.posterior):
+                why += f"; it has the right shape but integrates to {area:.4g}: divide by sum * spacing"
         problems.append(why)
-    return _verdict(problems, "your Bayes step is the library's (grid_bayes_step) on all four cases",
+    return _verdict(problems, "your Bayes step is the library's (grid_bayes_step) on all six cases",
                     "predictive = sum_j N(x_i; f(x_j), Q) prev_j dx; posterior = N(z; h(x_i), R) "
-                    "predictive_i, divided by its sum times dx (f at step t, h at step t + 1, as "
-                    "grid_bayes_step calls them)")
+                    "predictive_i, divided by its sum times dx (Q and R are variances; f at step t, h at "
+                    "step t + 1, as grid_bayes_step calls them)")
 
 
 # ======================================================================== chapter 3
@@ -122,7 +164,9 @@ def check_discounted_choice(my_choice: Callable) -> bool:
     parameter value whose discounted cost :math:`\sum_{j\ge0}\gamma^j \bar L_{t_0+j}` is least,
     ``costs (G, M, T)`` as :func:`adaptfilt.course.myopia.deviation_costs` returns them, against
     :func:`adaptfilt.course.myopia.myopic_vs_discounted` on three synthetic cases. Names the
-    myopic choice, a sum that starts at step 0, an undiscounted sum and an argmax."""
+    myopic choice, a sum that starts at step 0 or at ``t0 + 1``, one that stops a step early, an
+    undiscounted sum, weights that run backwards and an argmax. Weights ``gamma^(j + 1)`` or
+    ``gamma^t`` scale every value's sum alike and are as right."""
     from adaptfilt.course.myopia import myopic_vs_discounted
 
     problems = []
@@ -142,7 +186,13 @@ def check_discounted_choice(my_choice: Callable) -> bool:
         wrong = {"the myopic choice (the cost at t0 alone)": ref.myopic,
                  "the sum from step 0, not from t0": (costs * gamma ** np.arange(T)).sum(-1).argmin(0),
                  "an undiscounted sum (gamma = 1)": costs[:, :, t0:].sum(-1).argmin(0),
-                 "the argmax, not the argmin": ref.discounted.argmax(0)}
+                 "the argmax, not the argmin": ref.discounted.argmax(0),
+                 "the sum from t0 + 1: the cost at t0 itself is left out":
+                     (costs[:, :, t0 + 1:] * gamma ** np.arange(T - t0 - 1)).sum(-1).argmin(0),
+                 "the sum stops one step early: the last step is left out":
+                     (costs[:, :, t0:-1] * gamma ** np.arange(T - t0 - 1)).sum(-1).argmin(0),
+                 "the weights run backwards (gamma^0 on the last step)":
+                     (costs[:, :, t0:] * gamma ** np.arange(T - t0)[::-1]).sum(-1).argmin(0)}
         what = next((k for k, v in wrong.items() if np.array_equal(mine, v) and not np.array_equal(v, ref.farsighted)),
                     None)
         problems.append(f"{name}: your choice differs in {np.mean(mine != ref.farsighted):.0%} of the runs"
@@ -169,8 +219,9 @@ def check_nis_cost(my_nis_cost: Callable) -> bool:
     cost :math:`\bar L_\text{NIS} = (\tilde{\mathbf z}^T (\mathbf P^{zz})^{-1}\tilde{\mathbf z} - n_z)^2`
     of eq. (32) for a batch of runs, against a linear solve (``np.linalg.solve``, never an explicit
     inverse) on one, two and three measurements. Names the NIS
-    itself (no cost), ``- 1`` in the place of ``- n_z``, the diagonal of :math:`\mathbf P^{zz}` alone
-    and a missing square."""
+    itself (no cost), ``- 1`` in the place of ``- n_z``, the diagonal of :math:`\mathbf P^{zz}` alone,
+    :math:`\mathbf P^{zz}` in the place of its inverse, a missing square, a log-transformed cost and the
+    NIS divided by ``n_z``."""
     problems = []
     for name, nu, Pzz in _nis_cases():
         nz = nu.shape[1]
@@ -190,7 +241,11 @@ def check_nis_cost(my_nis_cost: Callable) -> bool:
         wrong = {"the NIS itself, not the cost (NIS - n_z)^2": nis, "(NIS - 1)^2: the NIS of a consistent "
                  "filter has mean n_z, not 1": (nis - 1) ** 2,
                  "computed with the diagonal of Pzz only (the correlations are lost)": (diag_nis - nz) ** 2,
-                 "NIS - n_z without the square": nis - nz, "|NIS - n_z|, not its square": np.abs(nis - nz)}
+                 "NIS - n_z without the square": nis - nz, "|NIS - n_z|, not its square": np.abs(nis - nz),
+                 "computed with Pzz itself, not its inverse (nu^T Pzz nu)":
+                     (np.einsum("mi,mij,mj->m", nu, Pzz, nu) - nz) ** 2,
+                 "log(1 + cost): the trainers' transform, not the cost of eq. (32)": np.log1p((nis - nz) ** 2),
+                 "(NIS / n_z - 1)^2: the NIS divided by n_z before the square": (nis / nz - 1) ** 2}
         what = next((k for k, v in wrong.items() if np.allclose(mine, v, rtol=1e-8, atol=1e-10)
                      and not np.allclose(v, ref)), None)
         problems.append(f"{name}: your costs differ (largest difference {np.abs(mine - ref).max():.3g})"
@@ -213,6 +268,11 @@ def _paired_cases():
         a = common + np.sqrt(1 - rho) * rng.standard_normal(M)
         b = common + 0.05 + np.sqrt(1 - rho) * rng.standard_normal(M)
         cases.append((f"M = {M} runs, correlation about {rho}", a, b, bootstrap_counts(M, n_boot=1000, rng=M)))
+    # a skewed difference (a heavy right tail in a, as a NEES has): the percentile interval is then
+    # lopsided about the estimate, unlike a normal approximation or the reflected (basic) interval
+    common = rng.gamma(2.0, 1.0, 100)
+    a, b = common + rng.lognormal(0.0, 1.2, 100), common + 2.0 + 0.1 * rng.standard_normal(100)
+    cases.append(("M = 100 runs, a heavy right tail in a", a, b, bootstrap_counts(100, n_boot=1000, rng=100)))
     return cases
 
 
@@ -221,11 +281,17 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
     over runs of two policies' per-run values ``a``, ``b`` ``(M,)`` and its 95 % percentile
     interval from the bootstrap ``counts (B, M)`` (:func:`adaptfilt.metrics.bootstrap_counts`,
     the same counts for both: paired), against :func:`adaptfilt.metrics.bootstrap_mean` and
-    :func:`~adaptfilt.metrics.percentile_ci` on two cases. Names an unpaired interval (the
-    difference of the two intervals' ends), a 90 % interval and ``b - a``."""
+    :func:`~adaptfilt.metrics.percentile_ci` on three cases. Any standard percentile convention is
+    right: an end counts as the library's when it lies within one replicate of ``np.quantile``'s
+    (between the order statistics next to the ones it interpolates), so the 25th and 975th of 1000
+    sorted replicates pass, and the verdict says which convention differed. Names an unpaired
+    interval (the difference of the two intervals' ends), a 90 % interval, ``b - a``, normal
+    approximations, the reflected (basic) interval and an interval as wide as resampling ``a`` and ``b``
+    independently gives (the third case has a skewed difference, so the last three are told apart from
+    the percentiles)."""
     from adaptfilt.metrics import bootstrap_mean, percentile_ci
 
-    problems = []
+    problems, conventions = [], []
     for name, a, b, counts in _paired_cases():
         rep = bootstrap_mean(a - b, counts)
         ref = np.array([float(np.mean(a - b)), *percentile_ci(rep)])
@@ -242,13 +308,26 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
             continue
         if np.allclose(mine, ref, rtol=1e-9, atol=1e-12):
             continue
+        if np.isclose(mine[0], ref[0], rtol=1e-9, atol=1e-12) and _within_a_replicate(mine[1:], rep):
+            conventions.append(name)
+            continue
         ia, ib = percentile_ci(bootstrap_mean(a, counts)), percentile_ci(bootstrap_mean(b, counts))
         wrong = {"b - a, not a - b": -ref[[0, 2, 1]],
                  "a 90 % interval (the 5th and 95th percentiles), not 95 %":
                      np.array([ref[0], *percentile_ci(rep, level=0.90)]),
                  "unpaired: the ends of the two policies' own intervals subtracted":
-                     np.array([ref[0], ia[0] - ib[1], ia[1] - ib[0]])}
-        what = next((k for k, v in wrong.items() if np.allclose(mine, v, rtol=1e-9, atol=1e-12)), None)
+                     np.array([ref[0], ia[0] - ib[1], ia[1] - ib[0]]),
+                 "the basic (reflected) interval 2 diff - the percentiles, not the percentiles themselves":
+                     np.array([ref[0], 2 * ref[0] - ref[2], 2 * ref[0] - ref[1]])}
+        d = a - b
+        for ddof in (0, 1):
+            half = 1.96 * d.std(ddof=ddof) / np.sqrt(len(d))
+            wrong[f"a normal approximation (diff +- 1.96 standard errors, ddof = {ddof}), not the "
+                  "percentiles of the replicates"] = np.array([ref[0], ref[0] - half, ref[0] + half])
+            half = 1.96 * rep.std(ddof=ddof)
+            wrong[f"diff +- 1.96 standard deviations of the replicates (ddof = {ddof}): a normal "
+                  "approximation, not their percentiles"] = np.array([ref[0], ref[0] - half, ref[0] + half])
+        what = next((k for k, v in wrong.items() if np.allclose(mine, v, rtol=1e-6, atol=1e-12)), None)
         width, ref_width = mine[2] - mine[1], ref[2] - ref[1]
         line = (f"{name}: yours {np.round(mine, 4).tolist()}, the library's {np.round(ref, 4).tolist()}"
                 + (f"; yours is {what}" if what else ""))
@@ -256,9 +335,27 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
             line += (f"; your interval is {width / ref_width:.1f} times as wide: resample the per-run "
                      "differences a - b with the counts (paired), not a and b separately")
         problems.append(line)
-    return _verdict(problems, "your paired interval is the library's (bootstrap_mean, percentile_ci)",
+    right = "your paired interval is the library's (bootstrap_mean, percentile_ci)"
+    if conventions and not problems:
+        right += (" up to the percentile convention: your ends are order statistics within one replicate "
+                  "of np.quantile's linear interpolation (" + "; ".join(conventions) + "), which is as right")
+    return _verdict(problems, right,
                     "the replicates are counts @ (a - b) / M, one per row of counts; the interval is "
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
+
+
+def _within_a_replicate(ends: np.ndarray, rep: np.ndarray, level: float = 0.95) -> bool:
+    """Whether the interval ``ends`` (lo, hi) lies within one replicate of ``np.quantile``'s percentile
+    interval of ``rep``: each end between the order statistics one place outside the two that
+    ``np.quantile`` interpolates (so every textbook convention, ``sorted[int(B a)]``, the ``(B + 1) a``-th,
+    the nearest rank, passes, and a 90 % interval or a normal approximation does not)."""
+    r, B = np.sort(rep), len(rep)
+    for end, p in zip(ends, ((1 - level) / 2, (1 + level) / 2)):
+        q = p * (B - 1)
+        lo, hi = r[max(int(np.floor(q)) - 1, 0)], r[min(int(np.ceil(q)) + 1, B - 1)]
+        if not lo <= end <= hi:
+            return False
+    return True
 
 
 # ======================================================================== chapter 16
