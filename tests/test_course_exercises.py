@@ -192,24 +192,58 @@ def test_paired_ci(capsys):
     assert "three numbers" in capsys.readouterr().out
 
 
-def kalmannet_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred, wrap=True, first=True, f4="prev"):
+def kalmannet_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred, wrap=True, wrap_f1=True, first=True,
+                   f4="prev", tf=0, th=1, signs=False, swap34=False):
     diff = model.diff_z if wrap else (lambda a, b: a - b)
+    diff1 = diff if wrap_f1 else (lambda a, b: a - b)
     m0 = np.broadcast_to(model.m0, x_filt.shape).copy()
-    x_pred_new = m0 if (t == 0 and first) else model.f(x_filt, t)
-    innov = diff(z_t, model.h(x_pred_new, t + 1))
-    F4 = x_filt - (x_pred if f4 == "prev" else x_pred_new)
-    K = gain(diff(z_t, z_prev), innov, x_filt - x_filt_prev, F4)
+    x_pred_new = m0 if (t == 0 and first) else model.f(x_filt, t + tf)
+    innov = diff(z_t, model.h(x_pred_new, t + th))
+    F3, F4 = x_filt - x_filt_prev, x_filt - (x_pred if f4 == "prev" else x_pred_new)
+    feats = (diff1(z_t, z_prev), innov, *((F4, F3) if swap34 else (F3, F4)))
+    K = gain(*(np.sign(F) if signs else F for F in feats))
     return x_pred_new, x_pred_new + (K @ innov[..., None])[..., 0]
 
 
+def kalmannet_step_einsum(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred):
+    """A correct alternative: the prior mean by np.tile, the gain applied with einsum."""
+    x_new = np.tile(model.m0, (len(x_filt), 1)) if t == 0 else model.f(x_filt, t)
+    innov = model.diff_z(z_t, model.h(x_new, t + 1))
+    K = gain(model.diff_z(z_t, z_prev), innov, x_filt - x_filt_prev, x_filt - x_pred)
+    return x_new, x_new + np.einsum("mij,mj->mi", K, innov)
+
+
+def test_kalmannet_step_cases_tell_the_slips_apart():
+    """The checker's cases can show the slips: the CTM runs cross +-pi, its own recursion without a slip
+    is the library's KalmanNet.run, and its network is not L2-normalised."""
+    cases = {name.split(",")[0]: (model, z) for name, model, z in ex._kalmannet_cases()}
+    model, z = cases["bearing-only CTM"]
+    assert (np.abs(np.diff(z[..., 0], axis=1)) > np.pi).any(1).all()      # every run crosses
+    for model, z in cases.values():
+        knet = ex._kalmannet_net(model)
+        assert knet.options["feature_norm"] != "l2"
+        np.testing.assert_allclose(ex._kalmannet_variant(model, z, z.shape[1] - 1), knet.run(z).mean[:, -1],
+                                   rtol=1e-10, atol=1e-10)
+
+
 def test_kalmannet_step(capsys):
-    assert ex.check_kalmannet_step(kalmannet_step)
-    assert "right" in capsys.readouterr().out
-    for kw, says in ((dict(wrap=False), "must be wrapped"),
-                     (dict(first=False), "at the first step the prediction is the prior mean"),
-                     (dict(f4="new"), "F4 = x_{t-1|t-1} - x_{t-1|t-2}")):
-        assert not ex.check_kalmannet_step(lambda *a, kw=kw: kalmannet_step(*a, **kw))
-        assert says in capsys.readouterr().out
+    for right in (kalmannet_step, kalmannet_step_einsum):
+        assert ex.check_kalmannet_step(right)
+        assert "right" in capsys.readouterr().out
+    wrong = [  # the three the readers found accepted (time indices, F1 unwrapped alone, signs) first
+        (dict(tf=-1), "f taken at step t - 1"), (dict(th=0), "h taken at step t: "),
+        (dict(wrap_f1=False), "F1 = z_t - z_prev unwrapped"), (dict(signs=True), "passed as their signs"),
+        (dict(wrap=False, wrap_f1=False), "the bearing's differences unwrapped"),
+        (dict(first=False), "at t = 0 the prediction is the prior mean"),
+        (dict(f4="new"), "F4 taken against the new prediction"),
+        (dict(swap34=True), "F3 and F4 swapped"), (dict(tf=1), "f taken at step t + 1")]
+    for kw, says in wrong:
+        assert not ex.check_kalmannet_step(lambda *a, kw=kw: kalmannet_step(*a, **kw)), kw
+        assert says in capsys.readouterr().out, kw
+    # the readers' form: only F1 and F2 as their signs (an L2-normalised network could not tell)
+    signs12 = lambda m, g, *a: kalmannet_step(m, lambda F1, F2, F3, F4: g(np.sign(F1), np.sign(F2), F3, F4), *a)  # noqa: E731
+    assert not ex.check_kalmannet_step(signs12)
+    assert "not yet" in capsys.readouterr().out
     assert not ex.check_kalmannet_step(lambda *a: None)
     assert "returned None" in capsys.readouterr().out
     assert not ex.check_kalmannet_step(lambda *a: (1, 2))

@@ -359,30 +359,55 @@ def _within_a_replicate(ends: np.ndarray, rep: np.ndarray, level: float = 0.95) 
 
 
 # ======================================================================== chapter 16
-def _kalmannet_cases():
-    """``(name, model, z)``: the chapter's linear model and the bearing-only CTM (wrapped bearings), with
-    an untrained KalmanNet of seed 0 (any weights test the update; untrained ones keep it short)."""
-    from adaptfilt.course.learned_gain import linear_model
-    from adaptfilt.models import coordinated_turn
+def _crossing_runs(model, n: int = 4, n_steps: int = 12, seed: int = 3) -> np.ndarray:
+    """``n`` simulated bearing sequences ``(n, n_steps, 1)`` of the CTM in each of which two consecutive
+    bearings straddle +-pi (the target passes behind the sensor), the first such runs of a fixed draw:
+    an unwrapped difference of bearings is then off by 2 pi at that step."""
+    z = model.simulate(64, n_steps, rng=seed).z
+    crossing = (np.abs(np.diff(z[..., 0], axis=1)) > np.pi).any(1)
+    return z[np.flatnonzero(crossing)[:n]]
 
-    lin, ctm = linear_model(), coordinated_turn()
+
+def _kalmannet_cases():
+    """``(name, model, z)``: the chapter's linear model, UNGM (its f changes with the step), a model
+    whose sensor drifts with the step (so that h at the wrong step differs) and the bearing-only CTM on
+    runs whose bearings cross +-pi (so that an unwrapped difference differs); each is filtered by an
+    untrained KalmanNet of seed 0 whose features are scaled, not L2-normalised (L2 leaves a scalar
+    feature only its sign, which would hide a feature passed as its sign)."""
+    from adaptfilt.course.learned_gain import linear_model
+    from adaptfilt.models import StateSpaceModel, coordinated_turn, ungm
+
+    lin, ctm, ungm_model = linear_model(), coordinated_turn(), ungm()
+    drifting = StateSpaceModel(f=lambda x, k: 0.8 * x + 2.0 * np.cos(0.5 * k),
+                               h=lambda x, k: x + 3.0 * np.sin(0.9 * k),     # a sensor whose offset drifts
+                               Q=[[0.5]], R=[[0.3]], m0=[0.0], P0=[[5.0]], name="drifting sensor", n_steps=100)
     return [("linear model, 4 runs x 12 steps", lin, lin.simulate(4, 12, rng=3).z),
-            ("bearing-only CTM, 4 runs x 12 steps", ctm, ctm.simulate(4, 12, rng=3).z)]
+            ("UNGM, 4 runs x 12 steps", ungm_model, ungm_model.simulate(4, 12, rng=3).z),
+            ("a sensor drifting with the step (h = x + 3 sin 0.9k), 4 runs x 12 steps", drifting,
+             drifting.simulate(4, 12, rng=3).z),
+            ("bearing-only CTM, 4 runs x 12 steps whose bearings cross +-pi", ctm, _crossing_runs(ctm))]
+
+
+def _kalmannet_net(model):
+    from adaptfilt.kalmannet import KalmanNet
+
+    return KalmanNet(model, feature_norm="scale", seed=0)
 
 
 def check_kalmannet_step(my_step: Callable) -> bool:
     r"""Chapter 16: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
     x_filt_new)``, one step of KalmanNet (``x_filt`` is :math:`\hat x_{t-1|t-1}`, ``x_filt_prev``
     :math:`\hat x_{t-2|t-2}`, ``x_pred`` :math:`\hat x_{t-1|t-2}`, each ``(M, nx)``; ``gain(F1, F2, F3,
-    F4)`` the network, :func:`adaptfilt.course.learned_gain.gain_function`). Run over 12 steps on two
-    models and compared with :meth:`adaptfilt.kalmannet.KalmanNet.run`; names the first step that
-    differs and the likely slip (the first step's convention, the bearing's wrap, a feature)."""
+    F4)`` the network, :func:`adaptfilt.course.learned_gain.gain_function`). Run over 12 steps on four
+    models (linear, UNGM, a drifting sensor, the CTM with bearings that cross +-pi) and compared with
+    :meth:`adaptfilt.kalmannet.KalmanNet.run`; names the first step that differs and the slip where it
+    is one of the usual ones (the first step's convention, a wrap left out of F1 or the innovation, f or
+    h at the wrong step, a feature swapped, replaced or passed as its sign)."""
     from adaptfilt.course.learned_gain import gain_function
-    from adaptfilt.kalmannet import KalmanNet
 
     problems = []
     for name, model, z in _kalmannet_cases():
-        knet = KalmanNet(model, seed=0)
+        knet = _kalmannet_net(model)
         ref = knet.run(z).mean
         M, T, _ = z.shape
         gain = gain_function(knet, M)
@@ -404,35 +429,69 @@ def check_kalmannet_step(my_step: Callable) -> bool:
                 problems.append(f"{name}, step {t}: your function {why}")
                 break
             if not np.allclose(new_filt, ref[:, t], rtol=1e-8, atol=1e-8):
-                hint = ("at the first step the prediction is the prior mean m0 itself (no f), and the "
-                        "differences F3, F4 are zero" if t == 0 else
-                        "the bearing's differences (innovation and F1) must be wrapped to [-pi, pi): "
-                        "model.diff_z(a, b)" if model.residual is not None and np.allclose(
-                            new_filt, _unwrapped(model, gain_function(KalmanNet(model, seed=0), M), z, t), atol=1e-8)
-                        else "F3 = x_{t-1|t-1} - x_{t-2|t-2}, F4 = x_{t-1|t-1} - x_{t-1|t-2}; the update "
-                             "x_pred + K (z - h(x_pred)), with h at time t + 1")
+                slip = next((what for what, kw in _KALMANNET_SLIPS.items()
+                             if _slip_shows(model, z, t, new_filt, ref[:, t], kw)), None)
                 problems.append(f"{name}: step {t} differs from the library's (max |difference| "
-                                f"{np.abs(new_filt - ref[:, t]).max():.3g}); {hint}")
+                                f"{np.abs(new_filt - ref[:, t]).max():.3g})"
+                                + (f"; yours is {slip}" if slip else ""))
                 break
             z_prev, x_filt_prev, x_filt, x_pred = z[:, t], x_filt, new_filt, new_pred
-    return _verdict(problems, "your KalmanNet step is the library's, on the linear model and on the "
-                              "bearing-only CTM",
+    return _verdict(problems, "your KalmanNet step is the library's, on the linear model, UNGM, a drifting "
+                              "sensor and the bearing-only CTM",
                     "x_pred_new = m0 at t = 0, else f(x_filt, t); innovation = diff_z(z_t, h(x_pred_new, "
                     "t + 1)); K = gain(diff_z(z_t, z_prev), innovation, x_filt - x_filt_prev, x_filt - x_pred); "
                     "x_filt_new = x_pred_new + K @ innovation (per run)")
 
 
-def _unwrapped(model, gain, z, t_stop: int) -> np.ndarray:
-    """The reference recursion with plain (unwrapped) measurement differences, up to step ``t_stop``: what a
-    step that forgets the bearing's wrap gives (to name that slip)."""
+#: The usual slips of the KalmanNet step, as switches of :func:`_kalmannet_variant`.
+_KALMANNET_SLIPS = {
+    "f applied at the first step: at t = 0 the prediction is the prior mean m0 itself (no f), and the "
+    "differences F3, F4 are zero": dict(first=False),
+    "the bearing's differences unwrapped: both the innovation and F1 must go through model.diff_z "
+    "(wrapped to [-pi, pi))": dict(wrap_f1=False, wrap_innov=False),
+    "F1 = z_t - z_prev unwrapped: the wrapped innovation is not enough, F1 must go through model.diff_z too":
+        dict(wrap_f1=False),
+    "the innovation unwrapped: z_t - h(x_pred_new) must go through model.diff_z": dict(wrap_innov=False),
+    "f taken at step t - 1: the prediction to step t is model.f(x_filt, t)": dict(tf=-1),
+    "f taken at step t + 1: the prediction to step t is model.f(x_filt, t)": dict(tf=1),
+    "h taken at step t: the measurement at step t is model.h(x, t + 1)": dict(th=0),
+    "h taken at step t + 2: the measurement at step t is model.h(x, t + 1)": dict(th=2),
+    "F4 taken against the new prediction: F4 = x_{t-1|t-1} - x_{t-1|t-2}, the previous one": dict(f4="new"),
+    "F3 and F4 swapped: F3 = x_{t-1|t-1} - x_{t-2|t-2}, F4 = x_{t-1|t-1} - x_{t-1|t-2}": dict(swap34=True),
+    "F1 replaced by the innovation: F1 = diff_z(z_t, z_prev), the change of the measurement":
+        dict(f1_innov=True),
+    "the features passed as their signs: pass them whole, the network scales them itself": dict(signs=True),
+}
+
+
+def _slip_shows(model, z, t, mine, ref_t, slip: dict) -> bool:
+    """Whether the step a slip gives matches the reader's at step ``t`` and differs from the library's."""
+    alt = _kalmannet_variant(model, z, t, **slip)
+    return (np.allclose(mine, alt, rtol=1e-8, atol=1e-8)
+            and not np.allclose(alt, ref_t, rtol=1e-8, atol=1e-8))
+
+
+def _kalmannet_variant(model, z, t_stop: int, first: bool = True, wrap_f1: bool = True, wrap_innov: bool = True,
+                       tf: int = 0, th: int = 1, f4: str = "prev", swap34: bool = False, f1_innov: bool = False,
+                       signs: bool = False) -> np.ndarray:
+    """The KalmanNet recursion (a fresh network of the checker's) up to step ``t_stop``, with the
+    given slip switched on: ``x_{t_stop|t_stop}``. With every switch at its default it is the library's
+    (``tests/test_course_exercises.py`` checks it against :meth:`KalmanNet.run`)."""
+    from adaptfilt.course.learned_gain import gain_function
+
     M = z.shape[0]
+    gain = gain_function(_kalmannet_net(model), M)
+    plain = lambda a, b: a - b  # noqa: E731
+    d1, dv = (model.diff_z if wrap_f1 else plain), (model.diff_z if wrap_innov else plain)
     m0 = np.broadcast_to(model.m0, (M, model.nx)).copy()
     x_filt, x_filt_prev, x_pred = m0.copy(), m0.copy(), m0.copy()
     z_prev = np.asarray(model.h(m0, 1), dtype=float)
     for t in range(t_stop + 1):
-        new_pred = m0.copy() if t == 0 else model.f(x_filt, t)
-        innov = z[:, t] - model.h(new_pred, t + 1)
-        K = gain(z[:, t] - z_prev, innov, x_filt - x_filt_prev, x_filt - x_pred)
+        new_pred = m0.copy() if (t == 0 and first) else model.f(x_filt, t + tf)
+        innov = dv(z[:, t], model.h(new_pred, t + th))
+        F1, F3, F4 = d1(z[:, t], z_prev), x_filt - x_filt_prev, x_filt - (x_pred if f4 == "prev" else new_pred)
+        feats = [innov if f1_innov else F1, innov, *((F4, F3) if swap34 else (F3, F4))]
+        K = gain(*(np.sign(F) if signs else F for F in feats))
         new_filt = new_pred + (K @ innov[..., None])[..., 0]
         z_prev, x_filt_prev, x_filt, x_pred = z[:, t], x_filt, new_filt, new_pred
     return x_filt
