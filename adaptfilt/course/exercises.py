@@ -24,28 +24,12 @@ from typing import Callable
 
 import numpy as np
 
+from adaptfilt.course.checking import run_answer as _run
+from adaptfilt.course.checking import verdict as _verdict
+from adaptfilt.course.checking import within_a_replicate as _within_a_replicate
+
 __all__ = ["check_bayes_step", "check_discounted_choice", "check_nis_cost", "check_paired_ci",
            "check_kalmannet_step"]
-
-
-def _run(fn, args):
-    """``fn(*args)`` as an array, or the reason it failed (the reader's code: no traceback)."""
-    try:
-        out = fn(*args)
-    except Exception as e:  # noqa: BLE001 - any error of the reader's code is reported, not raised
-        return None, f"raised {type(e).__name__}: {e}"
-    if out is None:
-        return None, "returned None (fill in the function and return the result)"
-    return out, None
-
-
-def _verdict(problems: list[str], right: str, hint: str) -> bool:
-    if problems:
-        print("not yet:\n  " + "\n  ".join(problems))
-        print("hint: " + hint)
-        return False
-    print("right: " + right)
-    return True
 
 
 # ======================================================================== chapter 1
@@ -342,20 +326,6 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
     return _verdict(problems, right,
                     "the replicates are counts @ (a - b) / M, one per row of counts; the interval is "
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
-
-
-def _within_a_replicate(ends: np.ndarray, rep: np.ndarray, level: float = 0.95) -> bool:
-    """Whether the interval ``ends`` (lo, hi) lies within one replicate of ``np.quantile``'s percentile
-    interval of ``rep``: each end between the order statistics one place outside the two that
-    ``np.quantile`` interpolates (so every textbook convention, ``sorted[int(B a)]``, the ``(B + 1) a``-th,
-    the nearest rank, passes, and a 90 % interval or a normal approximation does not)."""
-    r, B = np.sort(rep), len(rep)
-    for end, p in zip(ends, ((1 - level) / 2, (1 + level) / 2)):
-        q = p * (B - 1)
-        lo, hi = r[max(int(np.floor(q)) - 1, 0)], r[min(int(np.ceil(q)) + 1, B - 1)]
-        if not lo <= end <= hi:
-            return False
-    return True
 
 
 # ======================================================================== chapter 16
