@@ -6,7 +6,9 @@ differs and, where it can, why (the pattern of :func:`adaptfilt.course.moments.c
 :func:`~adaptfilt.course.moments.check_update` of chapter 2 and
 :func:`adaptfilt.course.training.check_actor_update` of chapter 6). Every checker prints its
 verdict and returns whether the answer is right; ``tests/test_course_exercises.py`` feeds each
-one the right answer and several wrong ones.
+one the right answer, correct alternatives and several wrong ones. The checkers of the chapters that
+read studies are in :mod:`adaptfilt.course.study_exercises`; what all checkers share is in
+:mod:`adaptfilt.course.checking`.
 
 ==============================  ===========  ==============================================
 checker                         chapter      the reader writes

@@ -205,7 +205,7 @@ def check_greedy_kappa(my_greedy_kappa: Callable) -> bool:
             problems.append(f"{name}: your function {why}")
             continue
         open_ = ungm_nis(grid[0], m, P, z, R=R) < 1.0
-        gate.append(f"{open_.mean():.0%} of the states of {name}")
+        gate.append(f"{open_.mean():.0%} of the {len(m)} states with R = {R:g}")
         if np.array_equal(mine, ref):
             continue
         g = np.asarray(grid, dtype=float)
@@ -226,8 +226,8 @@ def check_greedy_kappa(my_greedy_kappa: Callable) -> bool:
         what = _slip(mine, ref, slips, close=lambda a, b: np.array_equal(np.asarray(a), np.asarray(b)))
         problems.append(f"{name}: your kappa differs from greedy's at {np.mean(mine != ref):.0%} of the states"
                         + (f"; yours is {what}" if what else ""))
-    right = ("your greedy kappa is the library's on every state; it opens fully (kappa = 0) exactly where "
-             "NIS0 < 1, " + " and ".join(gate) + ": the gate")
+    right = ("your greedy kappa is the library's on every state, and it opens fully (kappa = 0) exactly where "
+             "NIS0 < 1 (" + ", ".join(gate) + "): the gate")
     return _verdict(problems, right,
                     "z_hat = (m^2 + P)/20; Pzz = (4 m^2 P + kappa P^2)/400 + R for every kappa (grid[:, None]); "
                     "NIS = (z - z_hat)^2 / Pzz; the kappa of the least (NIS - 1)^2 per state (argmin over axis 0)")
