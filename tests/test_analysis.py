@@ -1,4 +1,4 @@
-"""The analyses behind chapters 8-10 (adaptfilt.course.paper_common, .ungm_ukf, .ctm_ukf, .ctm_sif), the
+"""The analyses behind chapters 9-11 (adaptfilt.course.paper_common, .ungm_ukf, .ctm_ukf, .ctm_sif), the
 claim and Table I renderers of adaptfilt.experiments.report, and the bootstrap particle filter, against
 independent references."""
 from __future__ import annotations
@@ -200,7 +200,7 @@ def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_end
     np.testing.assert_allclose(a.pzz_hi / a.pzz_lo, 1.0, rtol=1e-9)
     assert a.choice.shape == (30, 20) and (a.choice == 5.0).all() and a.inside.mean() < 0.01
     # UNGM: Pzz grows with kappa, so greedy takes the smallest kappa whenever the default NIS is below 1
-    # at kappa_min (chapter 8's gate) and the largest when even kappa_max leaves the NIS above 1
+    # at kappa_min (chapter 9's gate) and the largest when even kappa_max leaves the NIS above 1
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=40)
     traj = exp.make_model().simulate(n_runs=30, n_steps=41, rng=np.random.default_rng(2))

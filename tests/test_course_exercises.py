@@ -1,4 +1,4 @@
-"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 16
+"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 18
 (adaptfilt.course.exercises): each accepts the right answer and rejects wrong ones, naming the
 slip where it can (issue 37, item 6)."""
 import numpy as np

@@ -1,5 +1,5 @@
 """The helpers of the learning chapters (adaptfilt.course.training, .policy_reading, .seed_results,
-.beyond_studies: chapters 6-7 and 11-13), against direct computations."""
+.beyond_studies: chapters 6-8 and 12-15), against direct computations."""
 import matplotlib
 
 matplotlib.use("Agg")

@@ -1,6 +1,7 @@
-r"""What chapter 13 (Beyond the paper) shows of the studies that :mod:`adaptfilt.experiments.beyond`
-runs: a seed group against one policy per metric, when a filter with a fixed grid value diverges,
-every SIF policy's cost against its share of divergent runs, and the gains out of distribution.
+r"""What chapters 14 (Beyond the paper) and 15 (Out of distribution and the raw cost) show of the
+studies that :mod:`adaptfilt.experiments.beyond` runs: a seed group against one policy per metric,
+when a filter with a fixed grid value diverges, every SIF policy's cost against its share of
+divergent runs, and the gains out of distribution.
 
 ========================================  =========================================================
 function                                  what

@@ -1,4 +1,4 @@
-r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 16.
+r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 18.
 
 Each chapter of 1-6 has one exercise in which the reader writes a function in an empty cell and
 hands it to a checker, which compares it with the library on several fixed cases, says what
@@ -17,7 +17,7 @@ check_bayes_step                1            one step of the Bayesian recursion 
 check_discounted_choice         3            the per-run kappa of least discounted cost
 check_nis_cost                  4            the one-step NIS cost of a batch of updates
 check_paired_ci                 5            a paired bootstrap interval of a difference
-check_kalmannet_step            16           one step of KalmanNet: features, gain, update
+check_kalmannet_step            18           one step of KalmanNet: features, gain, update
 ==============================  ===========  ==============================================
 """
 from __future__ import annotations
@@ -330,7 +330,7 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
 
 
-# ======================================================================== chapter 16
+# ======================================================================== chapter 18
 def _crossing_runs(model, n: int = 4, n_steps: int = 12, seed: int = 3) -> np.ndarray:
     """``n`` simulated bearing sequences ``(n, n_steps, 1)`` of the CTM in each of which two consecutive
     bearings straddle +-pi (the target passes behind the sensor), the first such runs of a fixed draw:
@@ -367,7 +367,7 @@ def _kalmannet_net(model):
 
 
 def check_kalmannet_step(my_step: Callable) -> bool:
-    r"""Chapter 16: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
+    r"""Chapter 18: ``my_step(model, gain, t, z_t, z_prev, x_filt, x_filt_prev, x_pred) -> (x_pred_new,
     x_filt_new)``, one step of KalmanNet (``x_filt`` is :math:`\hat x_{t-1|t-1}`, ``x_filt_prev``
     :math:`\hat x_{t-2|t-2}`, ``x_pred`` :math:`\hat x_{t-1|t-2}`, each ``(M, nx)``; ``gain(F1, F2, F3,
     F4)`` the network, :func:`adaptfilt.course.learned_gain.gain_function`). Run over 12 steps on four

@@ -1,6 +1,6 @@
-r"""What the chapters on the paper's experiments (8: UKF on UNGM, 9: UKF on CTM, 10: SIF on CTM)
+r"""What the chapters on the paper's experiments (9: UKF on UNGM, 10: UKF on CTM, 11: SIF on CTM)
 share, read from a stored evaluation: seed-level tables, how often each grid value is used (chapters
-12 and 13 too), a plain log axis, and Figures 3 and 6 with labels that keep clear of each other.
+13, 14 and 15 too), a plain log axis, and Figures 3 and 6 with labels that keep clear of each other.
 
 ==============================  ================================================================
 function                        what

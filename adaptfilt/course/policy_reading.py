@@ -1,6 +1,6 @@
-r"""Reading what policies choose, as chapter 7 (Reading the stored policies) does: over time, by grid
-value, against a feature, and at one UNGM information state; chapter 6 uses the last as its widget
-and chapter 11 the usage lines.
+r"""Reading what policies choose, as chapter 8 (Reading the stored policies) does: over time, by grid
+value, against a feature, and at one UNGM information state; chapter 7 uses the last as its widget
+and chapter 12 the usage lines.
 
 ========================================  =========================================================
 function                                  what
@@ -11,7 +11,7 @@ usage_lines                               per policy: RMSE and the grid values i
 equal_count_bins                          medians of x and means of y in bins of equal count of x
 plot_switch_off                           the probability of the large values against a feature
 ungm_state, plot_policy_probs             every policy's ``pi(theta | s)`` at one raw UNGM state
-show_policy_probs                         the widget body (chapters 6 and 7)
+show_policy_probs                         the widget body (chapters 7 and 8)
 ========================================  =========================================================
 
 Tested in ``tests/test_course_rl.py``; figures use :mod:`adaptfilt.style`.
@@ -133,7 +133,7 @@ def plot_policy_probs(policies: Sequence, state: np.ndarray, ax=None, title: str
 
 def show_policy_probs(policies: Sequence, P_pred: float = 1.0, innov: float = 0.0, x_pred: float = 5.0,
                       k: int = 100) -> None:
-    """The widget body of chapter 6: :func:`plot_policy_probs` at :func:`ungm_state`."""
+    """The widget body of chapter 7: :func:`plot_policy_probs` at :func:`ungm_state`."""
     import matplotlib.pyplot as plt
 
     plot_policy_probs(policies, ungm_state(P_pred, innov, x_pred, k), colorbar=True,

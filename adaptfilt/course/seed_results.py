@@ -1,5 +1,5 @@
-r"""Results over training seeds, as text and figures, for chapters 11 (Your own model) and 12 (RL in
-practice), and a CPU-time measurement for chapter 12; chapters 5, 7 and 13 use them too.
+r"""Results over training seeds, as text and figures, for chapters 12 (Your own model) and 13 (RL in
+practice), and a CPU-time measurement for chapter 13; chapters 5, 8, 14 and 15 use them too.
 
 ========================================  =========================================================
 chapter                                   helpers
@@ -28,7 +28,7 @@ from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
 __all__ = ["seed_lines", "plot_differences", "plot_seed_spread", "seed_verdicts", "claims_table", "timed"]
 
 
-# ============================================================== chapter 11
+# ============================================================== chapter 12
 def seed_lines(results, groups: Sequence[str], baselines: Sequence[str] = (),
                metrics: Sequence[str] = ("rmse", "anees", "objective")) -> str:
     r"""Baselines one line each (value [run-level CI]), then each seed group: IQM over its
@@ -77,7 +77,7 @@ def plot_differences(diffs: Mapping[str, Mapping[str, tuple[float, float, float]
     return fig
 
 
-# ============================================================== chapter 12
+# ============================================================== chapter 13
 def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=None):
     r"""Each seed of each group with its own run-level 95 % interval (the noise of one
     evaluation), and beside them the group's IQM and mean with the two-level

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 13 reads beyond.SIF_EXPERIMENTS
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 14 reads beyond.SIF_EXPERIMENTS
 from adaptfilt.experiments.jobs import TrainSpec, train
 from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.studies import ALL

@@ -1,4 +1,4 @@
-"""The particle-count study of ``adaptfilt beyond --studies particles`` (issue 24's study, chapter 15).
+"""The particle-count study of ``adaptfilt beyond --studies particles`` (issue 24's study, chapter 17).
 
 Learned particle counts (the fast mode, gamma 0.5, 8 seeds) on every experiment of
 :data:`~adaptfilt.experiment_registry.PARTICLE_EXPERIMENTS` (UNGM and the CTM, two prices per particle),
