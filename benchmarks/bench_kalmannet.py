@@ -5,8 +5,8 @@ Run with ``python benchmarks/bench_kalmannet.py`` (``--quick``: a smoke run of a
 thread, one training after another in this process:
 
 * **KalmanNet** (:func:`adaptfilt.kalmannet.train_kalmannet`, both architectures), a training of
-  ``--knet-steps`` optimiser steps with the recipe's sizes (:data:`adaptfilt.kalmannet.RECIPES` on
-  UNGM): minibatches of ``--batch`` fresh trajectories of the model's horizon, batched as one tensor
+  ``--knet-steps`` optimiser steps with each architecture's UNGM recipe (:data:`adaptfilt.kalmannet.RECIPES`;
+  the CTM has none: the same recipe on it): minibatches of ``--batch`` fresh trajectories of the model's horizon, batched as one tensor
   per step, truncated back-propagation over windows of ``--window`` steps (one optimiser step per
   window), validation on ``--n-val`` trajectories every ``--val-every`` steps, the state clamped. The
   whole training is timed (set-up, simulation, validation, the forward and backward passes) and
@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 import adaptfilt as af
-from adaptfilt.kalmannet import train_kalmannet
+from adaptfilt.kalmannet import RECIPES, train_kalmannet
 from adaptfilt.trainers import train_policy
 
 MODELS = {"ungm": ("ungm-ukf", af.models.ungm), "ctm": ("ctm-ukf", af.models.coordinated_turn)}
@@ -42,12 +42,12 @@ MODELS = {"ungm": ("ungm-ukf", af.models.ungm), "ctm": ("ctm-ukf", af.models.coo
 def knet_cost(model, arch: int, a, **extra) -> tuple[float, dict, object]:
     """Process CPU-s per back-propagated trajectory-step of one KalmanNet training, its history, the filter."""
     c0 = time.process_time()
+    recipe = dict(RECIPES["ungm"][arch], n_train=a.batch, n_val=a.n_val, batch_size=a.batch, tbptt=a.window,
+                  val_every=a.val_every, **extra)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a short training may fail or restart: the cost is what counts
-        knet = train_kalmannet(model, arch=arch, n_train=a.batch, n_val=a.n_val, n_steps=a.steps or model.n_steps,
-                               epochs=None, max_steps=a.knet_steps, batch_size=a.batch, tbptt=a.window, lr=1e-3,
-                               clip=10.0, fresh="batch", val_every=a.val_every, feature_norm="scale", clamp="auto",
-                               seed=0, progress=False, **extra)
+        knet = train_kalmannet(model, n_steps=a.steps or model.n_steps, max_steps=a.knet_steps, seed=0, progress=False,
+                               **recipe)
     cpu = time.process_time() - c0
     return cpu / knet.history["trajectory_steps"], knet.history, knet
 
@@ -64,12 +64,13 @@ def ppo_cost(experiment: str, a) -> tuple[float, int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", default="ungm,ctm")
-    ap.add_argument("--knet-steps", type=int, default=200, help="KalmanNet optimiser steps per training")
-    ap.add_argument("--batch", type=int, default=100)
-    ap.add_argument("--window", type=int, default=50)
-    ap.add_argument("--n-val", type=int, default=100)
-    ap.add_argument("--val-every", type=int, default=25)
-    ap.add_argument("--ppo-episodes", type=int, default=200)
+    r = RECIPES["ungm"][1]
+    ap.add_argument("--knet-steps", type=int, default=500, help="KalmanNet optimiser steps per training")
+    ap.add_argument("--batch", type=int, default=r["batch_size"])
+    ap.add_argument("--window", type=int, default=r["tbptt"])
+    ap.add_argument("--n-val", type=int, default=r["n_val"])
+    ap.add_argument("--val-every", type=int, default=r["val_every"])
+    ap.add_argument("--ppo-episodes", type=int, default=400)
     ap.add_argument("--runs", type=int, default=2000)
     ap.add_argument("--steps", type=int, default=None, help="horizon (default: each model's)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes: a smoke run")
