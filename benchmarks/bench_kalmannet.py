@@ -21,6 +21,27 @@ the learned gain's training in units of a PPO transition of the learned kappa's.
 in torch through the model's torch forms (``model_grad="jacobian"``); the row "numpy f, h" takes the
 old path (numpy functions, forward-difference Jacobians) for comparison. The filtering speed of the
 trained networks (no gradients, ``--runs`` runs batched) is printed last.
+
+Measured (2026-12, ``python benchmarks/bench_kalmannet.py``, this 2-core machine shared with other work,
+load about 10; microseconds of process CPU per trajectory-step or transition, ratio to PPO):
+
+======  ============================  =======  ======
+model   training                      us       / PPO
+======  ============================  =======  ======
+UNGM    kappa, PPO fast mode          29.2
+UNGM    gain, architecture 1          19.4     0.67
+UNGM    gain, architecture 2          19.5     0.67
+UNGM    gain, arch. 2, numpy f, h     22.9     0.79
+CTM     kappa, PPO fast mode          27.1
+CTM     gain, architecture 1          125.6    4.64
+CTM     gain, architecture 2          30.0     1.11
+======  ============================  =======  ======
+
+On UNGM a trajectory-step of KalmanNet's training costs two thirds of a PPO transition. On the CTM
+architecture 1 at the paper's sizes (GRUs of ``10 (m^2 + n^2) = 170`` units over an input layer of
+400: about 470,000 weights against architecture 2's 20,293) is bound by its matrix products, not by
+Python's per-step overhead: 4.6 transitions per trajectory-step. Filtering (no gradients, 2000 runs
+batched): 0.37 (architecture 1) and 1.7 (architecture 2) million run-steps per CPU-s on UNGM.
 """
 from __future__ import annotations
 
