@@ -160,6 +160,13 @@ def _same_array(got: list, want: list, exact: bool, rtol: float, where: str) -> 
     return []
 
 
+def _plain_diff(got, want, where: str) -> list[str]:
+    """A plain (JSON) value against the fixture's; a dict may have gained keys (a result records more)."""
+    if isinstance(want, dict) and isinstance(got, dict):
+        return [d for k, v in want.items() for d in _plain_diff(got.get(k), v, f"{where}[{k!r}]")]
+    return [] if got == want else [f"{where}: {got!r} != {want!r}"]
+
+
 def differences(got: dict, want: dict, exact: bool) -> list[str]:
     """What differs between two fingerprints of one case (every result of the fixture must be there)."""
     out = []
@@ -174,12 +181,11 @@ def differences(got: dict, want: dict, exact: bool) -> list[str]:
                 if "array" in v:
                     out += (_same_array(gv["array"], v["array"], exact, RTOL, f"{key} {k}") if "array" in gv
                             else [f"{key} {k}: {gv} is not an array"])
-                elif gv != v:
-                    out.append(f"{key} {k}: {gv!r} != {v!r}")
+                else:
+                    out += _plain_diff(gv.get("value"), v["value"], f"{key} {k}")
             continue
         for k, v in w["config"].items():
-            if g["config"].get(k) != v:
-                out.append(f"{key} config[{k!r}]: {g['config'].get(k)!r} != {v!r}")
+            out += _plain_diff(g["config"].get(k), v, f"{key} config[{k!r}]")
         if g["names"] != w["names"]:
             out.append(f"{key}: policies {g['names']} != {w['names']}")
         for name, fields in w["policies"].items():
@@ -223,6 +229,12 @@ def test_the_guard_sees_a_changed_number():
     assert fingerprint(res)["config"] == {"seed": 0}
     assert differences({"r": fingerprint(Results(config={"seed": 1}))}, {"r": fingerprint(res)}, True) == [
         "r config['seed']: 1 != 0"]
+    # a result may record more (a new key, in a nested dict too), never other values
+    more = Results(config={"seed": 0, "floor": {"rmse": 1.0, "grid": "np.linspace(-45, 45, 1801)"}, "filters": {}})
+    less = Results(config={"seed": 0, "floor": {"rmse": 1.0}})
+    assert differences({"r": fingerprint(more)}, {"r": fingerprint(less)}, True) == []
+    assert differences({"r": fingerprint(less)}, {"r": fingerprint(more)}, True) == [
+        "r config['floor']['grid']: None != 'np.linspace(-45, 45, 1801)'", "r config['filters']: None != {}"]
 
 
 def write(cases: tuple[str, ...]) -> None:
