@@ -2,7 +2,7 @@ r"""Exact references: the Kalman filter, the point-mass (grid) filter and the bo
 
 They are written independently of the Gaussian-assumed filter (plain
 ``(M, n, n)`` numpy; the only shared code is the result container
-:class:`~adaptfilt.gaf.FilterRun`), so that agreement with them is evidence.
+:class:`~adaptfilt.filters.FilterRun`), so that agreement with them is evidence.
 
 * :class:`KalmanFilter`: linear-Gaussian models; every moment rule must agree with it.
 * :class:`PointMassFilter`: scalar models with additive Gaussian noise; the
@@ -13,9 +13,11 @@ They are written independently of the Gaussian-assumed filter (plain
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
-from adaptfilt.gaf import FilterRun
+from adaptfilt.filters import FilterRun
 from adaptfilt.models import StateSpaceModel
 
 __all__ = ["KalmanFilter", "PointMassFilter", "BootstrapParticleFilter"]
@@ -48,6 +50,9 @@ class KalmanFilter:
         if F is None or H is None:
             raise ValueError(f"the Kalman filter needs a linear model: model {model.name!r} has no F/H and none were given")
         self.model, self.F, self.H = model, F, H
+
+    def __repr__(self) -> str:
+        return f"KalmanFilter(model={self.model.name!r})"
 
     def run(self, z) -> FilterRun:
         """Filter ``z (M, T, nz)``."""
@@ -130,6 +135,10 @@ class PointMassFilter:
         self.model, self.grid, self.dx, self.edge_tol = model, grid, float(d[0]), edge_tol
         self.negligible = float(negligible)
 
+    def __repr__(self) -> str:
+        g = self.grid
+        return f"PointMassFilter(model={self.model.name!r}, grid=np.linspace({g[0]:g}, {g[-1]:g}, {g.size}))"
+
     def _gauss(self, r, var):
         g = np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
         if self.negligible:
@@ -209,7 +218,10 @@ class BootstrapParticleFilter:
     too large (``nx > 1``). ``loglik`` is the log of the estimated likelihood
     :math:`p(\mathbf z_k|\mathbf z^{k-1})`; ``nis`` is not defined and is NaN.
 
-    ``seed`` (an int or a ``numpy.random.Generator``): the same seed, the same run.
+    ``seed``: an int or a sequence of ints (the entropy of a ``numpy.random.SeedSequence``): every run
+    draws from a fresh generator of it, so the same seed gives the same run. A ``numpy.random.Generator``
+    is drawn from as it is and moves on: a second run then gives other numbers. ``params`` of the result
+    holds the particle count (``param_name``), ``info["n_resampled"]`` the resampling steps per run.
 
     Example
     -------
@@ -221,13 +233,20 @@ class BootstrapParticleFilter:
     ((5, 20, 4), (5, 20, 4, 4))
     """
 
-    def __init__(self, model: StateSpaceModel, n_particles: int = 1000, seed: int | np.random.Generator = 0,
-                 ess_threshold: float = 0.5):
+    #: what ``run(z).params`` holds (:class:`~adaptfilt.filters.Filter`)
+    param_name = "n_particles"
+
+    def __init__(self, model: StateSpaceModel, n_particles: int = 1000,
+                 seed: int | Sequence[int] | np.random.Generator = 0, ess_threshold: float = 0.5):
         if int(n_particles) < 2:
             raise ValueError(f"n_particles must be at least 2, got {n_particles}")
         if not 0.0 <= ess_threshold <= 1.0:
             raise ValueError(f"ess_threshold must be in [0, 1], got {ess_threshold}")
         self.model, self.n_particles, self.seed, self.ess_threshold = model, int(n_particles), seed, float(ess_threshold)
+
+    def __repr__(self) -> str:
+        return (f"BootstrapParticleFilter(model={self.model.name!r}, n_particles={self.n_particles}, "
+                f"ess_threshold={self.ess_threshold:g})")
 
     def run(self, z) -> FilterRun:
         """Filter ``z (M, T, nz)``; ``info["n_resampled"]`` counts the resampling steps per run."""
@@ -277,4 +296,4 @@ class BootstrapParticleFilter:
                 logw[res] = -np.log(N)
                 n_res[res] += 1
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
-                         params=np.full((M, T), np.nan), info={"n_resampled": n_res})
+                         params=np.full((M, T), float(N)), info={"n_resampled": n_res})

@@ -114,7 +114,7 @@ import torch
 from torch import nn
 
 from adaptfilt._version import __version__
-from adaptfilt.gaf import FilterRun
+from adaptfilt.filters import FilterRun
 from adaptfilt.learned import arrays_to_state, one_torch_thread, read_npz, state_to_arrays, write_npz
 from adaptfilt.models import StateSpaceModel, Trajectory
 
@@ -411,7 +411,7 @@ class KalmanNet:
         return np.concatenate([z0[:, None, :], z[:, :-1]], axis=1)
 
     def run(self, z, *, keep_gain: bool = False, seed: int | None = None, chunk: int = 4096) -> FilterRun:
-        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.gaf.FilterRun`.
+        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.filters.FilterRun`.
 
         ``mean`` and ``x_pred`` are the estimates; ``cov`` is the sample covariance of the
         Bayesian variant, else NaN (no covariance: :func:`adaptfilt.metrics.nees` raises on it);

@@ -36,7 +36,8 @@ import numpy as np
 
 from adaptfilt.costs import Cost, StepCost
 from adaptfilt.features import PAPER, FeatureScaler, FeatureSet, feature_names, fit_scaler
-from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter
+from adaptfilt.filters import FilterRun
+from adaptfilt.gaf import FilterError, GaussianAssumedFilter
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
 from adaptfilt.paramenv import ParamEnv

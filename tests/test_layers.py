@@ -32,7 +32,7 @@ CLI = {"adaptfilt.cli", "adaptfilt.__main__"}
 
 #: The library's sub-layers by module (``adaptfilt.<name>``; a package stands for its modules).
 SUBLAYERS = {
-    "core": ("_version", "linalg", "linalg_kernels", "models", "rules", "gaf", "metrics", "exact", "particles",
+    "core": ("_version", "linalg", "linalg_kernels", "models", "filters", "rules", "gaf", "metrics", "exact", "particles",
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
     "evaluation": ("evaluation", "results", "seed_stats", "plots"),

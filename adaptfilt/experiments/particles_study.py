@@ -121,7 +121,7 @@ def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0
     as :func:`~adaptfilt.evaluation.evaluate` does."""
     from adaptfilt.evaluation import setup_evaluation, summarise_rollout
     from adaptfilt.exact import BootstrapParticleFilter
-    from adaptfilt.gaf import FilterRun
+    from adaptfilt.filters import FilterRun
     from adaptfilt.particle_env import ParticleUpdate
     from adaptfilt.results import PolicyResult, Results
 

@@ -314,7 +314,7 @@ def kalmannet_result(name: str, knet, env, traj, counts: np.ndarray, level: floa
     innovation covariance): ``cost`` and the objective are NaN, as for a cost-less evaluation.
     ``wall_time_s``: filtering plus reduction, as for every policy."""
     from adaptfilt.evaluation import summarise_rollout
-    from adaptfilt.gaf import FilterRun
+    from adaptfilt.filters import FilterRun
     from adaptfilt.results import PolicyResult
 
     T = env.n_steps
@@ -397,7 +397,7 @@ def _pf_result(env, traj, counts, N: int, seed: int):
     """The bootstrap particle filter with ``N`` particles on the runs, knowing the nominal model like the others."""
     from adaptfilt.evaluation import summarise_rollout
     from adaptfilt.exact import BootstrapParticleFilter
-    from adaptfilt.gaf import FilterRun
+    from adaptfilt.filters import FilterRun
     from adaptfilt.results import PolicyResult
 
     T = env.n_steps
