@@ -10,17 +10,28 @@ They are written independently of the Gaussian-assumed filter (plain
 * :class:`BootstrapParticleFilter`: any model with additive Gaussian noise; the
   Bayes-optimal filter up to Monte-Carlo error in the number of particles, e.g.
   the reference posterior of the bearing-only coordinated turn.
+* :func:`bayes_floor`: the point-mass filter on the first runs of an evaluation, the floor under
+  any RMSE claim on a scalar model (the one floor of the reproduction, the studies and the course).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from adaptfilt import metrics
 from adaptfilt.filters import FilterRun
 from adaptfilt.models import StateSpaceModel
 
-__all__ = ["KalmanFilter", "PointMassFilter", "BootstrapParticleFilter"]
+__all__ = ["KalmanFilter", "PointMassFilter", "BootstrapParticleFilter", "BayesFloor", "bayes_floor",
+           "UNGM_FLOOR_GRID", "UNGM_STUDY_FLOOR_GRID"]
+
+#: The UNGM floors' grids on -45..45 (the point-mass filter raises when probability mass reaches an edge):
+#: 901 points for the reproduction's floor (``data/results/ungm-floor.json``) and the course, 1801 for the
+#: studies' (the learned gain, the particle count). Each stored floor was computed on its grid and records it.
+UNGM_FLOOR_GRID = np.linspace(-45.0, 45.0, 901)
+UNGM_STUDY_FLOOR_GRID = np.linspace(-45.0, 45.0, 1801)
 
 
 class KalmanFilter:
@@ -297,3 +308,62 @@ class BootstrapParticleFilter:
                 n_res[res] += 1
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
                          params=np.full((M, T), float(N)), info={"n_resampled": n_res})
+
+
+@dataclass
+class BayesFloor:
+    """The point-mass filter's squared errors ``se (n, T)`` on the first ``n`` runs of an evaluation, and its
+    ``grid`` (as results record it): :attr:`rmse` is the floor of the evaluation's time-averaged RMSE."""
+
+    se: np.ndarray
+    grid: str
+
+    @property
+    def runs(self) -> int:
+        return int(self.se.shape[0])
+
+    @property
+    def rmse_t(self) -> np.ndarray:
+        """``RMSE_k (T,)``."""
+        return np.sqrt(self.se.mean(axis=0))
+
+    @property
+    def rmse(self) -> float:
+        """The time average of :attr:`rmse_t`, as an evaluation's ``rmse``."""
+        return float(self.rmse_t.mean())
+
+    @property
+    def run_rmse(self) -> np.ndarray:
+        """Each run's own RMS error ``(n,)``."""
+        return np.sqrt(self.se.mean(axis=1))
+
+    def summary(self) -> dict:
+        """``{"rmse", "runs", "grid"}``: what a study's results hold of its floor."""
+        return {"rmse": self.rmse, "runs": self.runs, "grid": self.grid}
+
+
+def bayes_floor(model: StateSpaceModel, runs, n: int, grid, chunk: int | None = None) -> BayesFloor:
+    r"""The Bayes floor on the first ``n`` runs of an evaluation: the :class:`PointMassFilter` with ``model``
+    on ``grid``, the MMSE estimate up to the grid's resolution, so that no filter's RMSE on these runs can
+    be below it but by chance.
+
+    ``runs``: the evaluation's :class:`~adaptfilt.runs.EvalRuns` (its :meth:`~adaptfilt.runs.EvalRuns.first`
+    ``n`` runs: the runs the policies are scored on) or a :class:`~adaptfilt.models.Trajectory`; ``model``:
+    the truth's model (the filter that knows the truth); ``grid``: an increasing, equally spaced array
+    (:data:`UNGM_FLOOR_GRID`, :data:`UNGM_STUDY_FLOOR_GRID`); ``chunk``: runs filtered at a time
+    (:meth:`PointMassFilter.run`, the same numbers as separate calls). Scalar models only (ValueError).
+
+    Example
+    -------
+    >>> import adaptfilt as af
+    >>> from adaptfilt.runs import EvalRuns
+    >>> runs = EvalRuns(af.models.ungm(), n_runs=30, seed=0, n_steps=8)
+    >>> floor = bayes_floor(af.models.ungm(), runs, 12, UNGM_FLOOR_GRID)
+    >>> floor.runs, floor.rmse_t.shape, floor.grid
+    (12, (8,), 'np.linspace(-45, 45, 901)')
+    """
+    traj = runs.first(n) if hasattr(runs, "first") else runs[: int(n)]
+    pmf = PointMassFilter(model, grid=grid)
+    mean = pmf.run(traj.z, chunk=chunk).mean
+    g = pmf.grid
+    return BayesFloor(se=metrics.squared_error(traj.x, mean), grid=f"np.linspace({g[0]:g}, {g[-1]:g}, {g.size})")

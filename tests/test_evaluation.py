@@ -243,11 +243,11 @@ def test_streamed_runs_are_the_one_pass_runs(tmp_path):
     """The trajectories a streamed evaluation writes and reads back chunk by chunk are the rows of
     ``simulate(M, T, default_rng([TRAJ_SEED_KEY, seed]))``, and its bootstrap counts are those of
     ``metrics.bootstrap_counts``, bit for bit."""
-    from adaptfilt.evaluation import TRAJ_SEED_KEY, _RunStore
+    from adaptfilt.runs import TRAJ_SEED_KEY, RunStore
 
     for name in ("ungm-ukf", "ctm-ukf"):
         env = get_experiment(name).make_env(n_steps=12)
-        store = _RunStore(env, 50, 4, 30, None, 16, tmp_path)
+        store = RunStore(env.truth, 50, 12, 4, 30, None, 16, tmp_path)
         want = env.truth.simulate(50, 12, rng=np.random.default_rng([TRAJ_SEED_KEY, 4]))
         counts = metrics.bootstrap_counts(50, 30, rng=np.random.default_rng([TRAJ_SEED_KEY, 4, 1]))
         assert store.chunks() == [(0, 16), (16, 32), (32, 48), (48, 50)]
@@ -344,13 +344,13 @@ def test_cli_chunk_size_is_recorded_and_changes_no_per_run_value_of_a_determinis
 def test_the_bootstrap_counts_are_drawn_once_per_runs_and_seed():
     """A worker that evaluates policy after policy on the same runs draws the counts once: the kept counts
     are the draw of their own runs and seed (another seed, another draw), and nobody can change them."""
-    from adaptfilt import evaluation as ev
+    from adaptfilt import runs
 
-    ev._bootstrap_counts.cache_clear()
-    a = ev._bootstrap_counts(50, 20, 3)
-    assert ev._bootstrap_counts(50, 20, 3) is a and not a.flags.writeable
-    np.testing.assert_array_equal(a, metrics.bootstrap_counts(50, 20, rng=np.random.default_rng([ev.TRAJ_SEED_KEY, 3, 1])))
-    assert not np.array_equal(ev._bootstrap_counts(50, 20, 4), a)
+    runs._bootstrap_counts.cache_clear()
+    a = runs.bootstrap_counts(50, 20, 3)
+    assert runs.bootstrap_counts(50, 20, 3) is a and not a.flags.writeable
+    np.testing.assert_array_equal(a, metrics.bootstrap_counts(50, 20, rng=np.random.default_rng([runs.TRAJ_SEED_KEY, 3, 1])))
+    assert not np.array_equal(runs.bootstrap_counts(50, 20, 4), a)
     one = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
     two = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
     assert one["default"].boot_rmse.tobytes() == two["default"].boot_rmse.tobytes()
