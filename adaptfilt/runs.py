@@ -70,15 +70,20 @@ class EvalRuns:
     first used. More runs than ``chunk_size``: a :class:`RunStore` in ``folder`` (:attr:`store`) holds
     them instead (``traj`` and ``counts`` are then not in memory).
 
-    ValueError for fewer than 2 runs (the bootstrap needs them) or a ``folder`` missing where it is needed.
+    ``n_steps`` defaults to the given trajectories' or the model's horizon. ValueError for fewer than 2 runs
+    (the bootstrap needs them), no horizon, or a ``folder`` missing where it is needed.
     """
 
     def __init__(self, truth, n_runs: int | None = None, seed: int = 0, n_steps: int | None = None, *,
                  n_boot: int = 1000, traj: Trajectory | None = None, chunk_size: int | None = None,
                  folder: str | Path | None = None):
         self.truth, self.seed, self.n_boot = truth, int(seed), int(n_boot)
-        self.n_steps = int(truth.n_steps if n_steps is None else n_steps)
         self.given = traj is not None
+        n_steps = (traj.n_steps if self.given else getattr(truth, "n_steps", None)) if n_steps is None else n_steps
+        if n_steps is None or int(n_steps) < 1:
+            raise ValueError(f"give n_steps, the runs' horizon (the model {getattr(truth, 'name', '')!r} has none): "
+                             f"got {n_steps!r}")
+        self.n_steps = int(n_steps)
         if not self.given and (n_runs is None or int(n_runs) < 2):
             raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
         self.n_runs = traj.n_runs if self.given else int(n_runs)
