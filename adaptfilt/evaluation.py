@@ -103,7 +103,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Literal, Mapping, Sequence
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -115,7 +115,7 @@ from adaptfilt.paramenv import ParamEnv
 from adaptfilt.results import PolicyResult, Results
 from adaptfilt.runs import CHUNK_SIZE, EvalRuns, RunStore
 
-__all__ = ["evaluate", "evaluate_costs", "learned_name", "learned_names"]
+__all__ = ["evaluate", "evaluate_costs"]
 
 #: Quantiles of the one-step cost that are reported besides its mean.
 COST_QUANTILES = (0.5, 0.99, 0.999)
@@ -789,41 +789,3 @@ def _file_quantiles(path: Path, N: int, qs: Sequence[float], block: int = 1 << 2
     out = lo + diff * gamma
     np.subtract(hi, diff * (1 - gamma), out=out, where=gamma >= 0.5)
     return [float(x) for x in out]
-
-
-def learned_name(path: str | Path, experiment: str) -> str:
-    """Result name of a learned policy file: its stem, without the experiment
-    prefix when it has one (``data/policies/ungm-ukf-adaptive-faithful.npz`` ->
-    ``adaptive-faithful``, ``runs/try3.npz`` -> ``try3``)."""
-    stem = Path(path).stem
-    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else stem
-
-
-def learned_names(paths: Iterable[str | Path], experiment: str) -> list[str]:
-    """:func:`learned_name` of each file, made unique: files that would share a
-    name (the same stem in different folders) are named ``<folder>/<name>``
-    with as many trailing folders of their resolved path as it takes to tell
-    them apart (``a/x/adaptive.npz``, ``b/x/adaptive.npz`` -> ``a/x/adaptive``,
-    ``b/x/adaptive``). The same file given twice is a ``ValueError``.
-
-    >>> learned_names(["data/policies/ungm-ukf-adaptive.npz", "runs/ungm-ukf-adaptive.npz", "runs/b.npz"], "ungm-ukf")
-    ['policies/adaptive', 'runs/adaptive', 'b']
-    """
-    paths = [Path(p) for p in paths]
-    resolved = [p.resolve() for p in paths]
-    for i, r in enumerate(resolved):
-        if r in resolved[:i]:
-            raise ValueError(f"policy file {paths[i]} is given twice")
-    names = [learned_name(p, experiment) for p in paths]
-    for n in sorted({n for n in names if names.count(n) > 1}):
-        group = [i for i, m in enumerate(names) if m == n]
-        depth = max(len(resolved[i].parent.parts) for i in group)
-        for d in range(1, depth + 1):
-            cand = {i: "/".join([*resolved[i].parent.parts[-d:], n]) for i in group}
-            if len(set(cand.values())) == len(group):
-                break
-        else:  # same folder, stems that strip to the same name (ungm-ukf-a.npz, a.npz): the file names
-            cand = {i: str(resolved[i].parent / resolved[i].name) for i in group}
-        for i in group:
-            names[i] = cand[i]
-    return names

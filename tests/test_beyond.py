@@ -211,10 +211,10 @@ def test_the_stored_particle_evaluations_rerun():
     OpenBLAS's kernels for another CPU round otherwise. The study is reproducible."""
     import warnings
 
-    from adaptfilt.evaluation import evaluate, learned_name
+    from adaptfilt.evaluation import evaluate
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments import artefacts
-    from adaptfilt.learned import load_policy
+    from adaptfilt.learned import learned_name, load_policy
     from adaptfilt.metrics import DIVERGED_NEES
 
     for e, learned in (("ungm-pf-1e-4", True), ("ctm-pf-1", False)):

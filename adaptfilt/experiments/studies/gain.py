@@ -412,7 +412,7 @@ def _train_cpu(run: Run, rel: str) -> float | None:
                 return float(f["cpu_time_s"])
     p = run.out / rel
     if p.exists() and "-gain-" in p.name:  # a KalmanNet file records its own
-        from adaptfilt.learned import read_npz
+        from adaptfilt.files import read_npz
 
         return float(read_npz(p, what="KalmanNet file")[1]["history"]["cpu_s"])
     return None
@@ -420,7 +420,7 @@ def _train_cpu(run: Run, rel: str) -> float | None:
 
 def _stopped(run: Run, rel: str) -> bool:
     """Whether a KalmanNet file's training ended by divergence (its history says so)."""
-    from adaptfilt.learned import read_npz
+    from adaptfilt.files import read_npz
 
     p = run.out / rel
     return p.exists() and bool(read_npz(p, what="KalmanNet file")[1]["history"].get("stopped_by_divergence"))
