@@ -37,20 +37,22 @@ CHAPTERS = [
     "03-estimation-is-myopic",
     "04-parameter-adaptation-mdp",
     "05-how-results-are-reported",
-    "06-actor-critic",
-    "07-reading-the-stored-policies",
-    "08-ukf-ungm",
-    "09-ukf-ctm",
-    "10-sif-ctm",
-    "11-your-own-model",
-    "12-rl-in-practice",
-    "13-beyond-the-paper",
-    "14-looking-ahead",
-    "15-adaptive-particle-count",
-    "16-learning-the-gain",
+    "06-policy-gradient-and-actor-critic",
+    "07-ppo-and-the-training-recipe",
+    "08-reading-the-stored-policies",
+    "09-ukf-ungm",
+    "10-ukf-ctm",
+    "11-sif-ctm",
+    "12-your-own-model",
+    "13-rl-in-practice",
+    "14-beyond-the-paper",
+    "15-out-of-distribution-and-the-raw-cost",
+    "16-looking-ahead",
+    "17-adaptive-particle-count",
+    "18-learning-the-gain",
 ]
 #: Chapters that must have at least this many widgets (with static stand-ins).
-MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "06-actor-critic": 1}
+MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "07-ppo-and-the-training-recipe": 1}
 
 MAX_CODE_TO_PROSE = 0.5
 MAX_CODE_LINES = 12

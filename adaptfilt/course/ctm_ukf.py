@@ -1,4 +1,4 @@
-r"""The analyses of chapter 9 (UKF on CTM, experiment ``ctm-ukf``): costs over time, what the grid can
+r"""The analyses of chapter 10 (UKF on CTM, experiment ``ctm-ukf``): costs over time, what the grid can
 do to the predicted measurement variance, the errors along and across the line of sight, and the
 position and velocity errors apart.
 
@@ -16,7 +16,7 @@ position_velocity_md,           apart, per policy (the full-state RMSE mixes the
 plot_position_velocity          set the stored evaluation's full-state RMSE beside it)
 ==============================  ================================================================
 
-What chapters 8-10 share (seed tables, Figure 6): :mod:`adaptfilt.course.paper_common`. Seed groups
+What chapters 9-11 share (seed tables, Figure 6): :mod:`adaptfilt.course.paper_common`. Seed groups
 are policies named ``<group>-s<seed>``; where a function takes a group name, a single policy name
 works as well (:func:`adaptfilt.experiments.claims.members`).
 """

@@ -1,4 +1,4 @@
-r"""The analyses of chapter 8 (UKF on UNGM, experiment ``ungm-ukf``): a metric against a fixed
+r"""The analyses of chapter 9 (UKF on UNGM, experiment ``ungm-ukf``): a metric against a fixed
 kappa in both conventions, the NIS gate (what kappa a policy chooses against the NIS that the full
 update would give), and RMSE over time beside the Bayes floor per step.
 
@@ -14,7 +14,7 @@ plot_rmse_steps,                RMSE_k in colours that can be told apart, with t
 ungm_floor_steps                per step (the point-mass filter on the evaluation's first runs)
 ==============================  ================================================================
 
-What chapters 8-10 share (seed tables, Figure 3): :mod:`adaptfilt.course.paper_common`. Seed groups
+What chapters 9-11 share (seed tables, Figure 3): :mod:`adaptfilt.course.paper_common`. Seed groups
 are policies named ``<group>-s<seed>``; where a function takes a group name, a single policy name
 works as well (:func:`adaptfilt.experiments.claims.members`).
 """
