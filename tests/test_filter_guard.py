@@ -3,7 +3,8 @@ declared interface.
 
 At quick scale this evaluates what the studies evaluate with filters that no policy tunes, and compares
 every array of every result, byte for byte, with ``tests/fixtures/filter_guard.json`` (hashes and
-summaries made by the code of main at 4432022, before ``adaptfilt.filters`` and ``adaptfilt.runs``):
+summaries made by main's code before ``adaptfilt.filters`` and ``adaptfilt.runs``: at 4432022, and again
+at 1c71d9d, whose ``metrics.percentile_ci`` gives infinite ends where replicates are undefined):
 
 * ``reference``: the learned-gain study's reference part (the bootstrap particle filter on the
   evaluation's runs, the point-mass floor) for both models and both regimes;
