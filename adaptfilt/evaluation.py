@@ -500,7 +500,8 @@ def _evaluate(targets: list[tuple], s: _Setup, level: float, progress, on_filter
     return results
 
 
-def _policy_summaries(pol, env, runs: EvalRuns, extra: list, weights: list[float], level: float, progress) -> list[dict]:
+def _policy_summaries(pol, env, runs: EvalRuns, extra: list, weights: list[float], level: float,
+                      progress) -> list[dict]:
     """:func:`_summarise` of ``pol``'s rollout for each cost (the environment's, then ``extra``)."""
     if runs.streamed:
         return _streamed(env, pol, runs.store, extra, weights, level, progress)

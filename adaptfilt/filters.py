@@ -120,7 +120,8 @@ def check_filter(filt: Any, model: Any = None, n_runs: int = 4, n_steps: int = 6
     def fail(what: str) -> FilterCheckError:
         return FilterCheckError(f"{name}: {what}")
 
-    lacks = [m for m, ok in (("model", hasattr(filt, "model")), ("run", callable(getattr(filt, "run", None)))) if not ok]
+    has = {"model": hasattr(filt, "model"), "run": callable(getattr(filt, "run", None))}
+    lacks = [m for m, ok in has.items() if not ok]
     if lacks:
         raise fail(f"missing member(s) of the Filter interface: {', '.join(lacks)}")
     model = filt.model if model is None else model

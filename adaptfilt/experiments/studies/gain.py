@@ -47,8 +47,9 @@ reproduction's), the bootstrap particle filter (:class:`~adaptfilt.exact.Bootstr
 runs with the truth's own model (the Bayes floor; under the mismatch the filter that knows ``Q x 4``).
 KalmanNet and the particle filter are filters (:class:`~adaptfilt.filters.Filter`) evaluated beside the
 policies by the same :func:`~adaptfilt.evaluation.evaluate` (``filters=``), on the same runs and bootstrap
-resamples, so their differences to every other policy are paired. Two regimes (:data:`REGIMES`): the nominal model and a truth with ``Q x 4``
-(:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the nominal model, the filters keep it).
+resamples, so their differences to every other policy are paired. Two regimes (:data:`REGIMES`): the
+nominal model and a truth with ``Q x 4`` (:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the
+nominal model, the filters keep it).
 The final budget is evaluated on :attr:`GainScale.eval_runs` runs (10^4), the budget curve (all three
 budgets, default and constants) on :attr:`GainScale.curve_runs` runs (2000: a cheaper, separate set).
 
