@@ -369,7 +369,6 @@ REPORT_CHAPTERS = ["09-ukf-ungm", "10-ukf-ctm", "11-sif-ctm", "14-beyond-the-pap
 REMEMBER_PENDING: dict[str, str] = {
     "14-beyond-the-paper": "course-findings-b, once course-restructure releases the chapter",
     "15-out-of-distribution-and-the-raw-cost": "course-findings-b, once course-restructure releases the chapter",
-    "16-looking-ahead": "course-findings-b writes its boxes next",
 }
 _BOX = re.compile(r"\A> \*\*What to remember\*\*[ \t]*\n(?:> [*-] [^\n]+\n){2}> [*-] [^\n]+(?:\n|\Z)(?!>)")
 _FIXED_SECTIONS = {"Summary", "Exercises", "References"}
