@@ -94,11 +94,13 @@ def test_declarations_are_checked_against_the_rule_the_prose_and_the_interval():
     for text, why in cases.items():
         assert any(why in p.why for p in document_problems(text)), (why, document_problems(text))
     # a declared margin, named with its metric and reference: 10 % of 9.437 is 0.944 < 2.89
-    nw = "ANEES $+0.55$ $[-0.51, +2.89]$: not confirmed <!-- verdict: not worse [-0.51, +2.89] margin " \
+    nw = "ANEES $+0.55$ $[-0.51, +2.89]$ against the faithful 9.437: not confirmed <!-- verdict: not worse " \
+         "[-0.51, +2.89] margin " \
          "\"fast vs faithful\" anees 9.437 -> not confirmed -->."
     assert document_problems(nw) == []
     assert any("the rule gives 'not confirmed'" in p.why for p in document_problems(
         nw.replace("not confirmed <!--", "not worse <!--").replace("-> not confirmed", "-> confirmed")))
+    assert any("reference value 9.4 " in p.why for p in document_problems(nw.replace("anees 9.437", "anees 9.4")))
     # a difference stated as a magnitude: "lower by 0.030 [0.017, 0.045]" is a - b in [-0.045, -0.017]
     assert document_problems("It lowers the cost by $0.030$ $[0.017, 0.045]$ (confirmed) "
                              "<!-- verdict: lower [-0.045, -0.017] -> confirmed -->.") == []
