@@ -129,10 +129,10 @@ architecture 1 reached an RMSE of 2.18-2.51 at about 45 CPU-s and 1.26-1.54 at 2
 restart in three trainings): architecture 1 was ahead in every seed at both budgets (one recipe
 each, three seeds; the study's eight will say more).
 
-Files (:meth:`KalmanNet.save`, :func:`load_kalmannet`): one ``.npz`` without pickles (as
-:mod:`adaptfilt.learned`) holding the weights and a JSON record of the model's name and
-dimensions, the options, the seed, the scales and bounds, the training summary (with ``failed``)
-and the package version; loading it for another model is a ``ValueError`` naming both.
+Files (:meth:`KalmanNet.save`, :func:`load_kalmannet`): one ``.npz`` without pickles
+(:func:`adaptfilt.files.write_npz`, as a policy's) holding the weights and a JSON record of the model's
+name and dimensions, the options, the seed, the scales and bounds, the training summary (with
+``failed``) and the package version; loading it for another model is a ``ValueError`` naming both.
 
 Example
 -------
@@ -166,10 +166,11 @@ import torch
 from torch import nn
 
 from adaptfilt._version import __version__
-from adaptfilt.gaf import FilterRun
-from adaptfilt.gainnets import ARCHS, GainNet, GainNet1, make_gain_net
-from adaptfilt.learned import arrays_to_state, one_torch_thread, read_npz, state_to_arrays, write_npz
+from adaptfilt.files import read_npz, write_npz
+from adaptfilt.filters import FilterRun
+from adaptfilt.gainnets import GainNet, GainNet1, make_gain_net
 from adaptfilt.models import StateSpaceModel, Trajectory
+from adaptfilt.nets import arrays_to_state, one_torch_thread, state_to_arrays
 
 __all__ = ["GainNet", "GainNet1", "KalmanNet", "train_kalmannet", "load_kalmannet", "TrainingDiverged",
            "KALMANNET_FORMAT", "RECIPES", "RECIPE_TUNING", "RECIPE_RESULTS", "restart_seed"]
@@ -570,7 +571,7 @@ class KalmanNet:
         return np.concatenate([z0[:, None, :], z[:, :-1]], axis=1)
 
     def run(self, z, *, keep_gain: bool = False, seed: int | None = None, chunk: int = 4096) -> FilterRun:
-        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.gaf.FilterRun`.
+        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.filters.FilterRun`.
 
         ``mean`` and ``x_pred`` are the estimates; ``cov`` is the sample covariance of the
         Bayesian variant, else NaN (no covariance: :func:`adaptfilt.metrics.nees` raises on it);

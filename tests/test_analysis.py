@@ -25,7 +25,7 @@ from scipy import stats  # noqa: E402
 from adaptfilt.seed_stats import aggregate  # noqa: E402
 from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
 from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
-from adaptfilt.policies import FixedPolicy, GreedyPolicy  # noqa: E402
+from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy  # noqa: E402
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
@@ -191,6 +191,38 @@ def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
         ungm_ukf.gate_anatomy(get_experiment("ctm-ukf").make_env(), GreedyPolicy(), traj)
 
 
+def test_greedy_and_ml_on_ungm_are_the_closed_form_argmins_of_their_losses():
+    # In the states each rule visits, the NIS of every grid value in closed form (nis_at) must give
+    # back its choices: greedy's argmin of (NIS - 1)^2, ML's argmax of the Gaussian likelihood
+    # -(log Pzz + NIS)/2, i.e. argmin of NIS - log NIS since nu does not depend on kappa on UNGM.
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=60)
+    traj = exp.make_model().simulate(n_runs=40, n_steps=61, rng=np.random.default_rng(6))
+    grid = np.asarray(env.grid)
+    for pol, loss in ((GreedyPolicy(grid=env.grid), lambda r: (r - 1.0) ** 2),
+                      (MaxLikelihoodPolicy(grid=env.grid), lambda r: r - np.log(r))):
+        a = ungm_ukf.gate_anatomy(env, pol, traj)
+        nis = a.nis_at(grid)
+        assert nis.shape == (grid.size,) + a.kappa.shape
+        np.testing.assert_allclose(nis[0], a.nis0, rtol=1e-12)
+        np.testing.assert_array_equal(grid[np.argmin(loss(nis), axis=0)], a.kappa)
+    with pytest.raises(ValueError, match="no predicted moments"):
+        ungm_ukf.GateAnatomy("bare", a.kappa, a.nis0, a.wrong_sign, a.sq_err).nis_at(0.0)
+
+
+def test_position_rmse_share_is_the_ratio_of_the_position_rmses_with_a_paired_interval():
+    model = af.models.coordinated_turn(n_steps=20)
+    traj = model.simulate(n_runs=60, rng=np.random.default_rng(2))
+    ukf, ukf50 = af.UKF(model).run(traj.z), af.UKF(model).run(traj.z, params=50.0)
+    rmse = lambda r: float(np.sqrt(((traj.x[..., [0, 2]] - r.mean[..., [0, 2]]) ** 2).sum(-1).mean(0)).mean())
+    share, lo, hi = ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3)
+    assert share == pytest.approx(1 - rmse(ukf) / rmse(ukf50), rel=1e-12)
+    assert lo < share < hi and hi - lo > 0.01  # 60 runs: a real interval around the point estimate
+    assert ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3) == (share, lo, hi)
+    # the share of the better filter's error that the worse one lacks is negative
+    assert ctm_ukf.position_rmse_share(traj.x, ukf, ukf50, n_boot=500)[0] < 0
+
+
 def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_ends():
     # a linear measurement: every kappa gives the Kalman Pzz, so the grid reaches nothing
     lin = af.models.linear_gaussian(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[2.0]], n_steps=20)
@@ -305,8 +337,8 @@ def test_rmse_steps_tell_the_fixed_conventions_apart_and_draw_a_floor_per_step(u
 
 
 def test_ungm_floor_steps_is_the_point_mass_filter_on_the_evaluation_runs():
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     f = ungm_ukf.ungm_floor_steps(n_runs=3, n_steps=20, eval_runs=5, chunk=2)
     env = get_experiment("ungm-ukf").make_env(n_steps=20)
