@@ -100,7 +100,8 @@ class StateSpaceModel:
         Torch forms of ``f``, ``h`` and ``residual`` (module docstring):
         ``(x: Tensor (..., nx), k) -> Tensor``, equal to the numpy functions
         and differentiable. Checked against them by their user
-        (:class:`~adaptfilt.kalmannet.KalmanNet`), not here (no torch import).
+        (:class:`~adaptfilt.kalmannet.KalmanNet`), not here (no torch import);
+        ``residual_torch`` is not used where ``residual`` is None.
 
     Every argument is checked at construction: dimensions agree, covariances
     are symmetric positive definite, and ``f``/``h`` return the right shapes on
@@ -178,8 +179,6 @@ class StateSpaceModel:
         for fname in ("f_torch", "h_torch", "residual_torch"):
             if getattr(self, fname) is not None and not callable(getattr(self, fname)):
                 raise ValueError(f"{fname} must be a callable (the torch form of {fname[:-6]}) or None")
-        if self.residual_torch is not None and self.residual is None:
-            raise ValueError("residual_torch given without residual (the numpy form it must equal)")
         if self.residual is not None:
             zz = np.zeros((3, 2, nz))
             out = np.asarray(self.residual(zz, zz))
