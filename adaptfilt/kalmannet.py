@@ -99,8 +99,9 @@ gradient stops training with :class:`TrainingDiverged` naming the epoch and step
 is abandoned when it diverges (a non-finite loss, gradient or validation loss before it has beaten
 its initial network; after that, first up to ``max_restores`` returns to its best weights at half
 the learning rate) or when no validation within its first ``patience`` optimiser steps beats its
-initial network (the last attempt allowed trains on instead: it may still improve). The next attempt starts from new weights, minibatch order and dropout draws of the
-seed :func:`restart_seed` ``(seed, a) = seed + 1000 a`` (``a = 1, 2, ...``; the validation set and a
+initial network (the last attempt allowed trains on instead: it may still improve). The next
+attempt starts from new weights, minibatch order and dropout draws of the seed
+:func:`restart_seed` ``(seed, a) = seed + 1000 a`` (``a = 1, 2, ...``; the validation set and a
 fixed training set stay), at most ``restarts`` times; every attempt's optimiser steps and CPU
 seconds count against the training's budget (``max_steps``, ``max_cpu_s``: totals over attempts).
 The result is the network with the best validation loss over all attempts. A training whose kept
@@ -117,7 +118,7 @@ on the snapshots asked for), so a snapshot is bit for bit the filter of ``epochs
 ``max_steps=S``, and a saved file is reproduced byte for byte by rerunning its training on the same
 machine (``tests/test_kalmannet.py``). Across CPUs the floating-point kernels round differently and
 training amplifies that: equality across machines is not claimed. A budget in CPU seconds is met by
-a step count calibrated on the machine (:data:`RECIPES` records CPU-s per step); ``max_cpu_s`` stops
+a step count calibrated on the machine (:data:`RECIPE_TUNING` records CPU-s per step); ``max_cpu_s`` stops
 on the clock itself, which is not reproducible.
 
 **Recipes** (:data:`RECIPES`): on UNGM both architectures train at learning rate 3e-3 over windows of
