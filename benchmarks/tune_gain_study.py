@@ -139,6 +139,9 @@ def main() -> None:
     ap.add_argument("--out", required=True, help="folder for the per-configuration results (resumable)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: tiny budgets and selection sets")
     ap.add_argument("--only", choices=("knet", "kappa"), default=None)
+    ap.add_argument("--extend", action="append", default=[], metavar="LEARNER:MODEL:LR",
+                    help="a learning rate beyond the grid's edge where the best configuration lies at it (the "
+                         "rule both learners' tunings follow), e.g. kappa:ungm:0.00025 or knet:ctm:0.03")
     ap.add_argument("--consistency", default=None, metavar="LR,N_EPOCHS",
                     help="choose the consistency weight with this kappa recipe (UNGM's chosen one)")
     ap.add_argument("--calibrate", default=None, metavar="JSON",
@@ -160,13 +163,21 @@ def main() -> None:
         jobs += [(f"calibrate-kappa-{m}", calibrate_kappa, (m, lr, int(ne)), big) for m, (lr, ne) in cal["kappa"].items()]
         jobs += [(f"calibrate-knet-{m}-arch{a}", calibrate_knet, (m, int(a), lr, int(w)), big)
                  for m, confs in cal["knet"].items() for a, lr, w in confs]
-    if not (args.consistency or args.calibrate):
+    if not (args.consistency or args.calibrate or args.extend):
         if args.only in (None, "kappa"):
             jobs += [(f"kappa-{m}-lr{lr:g}-ep{ne}", tune_kappa, (m, lr, ne), small)
                      for m in MODELS for lr in KAPPA_GRID["lr"] for ne in KAPPA_GRID["n_epochs"]]
         if args.only in (None, "knet"):
             jobs += [(f"knet-ctm-arch{a}-lr{lr:g}-w{w}", tune_knet, ("ctm", a, lr, w), small)
                      for a in (2, 1) for lr in KNET_GRID["lr"] for w in KNET_GRID["tbptt"]]
+    for ext in args.extend:
+        learner, m, lr = ext.split(":")
+        if learner == "kappa":
+            jobs += [(f"kappa-{m}-lr{float(lr):g}-ep{ne}", tune_kappa, (m, float(lr), ne), small)
+                     for ne in KAPPA_GRID["n_epochs"]]
+        else:
+            jobs += [(f"knet-{m}-arch{a}-lr{float(lr):g}-w{w}", tune_knet, (m, a, float(lr), w), small)
+                     for a in (2, 1) for w in KNET_GRID["tbptt"]]
     for name, fn, a, budget in jobs:
         path = out / f"{name}.json"
         if path.exists():
