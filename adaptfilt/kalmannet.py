@@ -63,7 +63,11 @@ in saved files):
   reported issue).
 
 **Bayesian variant** (``n_samples = J > 1``, ``dropout = p > 0``; Dahan, Revach, Duník, Shlezinger,
-"Bayesian KalmanNet", arXiv 2309.03058 / ICASSP 2024): Monte-Carlo dropout on the hidden layer of
+"Bayesian KalmanNet: Quantifying Uncertainty in Deep Learning Augmented Kalman Filter", IEEE Trans. Signal
+Processing 73, 2025, doi 10.1109/TSP.2025.3581703, arXiv 2309.03058; parts presented at ICASSP 2024. Another
+construction, not implemented here, computes KalmanNet's error covariance from its internal features given
+``H``: Klein, Revach, Shlezinger et al., "Uncertainty in data-driven Kalman filtering for partially known
+state-space models", ICASSP 2022, arXiv 2110.04738): Monte-Carlo dropout on the hidden layer of
 the gain head FC2 (architecture 1: on the top GRU's output), kept on when filtering. Each run is
 filtered by ``J`` copies of the filter, each with its own dropout mask (drawn once per sequence: one
 sample of the weights, as a Bayesian network's), its own estimate and GRU states; the estimate is the
