@@ -175,6 +175,9 @@ class FilterEnv:
         Horizon; defaults to the model's.
     truth : StateSpaceModel, optional
         The model trajectories are simulated from (default: the filter's own).
+    experiment : str, optional
+        The experiment this environment is a variant of (another truth, a cut grid:
+        :meth:`~adaptfilt.experiment_registry.Experiment.make_env`): policies trained on it record it.
 
     ``reset(n_runs, rng)`` simulates fresh trajectories (or takes ``traj``),
     initialises the filter and returns the first :class:`Decision`;
@@ -198,9 +201,10 @@ class FilterEnv:
     """
 
     def __init__(self, filt: GaussianAssumedFilter, grid: Sequence[float], cost: Cost | None = None,
-                 n_steps: int | None = None, truth=None):
+                 n_steps: int | None = None, truth=None, experiment: str | None = None):
         self.filt = filt
         self.model = filt.model
+        self.experiment = experiment
         #: the model ``reset`` simulates trajectories from: the filter's own (default), or another one with the
         #: same dimensions (a mismatched truth: other noise levels or prior, for out-of-distribution studies)
         self.truth = self.model if truth is None else truth
@@ -286,7 +290,7 @@ class FilterEnv:
     def _candidates(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> dict:
         G, M = self.grid.size, m.shape[1]
         # Repair (and count) an indefinite P_pred once here, not once per grid value.
-        (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt._chol(sym(P), "P_pred", t))
+        (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt.factor(sym(P), "P_pred", t))
         theta = np.repeat(self.grid, M)
         u, flags = self._logging_repairs(
             G * M, lambda: self.filt.update_candidates_rl(m, P, z, t, self.grid, rng=self.filt.rng(UPDATE, t, stream)))

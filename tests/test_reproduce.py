@@ -70,7 +70,9 @@ def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
     byte, is what reproduce's builders make today for that file at full scale (the policies: experiment,
     kind and seed from the file name; an evaluation: its experiment's learned policies in the pipeline's
     order, the fast kinds then the paper-faithful one, seeds ascending); the files of the report carry the
-    run's own command, and the references the command their JSON records."""
+    run's own command, and the references their ``adaptfilt floor`` / ``adaptfilt reconcile`` line, which their
+    JSON records too."""
+    from adaptfilt.experiments.references import floor_command, reconcile_command
     from adaptfilt.experiments.reproduce import FULL, evaluate_command, policy_command, policy_rel
 
     man = artefacts.manifest()
@@ -87,9 +89,12 @@ def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
         elif rel.startswith("results/") and rel.count("/") == 2:
             e = rel.split("/")[1]
             want = evaluate_command(e, [policy_rel(e, k, s) for k in kinds[e] for s in SEEDS], FULL)
-        elif rel in ("results/ungm-floor.json", "results/ctm-reconciliation.json"):
-            want = json.loads((DATA / rel).read_text())["command"]
-            assert f"({FULL.floor_runs if 'floor' in rel else FULL.recon_runs}, 0" in want, rel
+        elif rel == "results/ungm-floor.json":
+            want = floor_command(FULL.floor_runs, 0, FULL.floor_steps, FULL.eval_runs)
+            assert json.loads((DATA / rel).read_text())["command"] == want  # the JSON records the same line
+        elif rel == "results/ctm-reconciliation.json":
+            want = reconcile_command(FULL.recon_runs, 0, FULL.recon_steps)
+            assert json.loads((DATA / rel).read_text())["command"] == want
         else:
             want = man["generated_by"]
         assert cmd == want, rel

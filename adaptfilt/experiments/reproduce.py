@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
-from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, train
+from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, run_training
 from adaptfilt.experiments.journal import Journal, load_results, save_results
 from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
@@ -371,7 +371,8 @@ def _train_stage(r: _Run, exps: tuple[str, ...], faithful: bool) -> dict[str, li
     resumed = r.journal.count(keys)
     r.say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
           f"{n_reused} reused")
-    res_jobs = r.jobs(train, [(spec,) for _, spec in todo], keys, "train", files=[[spec.out] for _, spec in todo])
+    made = r.jobs(run_training, [(spec,) for _, spec in todo], keys, "train", files=[[spec.out] for _, spec in todo])
+    res_jobs = [m[spec.out] for m, (_, spec) in zip(made, todo)]
     for (rel, spec), t in zip(todo, res_jobs):
         t = {k: v for k, v in t.items() if k != "command"}
         r.entries[rel] = {"command": spec.command, "seed": spec.seed, **t}

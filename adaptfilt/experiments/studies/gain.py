@@ -78,9 +78,9 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, job_key
+from adaptfilt.experiments.jobs import EvalSpec, GainSpec, Training, TrainSpec, job_key
 from adaptfilt.experiments.report import md_table
-from adaptfilt.experiments.study import COMPACT, Run, diff_ci, listed_policies, same_training
+from adaptfilt.experiments.study import COMPACT, Run, diff_ci
 
 NAME = "gain"
 
@@ -196,78 +196,35 @@ def knet_options(scale: GainScale) -> dict:
     return {**KNET, **scale.knet}
 
 
-def knet_command(experiment: str, arm: str, seed: int, scale: GainScale, epoch: int) -> str:
-    """What a KalmanNet file records (the manifest's ``command``): the call that makes it."""
-    from adaptfilt.experiment_registry import get_experiment
-
-    model = get_experiment(experiment).make_model()
-    T = scale.n_steps or model.n_steps
-    kw = ", ".join(f"{k}={v!r}" for k, v in sorted(knet_options(scale).items()))
-    last = scale.knet_epochs[experiment][-1]
-    return (f"adaptfilt.kalmannet.train_kalmannet(<{model.name}>, loss={LOSS[arm]!r}, n_steps={T}, epochs={last}, "
-            f"seed={seed}, {kw}, snapshots={list(scale.knet_epochs[experiment])}).snapshot({epoch})")
-
-
-# ------------------------------------------------------------------ KalmanNet training (prepare)
-def train_gain_job(experiment: str, arm: str, seed: int, scale: GainScale, paths: list[str]) -> dict:
-    """Train KalmanNet for ``arm`` once to the top budget and save its snapshot at each budget's epochs into
-    ``paths``; returns per path its training CPU-s (up to the snapshot), epochs, best epoch, restores."""
-    from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.kalmannet import train_kalmannet
-
-    model = get_experiment(experiment).make_model()
-    epochs = scale.knet_epochs[experiment]
-    knet = train_kalmannet(model, loss=LOSS[arm], n_steps=scale.n_steps or model.n_steps, epochs=epochs[-1],
-                           seed=seed, progress=False, snapshots=epochs, **knet_options(scale))
-    out = {}
-    for e, p in zip(epochs, paths):
-        snap = knet.snapshot(e)
-        snap.save(p)
-        h = snap.history
-        out[p] = {"cpu_time_s": float(h["cpu_s"]), "epochs": int(e), "best_epoch": int(h["best_epoch"]),
-                  "restores": len(h["restores"]), "optimiser_steps": int(h["optimiser_steps"]),
-                  "stopped_by_divergence": h.get("stopped_by_divergence")}
-    return out
+def knet_spec(experiment: str, arm: str, seed: int, scale: GainScale, root: Path) -> GainSpec:
+    """KalmanNet's training for ``arm`` (:data:`LOSS`) on ``experiment``'s model, seed ``seed``: once to the
+    top budget's epochs, snapshotted at each budget's into ``root / policy_rel(...)`` (``adaptfilt train-gain``)."""
+    k = knet_options(scale)
+    epochs = tuple(scale.knet_epochs[experiment])
+    return GainSpec(experiment, LOSS[arm], epochs[-1], seed,
+                    tuple(str(root / policy_rel(experiment, arm, b, seed)) for b in budgets(scale)), snapshots=epochs,
+                    horizon=scale.n_steps, train_runs=k["n_train"], val_runs=k["n_val"], batch_size=k["batch_size"],
+                    lr=k["lr"], weight_decay=k["weight_decay"], clip=k["clip"], tbptt=k["tbptt"],
+                    feature_norm=k["feature_norm"], on_diverged=k["on_diverged"])
 
 
 def prepare(run: Run) -> dict:
-    """KalmanNet's trainings (one per model, gain arm and seed, snapshotted at the budgets), as journaled jobs;
-    files an earlier run listed in the manifest with the same command and sha256 are reused."""
-    sc = scale_of(run)
-    listed = listed_policies(run.out)
-    jobs, keys, files = [], [], []
-    for e in MODELS:
-        for arm in LOSS:
-            for s in sc.seeds:
-                rels = [policy_rel(e, arm, b, s) for b in budgets(sc)]
-                cmds = [knet_command(e, arm, s, sc, ep) for ep in sc.knet_epochs[e]]
-                if all(same_training(listed.get(r), c, run.out / r) for r, c in zip(rels, cmds)):
-                    continue
-                paths = [str(run.out / r) for r in rels]
-                jobs.append((e, arm, s, sc, paths))
-                keys.append((f"beyond gain kalmannet {e} {arm} {sc.words()} {KNET}", s))
-                files.append(paths)
-    run.say(f"[beyond] gain: {len(jobs)} KalmanNet trainings (each snapshotted at {len(TARGET_CPU_S)} budgets)")
-    values = run.jobs(train_gain_job, jobs, keys, files=files, progress=run.progress, desc="beyond: KalmanNet")
-    for (e, arm, s, _, paths), v in zip(jobs, values):
-        for ep, p in zip(sc.knet_epochs[e], paths):
-            rel = str(Path(p).relative_to(run.out))
-            run.entries[rel] = {"command": knet_command(e, arm, s, sc, ep), "cpu_time_s": v[p]["cpu_time_s"]}
     return {}
 
 
-# ------------------------------------------------------------------ kappa trainings
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+# ------------------------------------------------------------------ trainings
+def policies(run: Run, summary: dict) -> list[Training]:
     """The kappa learner (fast mode, gamma 0.5) on the NIS cost and on the squared error, one training per
-    budget (episodes) and seed."""
+    budget (episodes) and seed; KalmanNet once per model, gain arm and seed, snapshotted at the budgets."""
     sc = scale_of(run)
-    out = []
+    out: list[Training] = []
     for e, sq in MODELS.items():
         for arm, exp in (("kappa-nis", e), ("kappa-sqerr", sq)):
             for b, episodes in zip(budgets(sc), sc.kappa_episodes[e]):
                 for s in sc.seeds:
                     rel = policy_rel(e, arm, b, s)
-                    out.append((rel, TrainSpec(exp, 0.5, episodes, s, str(run.out / rel), horizon=sc.n_steps)))
+                    out.append(TrainSpec(exp, 0.5, episodes, s, str(run.out / rel), horizon=sc.n_steps))
+    out += [knet_spec(e, arm, s, sc, run.out) for e in MODELS for arm in LOSS for s in sc.seeds]
     return out
 
 
@@ -433,7 +390,7 @@ def _files(run: Run, experiment: str, budgets_: range) -> tuple[dict, dict]:
     return kappa, gains
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[Training]) -> list[EvalSpec]:
     sc = scale_of(run)
     last = range(len(TARGET_CPU_S), len(TARGET_CPU_S) + 1)
     specs = []

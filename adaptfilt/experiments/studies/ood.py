@@ -34,11 +34,11 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     return []
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     from adaptfilt.experiments.ood import CONDITIONS
 
     files = run.reproduction(EXPERIMENT)

@@ -58,18 +58,18 @@ def prepare(run: Run) -> dict:
     return {"sif-selection": selection}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     sc, safe = run.scale, summary["sif-selection"]["safe"]
-    return [(rel, TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), repair_penalty=pen, horizon=sc.n_steps,
-                            actions=acts))
+    return [TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), repair_penalty=pen, horizon=sc.n_steps,
+                      actions=acts)
             for e in SIF_EXPERIMENTS for kind, pen, acts in (("adaptive-penalised", PENALTY, None),
                                                                ("adaptive-safe", 0.0, safe))
             for s in sc.seeds for rel in [f"policies/{e}-{kind}-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """Beside the reproduction's unpenalised policies."""
-    return [evaluation(NAME, e, [str(run.out / rel) for rel, t in trained if t.experiment == e] + run.reproduction(e),
+    return [evaluation(NAME, e, [t.out for t in trained if t.experiment == e] + run.reproduction(e),
                        run.scale, ("default", "greedy")) for e in SIF_EXPERIMENTS]
 
 
