@@ -83,8 +83,9 @@ class EnvFactory(Protocol):
 
     ``make_env`` builds the variants too: ``truth``, the model trajectories are simulated from when the world
     differs from the filter's model (out of distribution); ``grid``, a subset of the experiment's grid (a
-    safe action set), already checked by :meth:`Experiment.make_env`. A variant carries the experiment's name
-    (``env.experiment``): a policy trained on it is still "for" the experiment."""
+    safe action set), already checked by :meth:`Experiment.make_env`; both are passed (as keywords) only for
+    a variant, so a factory that builds none takes the first four arguments alone. A variant carries the
+    experiment's name (``env.experiment``): a policy trained on it is still "for" the experiment."""
 
     param_name: str
 
@@ -212,9 +213,10 @@ class Experiment:
         experiment's), horizon ``n_steps`` (default: the model's); a variant where ``truth`` (a model of the same
         dimensions, e.g. :func:`scaled_truth`) simulates the trajectories, or where the policy chooses among
         ``grid``, values of the experiment's grid (ValueError naming those that are not)."""
-        if grid is not None:
-            grid = self.subgrid(grid)
-        return self.envs.make_env(self, seed, n_steps, model, truth, grid)
+        if truth is None and grid is None:
+            return self.envs.make_env(self, seed, n_steps, model)
+        return self.envs.make_env(self, seed, n_steps, model, truth=truth,
+                                  grid=None if grid is None else self.subgrid(grid))
 
     def subgrid(self, values) -> np.ndarray:
         """``values`` as a grid: sorted, each a value of the experiment's grid (ValueError naming those that
@@ -231,16 +233,19 @@ class Experiment:
     def default_value(self) -> float:
         return self.envs.default_value(self)
 
-    def baselines(self, fixed: bool = True) -> list:
+    def baselines(self, fixed: bool = True, kinds: tuple[str, ...] | None = None) -> list:
         """``default``, every fixed grid value, ``ml`` (UKF only: for the SIF
-        the likelihood-optimal choice is always the most iterations) and ``greedy``.
+        the likelihood-optimal choice is always the most iterations) and ``greedy``;
+        ``kinds``: only those of these kinds (each baseline's ``kind``: ``"default"``, ``"fixed"``,
+        ``"fixed-both"``, ``"ml"``, ``"greedy"``; the particle count's ``"kld"``, ``"ess"``).
 
         Where the dynamics are nonlinear (UNGM; the CTM's are linear, so its
         predict step does not use the parameter) every fixed value comes twice:
         in the update only (``fixed-kappa=v``, the paper's convention for
         adaptation) and in both steps (``fixed-both-kappa=v``, a UKF with one
         constant kappa). The particle count's: :meth:`ParticleCount.baselines`."""
-        return self.envs.baselines(self, np.asarray(self.grid), fixed)
+        pols = self.envs.baselines(self, np.asarray(self.grid), fixed)
+        return pols if kinds is None else [p for p in pols if p.kind in kinds]
 
 
 _UKF, _SIF = RuleParameter(UKF, "kappa"), RuleParameter(SIF, "n_iter", seeded=True)
@@ -287,8 +292,8 @@ VARIANTS: dict[str, Experiment] = {
     for e in EXPERIMENTS.values() if e.envs == _SIF
 }
 
-#: The kappa experiments on the squared error ``||x_{t|t} - x_t||^2`` (beyond the paper; the learned-gain study
-#: of issue 38, :mod:`adaptfilt.experiments.studies.gain`): grid, features and filter of ``ungm-ukf`` and
+#: The kappa experiments on the squared error ``||x_{t|t} - x_t||^2`` (beyond the paper; the learned-gain
+#: study, :mod:`adaptfilt.experiments.studies.gain`): grid, features and filter of ``ungm-ukf`` and
 #: ``ctm-ukf``, the cost of supervised KalmanNet. A simulation-only cost (training knows the truth; the
 #: policy sees its information state only); their greedy baseline reads the truth (an oracle).
 SQERR_VARIANTS: dict[str, Experiment] = {

@@ -1,4 +1,4 @@
-r"""KalmanNet: a filter whose Kalman gain is computed by a recurrent network (issue 38).
+r"""KalmanNet: a filter whose Kalman gain is computed by a recurrent network.
 
 Written from the paper (Revach, Shlezinger, Ni, López Escoriza, van Sloun, Eldar, "KalmanNet:
 Neural network aided Kalman filtering for partially known dynamics", IEEE Trans. Signal Processing

@@ -264,7 +264,7 @@ class FilterEnv:
             tf = np.asarray(self.model.time_features(d.t + 1), dtype=float)
             blocks.append(np.repeat(tf[:, None], M, axis=1))
         if fs.candidates:
-            if getattr(self.cost, "needs_truth", False):
+            if self.cost is not None and self.cost.needs_truth:
                 # the candidates' costs would hand the policy the true state
                 raise ValueError(f"the 'cand' features would read the true state through the cost {self.cost.name!r}")
             cost = d.candidates()["cost"]
@@ -301,11 +301,12 @@ class FilterEnv:
         return out
 
     def _charge(self, u, theta: np.ndarray, t: int, repeat: int = 1) -> np.ndarray:
-        """The cost of update ``u`` at step ``t``; a cost that reads the truth (``needs_truth``, the
-        ``"sqerr"`` :class:`~adaptfilt.costs.Cost`) gets the true state of step ``t`` from the episode's
-        trajectory, run-last ``(nx, M)``, tiled ``repeat`` times for the grid's candidates (candidate
-        ``g`` of run ``m`` sits at ``g M + m``). Every other cost is called exactly as always."""
-        if not getattr(self.cost, "needs_truth", False):
+        """The cost of update ``u`` at step ``t``; a cost that reads the truth (``needs_truth``: the
+        ``"sqerr"`` :class:`~adaptfilt.costs.Cost`, a :class:`~adaptfilt.costs.FunctionCost` that says so)
+        gets the true state of step ``t`` from the episode's trajectory, run-last ``(nx, M)``, tiled
+        ``repeat`` times for the grid's candidates (candidate ``g`` of run ``m`` sits at ``g M + m``).
+        Every other cost is called exactly as always."""
+        if not self.cost.needs_truth:
             return self.cost(u, theta, self.nz)
         x = self.traj.x
         if x.ndim != 3 or x.shape[1] <= t:

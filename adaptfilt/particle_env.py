@@ -376,6 +376,7 @@ class KLDSamplingPolicy:
     the count it keeps, so it spends only that count."""
 
     cost_blind = True
+    kind = "kld"
 
     def __init__(self, bin_size: float | Sequence[float], epsilon: float = 0.05, delta: float = 0.01,
                  n_min: int = 50, grid=None, name: str = "kld"):
@@ -412,6 +413,7 @@ class ESSTargetPolicy:
     leave ``target`` effective particles), the default count at the first step."""
 
     cost_blind = True
+    kind = "ess"
 
     def __init__(self, target: float = 200.0, grid=None):
         if not (np.isfinite(target) and target >= 1):

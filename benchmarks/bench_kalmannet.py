@@ -1,7 +1,7 @@
-"""Cost of KalmanNet (adaptfilt.kalmannet, issue 38) on UNGM: training CPU-s per epoch, filtering speed.
+"""Cost of KalmanNet (adaptfilt.kalmannet) on UNGM: training CPU-s per epoch, filtering speed.
 
 Run with ``python benchmarks/bench_kalmannet.py`` (``--quick`` for a smoke run). It sizes the
-budgets of the learned-gain study (issue 38, item 2).
+budgets of the learned-gain study (``adaptfilt beyond --studies gain``).
 
 * Training: one epoch = ``--n-train`` trajectories of UNGM's full horizon (T = 500), minibatches of
   ``--batch`` whole trajectories, back-propagation through the whole sequence (or ``--tbptt``

@@ -17,7 +17,7 @@ import adaptfilt as af  # noqa: E402
 from adaptfilt.course import ctm_sif, ctm_ukf, paper_common, ungm_ukf  # noqa: E402
 from adaptfilt.experiments import artefacts
 from adaptfilt.experiments import claims, report  # noqa: E402
-from adaptfilt.experiment_registry import get_experiment
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS, get_experiment
 from types import SimpleNamespace  # noqa: E402
 
 from scipy import stats  # noqa: E402
@@ -43,7 +43,7 @@ def ungm_res():
 
 @pytest.fixture(scope="module")
 def sif_results():
-    return {e: artefacts.load_results(e) for e in claims.SIF_EXPERIMENTS}
+    return {e: artefacts.load_results(e) for e in SIF_EXPERIMENTS}
 
 
 # ---------------------------------------------------------------- claims as Markdown
@@ -78,7 +78,7 @@ def test_claims_subset_md_rederives_every_row_and_catches_a_changed_one(ungm_res
 
 
 def test_every_sif_cost_verdict_is_on_the_charged_cost(sif_results, ungm_res):
-    """Issue 25, item 1: a SIF comparison of cost is judged on the cost with compute charged (the paper's cost
+    """A SIF comparison of cost is judged on the cost with compute charged (the paper's cost
     term N_it/50 for every iteration computed, greedy's candidates and a learned policy's look included); the
     paper's uncharged cost follows as a comparison row. A cost that charges no compute (the UKF's) keeps one row.
     The charge decides learned logmaxNIS against greedy: confirmed charged, contradicted uncharged."""
@@ -87,11 +87,11 @@ def test_every_sif_cost_verdict_is_on_the_charged_cost(sif_results, ungm_res):
     assert rows[0]["verdict"] == "confirmed" and rows[1]["verdict"] == "contradicted"
     assert [(r["metric"], r["role"]) for r in claims.cost_rows(ungm_res, "adaptive", "greedy")] == [("cost", "verdict")]
     cl = artefacts.load_claims()
-    sif = [r for k in ("C5", "C6") for r in cl[k] if r["experiment"] in claims.SIF_EXPERIMENTS
+    sif = [r for k in ("C5", "C6") for r in cl[k] if r["experiment"] in SIF_EXPERIMENTS
            and r["metric"] in ("cost", "cost_charged")]
     assert len(sif) >= 20 and all((r["metric"] == "cost_charged") == (r["role"] == "verdict") for r in sif)
     assert all(r["role"] == "verdict" for k in ("C5", "C6") for r in cl[k]
-               if r["experiment"] not in claims.SIF_EXPERIMENTS)
+               if r["experiment"] not in SIF_EXPERIMENTS)
     for e, d in artefacts.load_table1().items():
         for pair, by_metric in d["differences"].items():
             roles = (by_metric["cost_charged"]["role"], by_metric["cost"]["role"])

@@ -1,5 +1,7 @@
 """Beyond the paper: the studies' pipeline at toy scale, out-of-distribution truths and retuning."""
 import json
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -461,3 +463,61 @@ def test_merged_evaluation_parts_keep_their_order_and_must_agree():
         Results.merge([Results({"n_runs": 5, "experiment": "x"}, {}), Results({"n_runs": 6, "experiment": "x"}, {})])
     assert Results.merge([Results({"command": "a"}, {"p": 1}), Results({"command": "b"}, {"q": 1})],
                          ignore=("command",)).names == ["p", "q"]
+
+
+@dataclass(frozen=True)
+class _StubTraining:
+    """A :class:`~adaptfilt.experiments.jobs.Training` that writes its files at once (``stop``: interrupts)."""
+
+    kind: str
+    seed: int
+    outs: tuple[str, ...]
+    experiment: str = "ungm-ukf"
+    stop: bool = False
+
+    @property
+    def command(self) -> str:
+        return f"adaptfilt {self.kind} ungm-ukf --seed {self.seed}" + "".join(f" --out {o}" for o in self.outs)
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return self.command, self.seed
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return self.outs
+
+    def run(self, progress: bool = False) -> dict:
+        if self.stop:
+            raise KeyboardInterrupt
+        for o in self.outs:
+            Path(o).write_text(self.command)
+        return {o: {"command": self.command, "wall_time_s": None, "cpu_time_s": 1.0} for o in self.outs}
+
+
+def test_a_rerun_after_an_interrupt_says_what_it_reused_of_each_kind_of_training(tmp_path, capsys):
+    """The one training loop (``beyond._train``) runs both kinds of training (``adaptfilt train``,
+    ``adaptfilt train-gain`` with several files) and says, per kind, how many the journal held after a stop."""
+    from adaptfilt.experiments.beyond import JOURNAL, _train
+    from adaptfilt.experiments.journal import Journal
+    from adaptfilt.experiments.study import QUICK, Run
+
+    out = tmp_path / "beyond"
+    (out / "policies").mkdir(parents=True)
+
+    def gain(s, **kw):
+        return _StubTraining("train-gain", s, tuple(str(out / f"policies/g-b{b}-s{s}.npz") for b in (1, 2)), **kw)
+
+    kappa = _StubTraining("train", 0, (str(out / "policies/k-s0.npz"),))
+    run = Run(out, tmp_path, QUICK, True, "adaptfilt beyond", Journal(out / JOURNAL), workers=1, progress=True)
+    with pytest.raises(KeyboardInterrupt):
+        _train(run, [kappa, gain(0), gain(1), gain(2, stop=True)])
+    capsys.readouterr()
+    run = Run(out, tmp_path, QUICK, True, "adaptfilt beyond", Journal(out / JOURNAL), workers=1, progress=True)
+    _train(run, [kappa, gain(0), gain(1), gain(2)])
+    said = capsys.readouterr().out
+    assert "[beyond] 0 policies to train, 1 finished by an earlier run (journal.jsonl), 0 listed in the manifest" in said
+    assert ("[beyond] 1 learned-gain trainings (KalmanNet), 2 finished by an earlier run (journal.jsonl), 0 listed "
+            "in the manifest") in said
+    assert set(run.entries) == {"policies/k-s0.npz"} | {f"policies/g-b{b}-s{s}.npz" for b in (1, 2) for s in range(3)}
+    assert run.entries["policies/g-b2-s1.npz"]["command"] == gain(1).command

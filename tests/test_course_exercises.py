@@ -1,6 +1,6 @@
 """The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 16
 (adaptfilt.course.exercises): each accepts the right answer and rejects wrong ones, naming the
-slip where it can (issue 37, item 6)."""
+slip where it can (the course's rule)."""
 import numpy as np
 import pytest
 

@@ -1,6 +1,6 @@
 """The writing rules of the course, checked on the committed (executed) notebooks.
 
-Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
+Every chapter is listed in ``CHAPTERS``. The rules:
 
 * prose first: the code of a chapter is at most half its prose, by characters
   (``MAX_CODE_TO_PROSE``), and no code cell is longer than ``MAX_CODE_LINES``;
@@ -11,7 +11,7 @@ Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
   (``remove-cell``) and followed by a static stand-in cell that draws a figure;
 * nothing machine-specific or private in what a reader sees (wall times,
   files the reader does not have), and every "Section N-X" exists in the paper;
-* the apparatus of a textbook (issue 37): learning goals, a link to the notation
+* the apparatus of a textbook: learning goals, a link to the notation
   and the deviations pages, a numbered caption ("*Figure 13.2: ...*") right after
   every figure and alt text of its own (cell metadata ``alt``), no table in a
   chapter wider than ``MAX_TABLE_COLUMNS`` (wider ones are split, or live in
@@ -273,7 +273,7 @@ def test_section_outline_matches_the_paper():
     assert {k: norm(v) for k, v in found.items()} == {k: norm(v) for k, v in PAPER_SECTIONS.items()}
 
 
-#: Words that tell the project's history rather than teach (issue 27: a chapter teaches the current
+#: Words that tell the project's history rather than teach (a chapter teaches the current
 #: method and its evidence; REPRODUCTION.md, "Earlier releases", keeps the history).
 HISTORY = re.compile(r"\breleases?\b|\b(earlier|previous|first|old) (version|numbers|policies|tables?)\b"
                      r"|\bwhat changed\b|\bchangelog\b", re.I)
@@ -286,9 +286,9 @@ def test_no_teaching_cell_tells_the_projects_history(stem):
     assert not found, f"{stem}: history in teaching cells (move it to REPRODUCTION.md, 'Earlier releases'): {found}"
 
 
-# ---------------------------------------------------------------- the apparatus of a textbook (issue 37)
+# ---------------------------------------------------------------- the apparatus of a textbook
 
-#: Chapters whose code lines are not all within MAX_LINE yet (issue 37, item 6), by who owns the rewrap.
+#: Chapters whose code lines are not all within MAX_LINE yet, by who owns the rewrap.
 LONG_LINES_PENDING: dict[str, str] = {}
 
 

@@ -1,4 +1,4 @@
-"""The learned-gain study (issue 38, item 2): the squared-error cost of the UKF's MDP, its experiments, and the
+"""The learned-gain study (``adaptfilt beyond --studies gain``): the squared-error cost of the UKF's MDP, its experiments, and the
 study ``gain`` of ``adaptfilt beyond`` at quick scale (every arm x budget x model x regime, KalmanNet paired with
 the filters on the same runs, a journaled resume)."""
 import json

@@ -1,4 +1,4 @@
-"""KalmanNet (adaptfilt.kalmannet, issue 38) against the Kalman filter on a linear-Gaussian model.
+"""KalmanNet (adaptfilt.kalmannet) against the Kalman filter on a linear-Gaussian model.
 
 The linear model: ``x_{k+1} = 0.9 x_k + w``, ``z_k = x_k + v``, ``Q = R = 1``, ``x_1 ~ N(0, 1)``. Its
 Kalman filter is the MMSE filter, so no gain can beat it; its steady-state gain is 0.5974 and a

@@ -399,7 +399,7 @@ def test_archived_one_pass_verdicts_are_the_comparison_rows():
 
 @pytest.mark.crosscpu
 def test_fast_vs_faithful_applies_the_margin_and_keeps_the_verdict_without_it():
-    """Issue 25, item 4: "not worse" needs the interval below a margin fixed in advance (10 % of the faithful
+    """The fast-vs-faithful comparison: "not worse" needs the interval below a margin fixed in advance (10 % of the faithful
     ANEES IQM). Recomputed from the stored evaluations: fast minus faithful on UNGM ANEES, +0.55 [-0.51, +2.89],
     passes without a margin and is "not shown" with it; the stored comparison is what the code gives."""
     from adaptfilt.experiments.fast_vs_faithful import comparison
@@ -420,7 +420,7 @@ def test_fast_vs_faithful_applies_the_margin_and_keeps_the_verdict_without_it():
 
 @pytest.mark.crosscpu
 def test_the_reconciliations_sif_row_is_the_table1_default():
-    """Issue 25, item 5: the CTM reconciliation's "SIF n_iter 10 (the Table I default)" row runs the experiments'
+    """The CTM reconciliation's "SIF n_iter 10 (the Table I default)" row runs the experiments'
     SIF (two passes, integration-error term); built without the error term it had ANEES 2.7e4 against about 6."""
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.references import ctm_reconciliation
@@ -435,7 +435,7 @@ def test_the_reconciliations_sif_row_is_the_table1_default():
 
 @pytest.mark.crosscpu
 def test_choices_are_made_on_selection_seeds_not_on_the_evaluation_runs():
-    """Issue 25, item 3: the SIF study's safe action set and the fast mode's tuning are chosen on seeds that
+    """The SIF study's safe action set and the fast mode's tuning are chosen on seeds that
     are neither the reproduction's training seeds nor its evaluation seed (the tuning once reused training
     seeds 0-3 and the evaluation runs of seed 0); the stored safe set is the one the selection runs give."""
     import importlib.util

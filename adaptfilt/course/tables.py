@@ -1,5 +1,5 @@
 """Tables a page can show whole: :func:`fit` splits a Markdown table wider than ``max_columns`` into
-several tables of at most that many columns, each repeating the columns that name a row (issue 37: a
+several tables of at most that many columns, each repeating the columns that name a row (the course's rule: a
 chapter's tables have at most 7 columns, so that a student finds the comparison the text discusses).
 
 Nothing is dropped: every cell of the wide table is in one of the narrower ones, in its row and under its

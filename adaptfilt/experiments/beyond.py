@@ -22,18 +22,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 13 reads beyond.SIF_EXPERIMENTS
 from adaptfilt.experiments.jobs import Training, run_training
 from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.studies import ALL
 from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions, selection_md
-# study_rows: REPRODUCTION.md cites it as beyond.study_rows
-from adaptfilt.experiments.study import (FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations,  # noqa: F401
-                                         same_training, study_rows)
+from adaptfilt.experiments.study import FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations, same_training
 from adaptfilt.files import atomic_write, sha256
 
 __all__ = ["BeyondScale", "FULL", "QUICK", "run", "command", "summary_md", "STUDIES", "STUDY_TITLES", "JOURNAL", "SELECTION_SEED",
-           "select_safe_actions", "SIF_EXPERIMENTS", "study_rows"]
+           "select_safe_actions"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"

@@ -41,10 +41,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: the course reads claims.SIF_EXPERIMENTS
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS
 from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_groups, seed_verdict
 
-__all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members"]
+__all__ = ["PAPER_TABLE1", "COST_LABEL", "compare", "claims", "table1", "members"]
 
 
 #: Table I of the paper: {experiment: {policy: (RMSE, ANEES, cost)}}.

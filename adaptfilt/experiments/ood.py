@@ -71,7 +71,7 @@ def evaluate_condition(experiment: str, condition: Condition, policies: list, n_
 
     exp = get_experiment(experiment)
     env = mismatched_env(experiment, condition, seed, n_steps)
-    base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
+    base = [p for p in exp.baselines() if p.kind != "fixed-both"]
     res = evaluate(env, base + list(policies), n_runs=n_runs, seed=seed, progress=False)
     res.config.update(experiment=experiment, condition=condition.key)
     return res

@@ -63,15 +63,16 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS
+from adaptfilt.experiments.claims import claims, table1
 from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, run_training
 from adaptfilt.experiments.journal import Journal, load_results, save_results
-from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
+from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
 from adaptfilt.files import atomic_write, sha256
 
 __all__ = ["reproduce", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command", "sha256",
-           "ungm_floor", "ctm_reconciliation", "embed_report_tables"]
+           "embed_report_tables"]
 
 #: Training seeds of every learned policy.
 SEEDS = tuple(range(8))
@@ -292,15 +293,14 @@ class _Run:
 
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
               workers: int | None = None, cluster=None, experiments: tuple[str, ...] | None = None,
-              faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None,
+              faithful: bool = False, scale: str | Scale | None = None,
               data: str | Path | None = None) -> dict:
     """Train + evaluate + floor + reconciliation + figures + tables into ``out_dir`` (module docstring).
 
     ``scale``: ``"full"`` (default), ``"medium"`` or ``"quick"`` (:data:`SCALES`; ``quick=True``
     is ``"quick"``). Only the full scale reuses the fast-mode policies and results of ``data/``;
     every scale but ``quick`` reuses its paper-faithful policies.
-    ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``; ``jobs`` is
-    its old name); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
+    ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
     ``data``: the stored artefacts to reuse (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``).
     Returns ``{"timings", "table1", "claims", "figures"}``.
     """
@@ -308,7 +308,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     from adaptfilt.results import Results
 
     exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
-    r = _start(out_dir, quick, retrain, progress, workers if workers is not None else jobs, cluster, scale, data, exps)
+    r = _start(out_dir, quick, retrain, progress, workers, cluster, scale, data, exps)
     T0 = time.perf_counter()
     learned = _train_stage(r, exps, faithful)
     _evaluate_stage(r, exps, learned)

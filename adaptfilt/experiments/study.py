@@ -128,8 +128,7 @@ def evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tu
     from adaptfilt.experiment_registry import get_experiment
 
     exp = get_experiment(experiment)
-    base = [p for p in exp.baselines() if keep is None or p.name in keep or
-            (p.name.startswith("fixed-") and not p.name.startswith("fixed-both-"))]
+    base = [p for p in exp.baselines() if keep is None or p.name in keep or p.kind == "fixed"]
     target = exp if scale.n_steps is None else exp.make_env(n_steps=scale.n_steps)
     res = evaluate(target, base + load_learned(exp, files), n_runs=scale.eval_runs, seed=seed, progress=False)
     res.config.update(experiment=experiment)
@@ -193,7 +192,7 @@ def study_rows(study: str, res, selection: dict | None = None) -> dict:
                                                   for m in ("cost", "objective", "rmse", "anees")}
     # what a constant can do: the cheapest fixed value, among the safe ones where the study chose a safe set
     # (on its selection runs: a value that happened not to diverge on these runs was not chosen on them)
-    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = res.fixed_names()
     if study == "sif":
         fixed = [n for n in fixed if any(n == f"fixed-{res.config['param_name']}={v:g}" for v in selection["safe"])]
     label = "best safe fixed" if study == "sif" else "best fixed"

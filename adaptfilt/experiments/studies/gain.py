@@ -1,4 +1,4 @@
-r"""Study 8, ``gain``: learn the parameter or learn the gain? (issue 38, item 2)
+r"""Study 8, ``gain``: learn the parameter or learn the gain?
 
 A 2 x 2 design on UNGM (``ungm-ukf``, T = 500) and the bearing-only CTM (``ctm-ukf``, T = 150) that
 separates *what is learned* from *what it is trained on*:
@@ -660,7 +660,7 @@ def markdown(summary: dict) -> str:
     if NAME not in summary:
         return ""
     g = summary[NAME]
-    lines = [f"**Learn the parameter or learn the gain** (issue 38; IQM over seeds [two-level 95 % CI]; budgets "
+    lines = [f"**Learn the parameter or learn the gain** (IQM over seeds [two-level 95 % CI]; budgets "
              f"targeted at {', '.join(f'{c:g}' for c in g['target_cpu_s'])} CPU-s per policy; final budget on "
              f"{g['eval_runs']} runs, the curve on {g['curve_runs']}; n/a: not defined for the arm)", ""]
     head = ["model", "regime", "policy", "budget (work units)", "train CPU-s (mean)", "RMSE", "MSE dB", "ANEES",

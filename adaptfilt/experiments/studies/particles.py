@@ -45,9 +45,8 @@ def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalS
     for es in models.values():  # each model's evaluation in parts, one job each, so that they run side by side
         files = [[t.out for t in trained if t.experiment == e] for e in es]
         specs += [EvalSpec(NAME, "+".join(es), evaluate_model_job, (es, files, ps, 0, (part,)),
-                           job_key("particles", part, es, *files, ps), tag=es) for part in EVAL_PARTS]
-    specs += [EvalSpec(NAME, e, floor_job, (e, ps),
-                       f"beyond floor {e} runs={ps.eval_runs} floor={ps.floor_runs} steps={ps.n_steps}", tag="floor")
+                           job_key("particles", part, es, *files, ps.words()), tag=es) for part in EVAL_PARTS]
+    specs += [EvalSpec(NAME, e, floor_job, (e, ps), job_key("floor", e, ps.words()), tag="floor")
               for e in PARTICLE_EXPERIMENTS]
     return specs
 
