@@ -346,3 +346,19 @@ def test_the_issue_check_sees_one(tmp_path):
     cited = "as decided in Issue " + "12, item 3"  # written apart: this file is checked too
     (tmp_path / "docs" / "a.md").write_text(f"fine\n{cited}\n")
     assert internal_issue_numbers(tmp_path) == [f"docs/a.md:2: {cited}"]
+
+
+def long_functions(root: Path, limit: int = 80) -> list[str]:
+    """Functions (methods and nested ones too, docstrings included) longer than ``limit`` lines under ``root``."""
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > limit:
+                found.append(f"{p.relative_to(root.parent)}:{node.lineno} {node.name} "
+                             f"({node.end_lineno - node.lineno + 1} lines)")
+    return found
+
+
+def test_no_function_of_the_pipeline_is_over_80_lines():
+    """The pipeline reads top to bottom: a step that grows past 80 lines is split into named parts."""
+    assert not long_functions(PKG / "experiments")

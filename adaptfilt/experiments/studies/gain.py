@@ -18,10 +18,12 @@ epochs (KalmanNet), so that the same seed gives the same policy on any machine o
 numbers were calibrated once on this 2-core machine (under ``nice -n 19``, other work running) to the
 targets :data:`TARGET_CPU_S` = 5, 15 and 45 CPU-s per policy (:data:`CALIBRATION` records the
 measurements that set them), and every policy's *measured* training CPU-s is reported beside its
-budget. KalmanNet trains once per seed and arm and is snapshotted at the three epoch counts
-(``train_kalmannet(snapshots=...)``: a snapshot is bit for bit the filter of a training that stopped
-there); the kappa learner (:func:`adaptfilt.trainers.train_policy` has no snapshots) trains
-separately at each budget, as the other studies' ``adaptfilt train`` jobs.
+budget. KalmanNet trains once per seed and arm and is snapshotted at the three epoch counts (one
+``adaptfilt train-gain ... --snapshots`` each, :func:`knet_spec`, writing a file per budget: a snapshot is
+bit for bit the filter of a training that stopped there); the kappa learner
+(:func:`adaptfilt.trainers.train_policy` has no snapshots) trains separately at each budget, as the
+other studies' ``adaptfilt train`` jobs. Both kinds are trainings of :func:`policies`, run, journaled,
+reused and recorded by the one loop of ``adaptfilt beyond``.
 
 **KalmanNet's recipe** (:data:`KNET`, fixed before any evaluation): 100 training and 50 validation
 trajectories of the full horizon simulated per seed (``data_seed`` = the seed: both gain arms of a seed
