@@ -14,7 +14,7 @@ plot_ood_gains                            the gains over the default out of dist
                                           maps
 ========================================  =========================================================
 
-Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_rl.py``;
+Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_beyond_studies.py``;
 figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations

@@ -13,7 +13,7 @@ ungm_state, plot_policy_probs             every policy's ``pi(theta | s)`` at on
 show_policy_probs                         the widget body (chapters 6 and 7)
 ========================================  =========================================================
 
-Tested in ``tests/test_course_rl.py``; figures use :mod:`adaptfilt.style`.
+Tested in ``tests/test_course_policy_reading.py``; figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
 

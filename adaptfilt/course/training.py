@@ -18,7 +18,7 @@ plot_state_probs                          one policy's ``pi(theta | s)`` at seve
 
 The chapter's widget is :func:`adaptfilt.course.policy_reading.show_policy_probs` (chapter 7 uses
 it too). As :mod:`adaptfilt.course.common` and the modules of chapters 1-4 do: what a chapter
-computes in passing and its figures live here, documented and tested (``tests/test_course_rl.py``),
+computes in passing and its figures live here, documented and tested (``tests/test_course_training.py``),
 so that a chapter reads as prose with short calls. Figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
@@ -177,7 +177,7 @@ def actor_update_batch(seed: int = 0, batch: int = 32, n_features: int = 3, n_ac
 def library_actor_loss(logits, actions, delta, beta: float = 1e-3, sign: int = 1):
     r"""The actor loss of :func:`adaptfilt.actor_critic.train`, the same statements on the same
     tensors: ``mean(sign * delta.detach() * log pi(a | s) - beta * H(pi(. | s)))``
-    (``sign=+1`` for a cost; ``tests/test_course_rl.py`` checks that one Adam step on it
+    (``sign=+1`` for a cost; ``tests/test_course_training.py`` checks that one Adam step on it
     reproduces ``train``'s actor)."""
     import torch
 
