@@ -140,3 +140,19 @@ def test_reference_stages_write_what_the_reproduction_writes(stage, tmp_path):
     timed = ("wall_time_s", "cpu_time_s")
     assert {k: v for k, v in got.items() if k not in timed} == \
         json.loads(json.dumps({k: v for k, v in want.items() if k not in timed}))
+
+
+def test_a_recorded_train_gain_line_reads_back_the_same_numbers():
+    """The command writes each number so that the parser reads back the same float (0.001, but all the digits
+    of 1.2345678e-3), and every option of the spec survives the round trip."""
+    from adaptfilt.experiments.jobs import GainSpec
+
+    spec = GainSpec("ctm-ukf", "unsupervised", 7, 2, ("a.npz", "b.npz"), snapshots=(3, 7), truth="q=4,r=1",
+                    horizon=40, train_runs=9, val_runs=5, batch_size=3, lr=1.2345678e-3, weight_decay=0.0,
+                    clip=0.5, tbptt=10, feature_norm="l2", on_diverged="restore")
+    args = build_parser().parse_args(shlex.split(spec.command)[1:])
+    back = GainSpec(args.name, args.loss, args.epochs, args.seed, tuple(args.out), snapshots=args.snapshots,
+                    arch=args.arch, truth=args.truth, horizon=args.horizon, train_runs=args.train_runs,
+                    val_runs=args.val_runs, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
+                    clip=args.clip, tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged)
+    assert back == spec and "--lr 0.0012345678" in spec.command and "--clip 0.5" in spec.command

@@ -69,6 +69,12 @@ def _flag(name: str, value, fmt: str = "") -> str:
     return "" if value is None else f" --{name} {format(value, fmt)}"
 
 
+def _exact(x: float) -> str:
+    """A number as short as ``:g`` writes it where that reads back the same float, else in full."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
+
+
 @dataclass(frozen=True)
 class TrainSpec:
     """One policy to train: the arguments of ``adaptfilt train`` (a :class:`Training`).
@@ -192,8 +198,8 @@ class GainSpec:
         return (f"adaptfilt train-gain {self.experiment} --arch {self.arch} --loss {self.loss} "
                 f"--epochs {self.epochs}{snaps} --seed {self.seed}" + _flag("truth", self.truth)
                 + _flag("horizon", self.horizon) + f" --train-runs {self.train_runs} --val-runs {self.val_runs} "
-                f"--batch-size {self.batch_size} --lr {self.lr:g} --weight-decay {self.weight_decay:g}"
-                + _flag("clip", self.clip, "g") + _flag("tbptt", self.tbptt)
+                f"--batch-size {self.batch_size} --lr {_exact(self.lr)} --weight-decay {_exact(self.weight_decay)}"
+                + ("" if self.clip is None else f" --clip {_exact(self.clip)}") + _flag("tbptt", self.tbptt)
                 + f" --feature-norm {self.feature_norm} --on-diverged {self.on_diverged}"
                 + "".join(f" --out {o}" for o in self.outs))
 
