@@ -325,7 +325,7 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
     se = metrics.squared_error(traj.x[:12], pmf.run(traj.z[:12]).mean)
     floor = ungm_floor(12, 0, 8, eval_runs=30)
     assert floor["rmse"] == pytest.approx(float(np.sqrt(se.mean(axis=0)).mean()), rel=1e-12)
-    assert "30 runs" in floor["trajectories"] and "eval_runs=30" in floor["command"]
+    assert "30 runs" in floor["trajectories"] and "--eval-runs 30" in floor["command"]
     assert ungm_floor(12, 0, 8)["rmse"] != floor["rmse"]  # the first 12 of 10^4 runs are other runs
 
 
