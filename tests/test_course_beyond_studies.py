@@ -1,4 +1,4 @@
-"""adaptfilt.course.beyond_studies: the helpers of chapter 13, against the library's definitions."""
+"""adaptfilt.course.beyond_studies: the helpers of chapters 14-15, against the library's definitions."""
 import matplotlib
 
 matplotlib.use("Agg")

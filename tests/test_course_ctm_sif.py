@@ -1,4 +1,4 @@
-"""adaptfilt.course.ctm_sif: chapter 10's analyses (the innovation a policy responds to, the SIF's
+"""adaptfilt.course.ctm_sif: chapter 11's analyses (the innovation a policy responds to, the SIF's
 integration noise), against direct computations."""
 from course_stand_ins import close_figures  # noqa: F401 (fixtures: tests/course_stand_ins.py)
 

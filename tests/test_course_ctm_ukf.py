@@ -1,4 +1,4 @@
-"""adaptfilt.course.ctm_ukf: chapter 9's analyses (reach, position and velocity, the line of sight),
+"""adaptfilt.course.ctm_ukf: chapter 10's analyses (reach, position and velocity, the line of sight),
 against direct computations and the chi-square law of a consistent filter."""
 from course_stand_ins import close_figures  # noqa: F401 (fixtures: tests/course_stand_ins.py)
 
@@ -17,6 +17,19 @@ from adaptfilt.policies import FixedPolicy, GreedyPolicy
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
 
+def test_position_rmse_share_is_the_ratio_of_the_position_rmses_with_a_paired_interval():
+    model = af.models.coordinated_turn(n_steps=20)
+    traj = model.simulate(n_runs=60, rng=np.random.default_rng(2))
+    ukf, ukf50 = af.UKF(model).run(traj.z), af.UKF(model).run(traj.z, params=50.0)
+    rmse = lambda r: float(np.sqrt(((traj.x[..., [0, 2]] - r.mean[..., [0, 2]]) ** 2).sum(-1).mean(0)).mean())
+    share, lo, hi = ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3)
+    assert share == pytest.approx(1 - rmse(ukf) / rmse(ukf50), rel=1e-12)
+    assert lo < share < hi and hi - lo > 0.01  # 60 runs: a real interval around the point estimate
+    assert ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3) == (share, lo, hi)
+    # the share of the better filter's error that the worse one lacks is negative
+    assert ctm_ukf.position_rmse_share(traj.x, ukf, ukf50, n_boot=500)[0] < 0
+
+
 def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_ends():
     # a linear measurement: every kappa gives the Kalman Pzz, so the grid reaches nothing
     lin = af.models.linear_gaussian(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[0.5]], m0=[0.0], P0=[[2.0]], n_steps=20)
@@ -27,7 +40,7 @@ def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_end
     np.testing.assert_allclose(a.pzz_hi / a.pzz_lo, 1.0, rtol=1e-9)
     assert a.choice.shape == (30, 20) and (a.choice == 5.0).all() and a.inside.mean() < 0.01
     # UNGM: Pzz grows with kappa, so greedy takes the smallest kappa whenever the default NIS is below 1
-    # at kappa_min (chapter 8's gate) and the largest when even kappa_max leaves the NIS above 1
+    # at kappa_min (chapter 9's gate) and the largest when even kappa_max leaves the NIS above 1
     exp = get_experiment("ungm-ukf")
     env = exp.make_env(n_steps=40)
     traj = exp.make_model().simulate(n_runs=30, n_steps=41, rng=np.random.default_rng(2))

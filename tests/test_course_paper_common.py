@@ -1,4 +1,4 @@
-"""adaptfilt.course.paper_common: what chapters 8-10 share (seed tables, differences, usage, the
+"""adaptfilt.course.paper_common: what chapters 9-11 share (seed tables, differences, usage, the
 trade-off panels and their labels), against the stored evaluations."""
 from course_stand_ins import close_figures, ungm_res  # noqa: F401 (fixtures: tests/course_stand_ins.py)
 
@@ -27,9 +27,10 @@ def test_seed_table_lists_every_seed_and_the_iqm(ungm_res):
         paper_common.seed_table_md(ungm_res, ["no-such-group"])
 
 
-def test_differences_md_marks_the_interval(ungm_res):
+def test_differences_md_gives_the_rules_verdict(ungm_res):
     md = paper_common.differences_md(ungm_res, [("fixed-kappa=0", "fixed-kappa=200"), ("greedy", "ml")], ["rmse"])
-    assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| a > b |")
+    assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| contradicted |")
+    assert md.splitlines()[3].endswith("| not confirmed |")  # greedy - ml: +0.0007 [-0.012, +0.015]
     d, lo, hi = ungm_res.paired_difference("greedy", "ml", "rmse")  # one policy each: the run-level paired CI
     assert f"{d:+.3g} [{lo:+.3g}, {hi:+.3g}]" in md
 

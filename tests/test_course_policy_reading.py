@@ -1,4 +1,4 @@
-"""adaptfilt.course.policy_reading: how chapter 7 reads a policy (its state, usage, switch-off curves),
+"""adaptfilt.course.policy_reading: how chapter 8 reads a policy (its state, usage, switch-off curves),
 against direct computations."""
 import matplotlib
 

@@ -1,4 +1,4 @@
-"""adaptfilt.course.training: the helpers of chapter 6 (the learner, its sign, the implement-it-yourself
+"""adaptfilt.course.training: the helpers of chapters 6-7 (the learner, its sign, the implement-it-yourself
 actor update), against direct computations."""
 import matplotlib
 

@@ -1,4 +1,4 @@
-"""adaptfilt.course.ungm_ukf: chapter 8's analyses (the NIS gate, the fixed conventions, the floor per
+"""adaptfilt.course.ungm_ukf: chapter 9's analyses (the NIS gate, the fixed conventions, the floor per
 step), against the UKF and the point-mass filter."""
 from course_stand_ins import close_figures, ungm_res  # noqa: F401 (fixtures: tests/course_stand_ins.py)
 
@@ -12,7 +12,7 @@ from adaptfilt.course import ctm_ukf, ungm_ukf
 from adaptfilt.experiments import claims
 from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.seed_stats import aggregate
-from adaptfilt.policies import FixedPolicy, GreedyPolicy
+from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
@@ -51,6 +51,25 @@ def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
 
 
 # ---------------------------------------------------------------- figures
+
+
+def test_greedy_and_ml_on_ungm_are_the_closed_form_argmins_of_their_losses():
+    # In the states each rule visits, the NIS of every grid value in closed form (nis_at) must give
+    # back its choices: greedy's argmin of (NIS - 1)^2, ML's argmax of the Gaussian likelihood
+    # -(log Pzz + NIS)/2, i.e. argmin of NIS - log NIS since nu does not depend on kappa on UNGM.
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=60)
+    traj = exp.make_model().simulate(n_runs=40, n_steps=61, rng=np.random.default_rng(6))
+    grid = np.asarray(env.grid)
+    for pol, loss in ((GreedyPolicy(grid=env.grid), lambda r: (r - 1.0) ** 2),
+                      (MaxLikelihoodPolicy(grid=env.grid), lambda r: r - np.log(r))):
+        a = ungm_ukf.gate_anatomy(env, pol, traj)
+        nis = a.nis_at(grid)
+        assert nis.shape == (grid.size,) + a.kappa.shape
+        np.testing.assert_allclose(nis[0], a.nis0, rtol=1e-12)
+        np.testing.assert_array_equal(grid[np.argmin(loss(nis), axis=0)], a.kappa)
+    with pytest.raises(ValueError, match="no predicted moments"):
+        ungm_ukf.GateAnatomy("bare", a.kappa, a.nis0, a.wrong_sign, a.sq_err).nis_at(0.0)
 
 
 def test_fixed_conventions_and_cost_time_figures(ungm_res):

@@ -49,7 +49,7 @@ def test_every_integer_result_in_the_prose_is_one_the_chapter_set_or_printed(pat
 
 
 def test_the_integer_check_catches_a_count_of_runs_no_output_states():
-    """A review's finding: chapter 14 said "500 runs" where its study stored 250, while 500 was printed as a
+    """A review's finding: chapter 16 said "500 runs" where its study stored 250, while 500 was printed as a
     grid value and a particle count: a count is matched only by a count of the same thing."""
     out = {"cell_type": "code", "source": "print(protocol)", "outputs": [{"output_type": "stream", "text":
            "ungm-pf-1e-4: evaluated on 250 runs; 8 learned seeds\n| bpf-500 | 0.647 | 500 | 3.60% |\n"

@@ -284,7 +284,7 @@ def landing_chapter(root: Path, notebooks: Sequence[tuple[Path, Mapping[str, Any
 
 
 def _chapter_label(stem: str) -> str:
-    """``"08-ukf-ungm"`` -> ``"chapter 8"`` (the file's number; the stem if it has none)."""
+    """``"09-ukf-ungm"`` -> ``"chapter 9"`` (the file's number; the stem if it has none)."""
     m = re.match(r"^(\d+)-", stem)
     return f"chapter {int(m.group(1))}" if m else stem
 

@@ -44,7 +44,8 @@ import re
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-__all__ = ["Mismatch", "output_numbers", "prose_numbers", "matches", "unmatched", "borrowed", "cell_text", "counted"]
+__all__ = ["Mismatch", "output_numbers", "output_text", "prose_numbers", "matches", "unmatched", "borrowed", "cell_text",
+           "counted"]
 
 # A decimal number: optional sign (ASCII or Unicode minus), digits, a point, digits; or scientific.
 _NUMBER = re.compile(r"(?<![\w.:/])[-−+]?(\d+\.\d+(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.]*\d)(?![A-Za-z])")
@@ -99,7 +100,8 @@ def cell_text(cell: Mapping[str, Any]) -> str:
     return "".join(src) if isinstance(src, list) else src
 
 
-def _output_text(cell: Mapping[str, Any]) -> str:
+def output_text(cell: Mapping[str, Any]) -> str:
+    """What a code cell printed: its text, plain, Markdown, HTML (tags stripped) and LaTeX outputs."""
     parts = []
     for out in cell.get("outputs", []):
         if "text" in out:
@@ -131,7 +133,7 @@ def output_numbers(cells: Iterable[Mapping[str, Any]]) -> list[tuple[float, int]
     found = set()
     for cell in cells:
         if cell.get("cell_type") == "code":
-            text = _ranges_apart(_output_text(cell))
+            text = _ranges_apart(output_text(cell))
             for m in _NUMBER.finditer(text):
                 found.add((abs(float(m.group(1))), _decimals(m.group(1))))
             for m in _INTEGER.finditer(text):
@@ -200,7 +202,7 @@ def counted(cells: Iterable[Mapping[str, Any]]) -> dict[str, set[int]]:
     for cell in cells:
         if cell.get("cell_type") != "code":
             continue
-        for text in (_output_text(cell), cell_text(cell)):
+        for text in (output_text(cell), cell_text(cell)):
             for m in _COUNT.finditer(text):
                 kind = _unit_kind(_UNIT_WORD.match(text[m.end():]).group(1))
                 if kind in found:

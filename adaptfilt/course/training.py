@@ -1,6 +1,7 @@
-r"""Training a policy, as chapter 6 (The actor-critic) shows it: the sign demonstration on a toy, a
-learning curve, the scale of the costs and of the features, the reader's actor update checked against
-the library's, and one policy's probabilities at several information states.
+r"""Training a policy, as chapters 6 (Policy gradient and actor-critic) and 7 (PPO and the training
+recipe) show it: the sign demonstration on a toy, a learning curve, the scale of the costs and of the
+features, the reader's actor update checked against the library's, and one policy's probabilities at
+several information states.
 
 ========================================  =========================================================
 function                                  what
@@ -16,7 +17,7 @@ check_actor_update                        fixed batch: the gradient it gives, an
 plot_state_probs                          one policy's ``pi(theta | s)`` at several states
 ========================================  =========================================================
 
-The chapter's widget is :func:`adaptfilt.course.policy_reading.show_policy_probs` (chapter 7 uses
+The chapter's widget is :func:`adaptfilt.course.policy_reading.show_policy_probs` (chapter 8 uses
 it too). As :mod:`adaptfilt.course.common` and the modules of chapters 1-4 do: what a chapter
 computes in passing and its figures live here, documented and tested (``tests/test_course_training.py``),
 so that a chapter reads as prose with short calls. Figures use :mod:`adaptfilt.style`.

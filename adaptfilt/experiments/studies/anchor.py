@@ -3,7 +3,7 @@ r"""Study 5, ``anchor``: learned policies anchored on greedy (:mod:`adaptfilt.an
 On the candidate-aware state (greedy is a function of its inputs), a residual over greedy's choice
 (``adaptive-anchored``, gamma = 0.5), beside the same learner with gamma = 0 (``myopic-anchored``: all
 else equal, so that the paired difference is what of the anchored gain is looking ahead, the rule of
-chapter 7) and the candidate-aware policies of :mod:`~adaptfilt.experiments.studies.cand`, on runs no
+chapter 8) and the candidate-aware policies of :mod:`~adaptfilt.experiments.studies.cand`, on runs no
 choice of its recipe saw (:data:`ANCHOR_EVAL_SEED`).
 """
 from __future__ import annotations

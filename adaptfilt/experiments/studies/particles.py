@@ -1,4 +1,4 @@
-r"""Study 7, ``particles``: the particle count (chapter 15). The science is
+r"""Study 7, ``particles``: the particle count (chapter 17). The science is
 :mod:`adaptfilt.experiments.particles_study` (the evaluation's parts, the reference filter, the floor, the
 rows, table and figure); this file is what ``adaptfilt beyond`` runs of it.
 
