@@ -534,72 +534,16 @@ def report_only(out_dir: str | Path, data: str | Path | None = None, progress: b
       ``data/``'s claims recomputed, and the verdict sections of its ``report-tables.md`` rewritten.
     """
     from adaptfilt.experiment_registry import EXPERIMENTS
-    from adaptfilt.experiments.agreement import agreement, agreement_md
-    from adaptfilt.experiments.artefacts import CHECK_FILES, find_data
-    from adaptfilt.experiments.claims import rejudge
-    from adaptfilt.experiments.fast_vs_faithful import comparison_md, rejudge as rejudge_ff
-    from adaptfilt.experiments.report import claims_md, replace_sections
-    from adaptfilt.results import Results
+    from adaptfilt.experiments.artefacts import find_data
 
     out = Path(out_dir).resolve()
     man = _load_manifest(out)
     if not man.get("files"):
         raise ValueError(f"{out}: no manifest.json listing files; not a reproduction or a stored check")
-    read = lambda rel: json.loads((out / rel).read_text()) if (out / rel).exists() else None  # noqa: E731
     found = find_data(data)
     ref_dir = found.resolve() if found is not None else None
-    files: dict[str, str] = {}
     exps = [e for e in EXPERIMENTS if (out / f"results/{e}/results.json").exists()]  # the reproduction's order
-    if exps:  # a reproduction: everything from its evaluations
-        results = {e: Results.load(out / f"results/{e}") for e in exps}
-        stored = read("timings.json") or {}
-        t1, cl = table1(results), claims(results)
-        files["results/table1.json"], files["results/claims.json"] = _dump(t1), _dump(cl)
-        files["results/table1.md"] = table1_md(t1)
-        extra = {}
-        if any("adaptive-faithful-s0" in x for x in results.values()):
-            from adaptfilt.experiments.fast_vs_faithful import comparison
-
-            ff = comparison(results, stored.get("jobs", {}))
-            files["results/fast-vs-faithful.json"] = _dump(ff)
-            extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
-        if ref_dir is not None and ref_dir != out and (ref_dir / "results/claims.json").exists():
-            agr = agreement(json.loads(files["results/claims.json"]), json.loads((ref_dir / "results/claims.json")
-                                                                                .read_text()))
-            files["results/agreement.json"] = _dump(agr)
-            extra["Verdicts of this full-scale run against the full scale (data/)"] = agreement_md(
-                agr, "this run", "full scale (data/)")
-        files["report-tables.md"] = report_tables(results, read("results/ungm-floor.json"), t1, cl,
-                                                  read("results/ctm-reconciliation.json"), stored.get("timings", {}),
-                                                  extra)
-    else:  # a stored check: its rows judged again from their intervals
-        have = [rel for rel in CHECK_FILES if (out / rel).exists()]
-        if "results/claims.json" not in have:
-            raise ValueError(f"{out}: neither evaluations (results/<experiment>/) nor stored claims to judge again")
-        cl = rejudge(read("results/claims.json"))
-        files["results/claims.json"] = _dump(cl)
-        sections = {"Claims (fast trainer, seed level)": claims_md(cl)}
-        if "faithful" in cl:
-            sections["Claims, paper-faithful training (seed level)"] = claims_md(cl["faithful"])
-        if "results/table1.json" in have:
-            files["results/table1.json"] = _dump(rejudge(read("results/table1.json")))
-        if "results/fast-vs-faithful.json" in have:
-            ff = rejudge_ff(read("results/fast-vs-faithful.json"))
-            files["results/fast-vs-faithful.json"] = _dump(ff)
-            sections["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
-        if "results/agreement.json" in have:
-            if ref_dir is None or not (ref_dir / "results/claims.json").exists():
-                raise ValueError(f"{out} holds an agreement with data/'s claims, and no data/ was found")
-            agr = agreement(cl, json.loads((ref_dir / "results/claims.json").read_text()))
-            files["results/agreement.json"] = _dump(agr)
-            tables = (out / "report-tables.md").read_text()
-            title = next(t for t in ("Verdicts at medium scale against the full scale (data/)",
-                                     "Verdicts of this full-scale run against the full scale (data/)")
-                         if f"\n### {t}\n" in tables)
-            here = "medium scale" if "medium" in title else "this run"
-            sections[title] = agreement_md(agr, here, "full scale (data/)")
-        if "report-tables.md" in have:
-            files["report-tables.md"] = replace_sections((out / "report-tables.md").read_text(), sections)
+    files = _rejudge_reproduction(out, exps, ref_dir) if exps else _rejudge_check(out, ref_dir)
     cmd = report_only_command(out, ref_dir)
     files = {rel: text for rel, text in files.items()  # a file that comes out byte for byte the same stays as made
              if not (out / rel).exists() or (out / rel).read_text() != text}
@@ -612,6 +556,80 @@ def report_only(out_dir: str | Path, data: str | Path | None = None, progress: b
     if progress:
         print(f"[report-only] {out}: {len(files)} files rewritten ({', '.join(sorted(files))})", file=sys.stderr)
     return sorted(files)
+
+
+def _read_json(out: Path, rel: str):
+    return json.loads((out / rel).read_text()) if (out / rel).exists() else None
+
+
+def _rejudge_reproduction(out: Path, exps: list[str], ref_dir: Path | None) -> dict[str, str]:
+    """:func:`report_only` on a reproduction: its files' new texts, everything from its evaluations."""
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+    from adaptfilt.experiments.fast_vs_faithful import comparison_md
+    from adaptfilt.results import Results
+
+    files: dict[str, str] = {}
+    results = {e: Results.load(out / f"results/{e}") for e in exps}
+    stored = _read_json(out, "timings.json") or {}
+    t1, cl = table1(results), claims(results)
+    files["results/table1.json"], files["results/claims.json"] = _dump(t1), _dump(cl)
+    files["results/table1.md"] = table1_md(t1)
+    extra = {}
+    if any("adaptive-faithful-s0" in x for x in results.values()):
+        from adaptfilt.experiments.fast_vs_faithful import comparison
+
+        ff = comparison(results, stored.get("jobs", {}))
+        files["results/fast-vs-faithful.json"] = _dump(ff)
+        extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+    if ref_dir is not None and ref_dir != out and (ref_dir / "results/claims.json").exists():
+        agr = agreement(json.loads(files["results/claims.json"]), json.loads((ref_dir / "results/claims.json")
+                                                                            .read_text()))
+        files["results/agreement.json"] = _dump(agr)
+        extra["Verdicts of this full-scale run against the full scale (data/)"] = agreement_md(
+            agr, "this run", "full scale (data/)")
+    files["report-tables.md"] = report_tables(results, _read_json(out, "results/ungm-floor.json"), t1, cl,
+                                              _read_json(out, "results/ctm-reconciliation.json"),
+                                              stored.get("timings", {}), extra)
+    return files
+
+
+def _rejudge_check(out: Path, ref_dir: Path | None) -> dict[str, str]:
+    """:func:`report_only` on a stored check: its files' new texts, its rows judged again from their intervals."""
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+    from adaptfilt.experiments.artefacts import CHECK_FILES
+    from adaptfilt.experiments.claims import rejudge
+    from adaptfilt.experiments.fast_vs_faithful import comparison_md, rejudge as rejudge_ff
+    from adaptfilt.experiments.report import claims_md, replace_sections
+
+    files: dict[str, str] = {}
+    have = [rel for rel in CHECK_FILES if (out / rel).exists()]
+    if "results/claims.json" not in have:
+        raise ValueError(f"{out}: neither evaluations (results/<experiment>/) nor stored claims to judge again")
+    cl = rejudge(_read_json(out, "results/claims.json"))
+    files["results/claims.json"] = _dump(cl)
+    sections = {"Claims (fast trainer, seed level)": claims_md(cl)}
+    if "faithful" in cl:
+        sections["Claims, paper-faithful training (seed level)"] = claims_md(cl["faithful"])
+    if "results/table1.json" in have:
+        files["results/table1.json"] = _dump(rejudge(_read_json(out, "results/table1.json")))
+    if "results/fast-vs-faithful.json" in have:
+        ff = rejudge_ff(_read_json(out, "results/fast-vs-faithful.json"))
+        files["results/fast-vs-faithful.json"] = _dump(ff)
+        sections["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+    if "results/agreement.json" in have:
+        if ref_dir is None or not (ref_dir / "results/claims.json").exists():
+            raise ValueError(f"{out} holds an agreement with data/'s claims, and no data/ was found")
+        agr = agreement(cl, json.loads((ref_dir / "results/claims.json").read_text()))
+        files["results/agreement.json"] = _dump(agr)
+        tables = (out / "report-tables.md").read_text()
+        title = next(t for t in ("Verdicts at medium scale against the full scale (data/)",
+                                 "Verdicts of this full-scale run against the full scale (data/)")
+                     if f"\n### {t}\n" in tables)
+        here = "medium scale" if "medium" in title else "this run"
+        sections[title] = agreement_md(agr, here, "full scale (data/)")
+    if "report-tables.md" in have:
+        files["report-tables.md"] = replace_sections((out / "report-tables.md").read_text(), sections)
+    return files
 
 
 def report_only_command(out: Path, data: Path | None = None) -> str:
