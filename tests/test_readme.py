@@ -90,3 +90,13 @@ def test_the_command_line_block_lists_every_command_and_every_study():
     assert "adaptfilt --version" in block
     line = next(ln for ln in block.splitlines() if ln.startswith("adaptfilt beyond"))
     assert f"--studies {','.join(STUDIES)}]" in line
+
+
+def test_filters_example_runs_and_pairs_the_particle_filter_with_the_policies():
+    block = next(b for b in _python_blocks() if "filters=" in b)
+    ns: dict = {}
+    exec(compile(block.replace("print(", "(lambda *a: None)("), "README-example-filters", "exec"), ns)
+    res = ns["res"]
+    assert res.names == ["default", "greedy", "bpf-500"] and res.config["filters"]["bpf-500"].startswith("Bootstrap")
+    d, lo, hi = res.paired_difference("bpf-500", "default", "rmse")
+    assert hi < 0 and np.isnan(res["bpf-500"].cost) and np.isfinite(res["bpf-500"].anees)

@@ -12,7 +12,8 @@ equality" in another. This check holds the words to :func:`adaptfilt.verdicts.ve
   not confirmed -->``. The check applies the rule to the declared interval and margin and compares the
   word; the interval must be one the sentence (or, where the sentence names none, its cell) states, or its
   mirror (a difference stated as a magnitude: "lower by 0.030 [0.017, 0.045]"); the
-  sentence must say the word (``confirmed``, or the claim itself: "lower", "not worse", "equal"; for
+  reference value must be one the prose or the outputs state; the sentence must say the word (``confirmed``,
+  or the claim itself: "lower", "not worse", "equal"; for
   "contradicted" also "higher", "worse"; for "not confirmed" also "not shown", "no detectable
   difference"); and an equivalence word ("equal", "tied") that the sentence affirms needs a declared
   "equal ... -> confirmed", which needs a declared margin. ``<!-- verdict: none -->`` marks a sentence
@@ -127,6 +128,12 @@ def _same(a: str, b: float) -> bool:
     return abs(x - b) <= 0.5 * 10.0 ** -digits * (1 + 1e-9) or abs(x - b) <= 1e-12 * max(1.0, abs(b))
 
 
+def _witnessed(value: float, text: str) -> bool:
+    """Whether ``text`` (a cell's prose and the outputs, declarations left out) states ``value`` as a decimal."""
+    plain = _DECL.sub(" ", text)
+    return any(_same(m.group(0), value) for m in re.finditer(r"(?<![\w.])\d+\.\d+(?:[eE][-+]?\d+)?", plain))
+
+
 def declarations(text: str) -> list[Declaration | str]:
     """The ``<!-- verdict: ... -->`` declarations of ``text``: a :class:`Declaration`, ``"none"``, or the
     body of one the check cannot read (a string)."""
@@ -213,6 +220,9 @@ def _sentence_problems(sentence: str, cell: str, where: str, outputs: str = "") 
         if not stated(here) and not stated(_INTERVAL.findall(outputs)):
             out.append(Problem(where, f"the declared interval [{d.lo:g}, {d.hi:g}] is not one the prose or the "
                                       "outputs state", prose))
+        if d.reference is not None and not _witnessed(d.reference, cell + "\n" + outputs):
+            out.append(Problem(where, f"the declared reference value {d.reference:g} (b's value, which sets the "
+                                      "margin) is not one the prose or the outputs state", prose))
         if not _says(d.claim, d.word, prose):
             out.append(Problem(where, f"the sentence does not say '{d.word}' for '{d.claim}'", prose))
     if _affirms_equivalence(sentence) and not any(
