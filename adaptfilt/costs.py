@@ -204,7 +204,9 @@ class ParticleCost:
             raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
         return (u.err * u.err).sum(axis=1)
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        """Cost per run of update ``u`` with ``theta`` particles; ``truth`` is not read: the particle update
+        carries the estimate's error itself (``u.err``), which ``"sqerr"`` reads."""
         c = self.estimation_cost(u, nz)
         return c + self.price * np.asarray(theta, dtype=float) if self.price else c
 
