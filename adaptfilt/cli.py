@@ -11,7 +11,9 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles] [--workers N] [--cluster ADDRESS] [--data DIR]
+    adaptfilt reproduce --out DIR --report-only [--data DIR]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain] [--workers N] [--cluster ADDRESS] [--data DIR]
+    adaptfilt beyond --out DIR --report-only
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
@@ -183,6 +185,15 @@ def _reproduce(args: argparse.Namespace) -> int:
 
     if args.quick and args.scale not in (None, "quick"):
         raise ValueError(f"--quick and --scale {args.scale}: give one of them")
+    if args.report_only:
+        from adaptfilt.experiments.reproduce import report_only
+
+        other = [f for f, on in (("--quick", args.quick), ("--scale", args.scale), ("--retrain", args.retrain),
+                                 ("--faithful", args.faithful)) if on]
+        if other:
+            raise ValueError(f"--report-only trains and evaluates nothing: drop {' and '.join(other)}")
+        report_only(Path(args.out), data=args.data, progress=not args.no_progress)
+        return 0
     with _resumable(Path(args.out) / JOURNAL):
         reproduce(out_dir=Path(args.out), quick=args.quick, scale=args.scale, retrain=args.retrain,
                   progress=not args.no_progress, faithful=args.faithful, workers=args.workers, cluster=args.cluster,
@@ -191,8 +202,13 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _beyond(args: argparse.Namespace) -> int:
-    from adaptfilt.experiments.beyond import JOURNAL, run, summary_md
+    from adaptfilt.experiments.beyond import JOURNAL, report_only, run, summary_md
 
+    if args.report_only:
+        if args.quick:
+            raise ValueError("--report-only trains and evaluates nothing: drop --quick")
+        report_only(Path(args.out), progress=not args.no_progress)
+        return 0
     with _resumable(Path(args.out) / "beyond" / JOURNAL):
         summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
                       studies=tuple(args.studies.split(",")), progress=not args.no_progress, data=args.data)
@@ -468,6 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None,
                    help="the stored artefacts to reuse (a copy of the repository's data/; default: $ADAPTFILT_DATA, "
                         "then the checkout's data/)")
+    p.add_argument("--report-only", action="store_true",
+                   help="recompute the verdicts and the report's tables from what OUT holds (its evaluations, or a "
+                        "stored check's intervals), keeping its recorded times; nothing is trained or evaluated")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_reproduce)
 
@@ -484,6 +503,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None,
                    help="where the reproduction's policies are (a copy of the repository's data/; default: "
                         "$ADAPTFILT_DATA, then the checkout's data/)")
+    p.add_argument("--report-only", action="store_true",
+                   help="judge the stored studies' verdicts again (summary.json, summary.md) from what OUT/beyond "
+                        "holds; nothing is trained or evaluated")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_beyond)
 

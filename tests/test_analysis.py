@@ -25,7 +25,7 @@ from scipy import stats  # noqa: E402
 from adaptfilt.seed_stats import aggregate  # noqa: E402
 from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter  # noqa: E402
 from adaptfilt.mdp import Cost, FilterEnv  # noqa: E402
-from adaptfilt.policies import FixedPolicy, GreedyPolicy  # noqa: E402
+from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy  # noqa: E402
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
@@ -65,7 +65,7 @@ def test_claims_subset_md_rederives_every_row_and_catches_a_changed_one(ungm_res
     lines = md.strip().splitlines()
     assert len(lines) == 2 + len(cl["C1"]) + len(cl["C2"])  # header, rule, one line per row
     assert "experiment" not in lines[0]  # one experiment: no experiment column
-    assert "adaptive equal to fixed-both-kappa=500" in md and "**contradicted (higher) (margin 0.135)**" in md
+    assert "adaptive equal to fixed-both-kappa=500" in md and "**contradicted (margin 0.135)**" in md
     bad = copy.deepcopy(cl)
     bad["C1"][0]["diff"] += 0.1
     with pytest.raises(ValueError, match="C1 adaptive lower than myopic on anees"):
@@ -143,9 +143,10 @@ def test_seed_table_lists_every_seed_and_the_iqm(ungm_res):
         paper_common.seed_table_md(ungm_res, ["no-such-group"])
 
 
-def test_differences_md_marks_the_interval(ungm_res):
+def test_differences_md_gives_the_rules_verdict(ungm_res):
     md = paper_common.differences_md(ungm_res, [("fixed-kappa=0", "fixed-kappa=200"), ("greedy", "ml")], ["rmse"])
-    assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| a > b |")
+    assert "| fixed-kappa=0 - fixed-kappa=200 | rmse |" in md and md.splitlines()[2].endswith("| contradicted |")
+    assert md.splitlines()[3].endswith("| not confirmed |")  # greedy - ml: +0.0007 [-0.012, +0.015]
     d, lo, hi = ungm_res.paired_difference("greedy", "ml", "rmse")  # one policy each: the run-level paired CI
     assert f"{d:+.3g} [{lo:+.3g}, {hi:+.3g}]" in md
 
@@ -188,6 +189,38 @@ def test_greedy_updates_fully_exactly_when_the_full_update_is_not_surprised():
     assert "greedy" in ungm_ukf.gate_table([g, f]) and ungm_ukf.plot_gate([g, f]).axes
     with pytest.raises(ValueError, match="UNGM UKF"):
         ungm_ukf.gate_anatomy(get_experiment("ctm-ukf").make_env(), GreedyPolicy(), traj)
+
+
+def test_greedy_and_ml_on_ungm_are_the_closed_form_argmins_of_their_losses():
+    # In the states each rule visits, the NIS of every grid value in closed form (nis_at) must give
+    # back its choices: greedy's argmin of (NIS - 1)^2, ML's argmax of the Gaussian likelihood
+    # -(log Pzz + NIS)/2, i.e. argmin of NIS - log NIS since nu does not depend on kappa on UNGM.
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=60)
+    traj = exp.make_model().simulate(n_runs=40, n_steps=61, rng=np.random.default_rng(6))
+    grid = np.asarray(env.grid)
+    for pol, loss in ((GreedyPolicy(grid=env.grid), lambda r: (r - 1.0) ** 2),
+                      (MaxLikelihoodPolicy(grid=env.grid), lambda r: r - np.log(r))):
+        a = ungm_ukf.gate_anatomy(env, pol, traj)
+        nis = a.nis_at(grid)
+        assert nis.shape == (grid.size,) + a.kappa.shape
+        np.testing.assert_allclose(nis[0], a.nis0, rtol=1e-12)
+        np.testing.assert_array_equal(grid[np.argmin(loss(nis), axis=0)], a.kappa)
+    with pytest.raises(ValueError, match="no predicted moments"):
+        ungm_ukf.GateAnatomy("bare", a.kappa, a.nis0, a.wrong_sign, a.sq_err).nis_at(0.0)
+
+
+def test_position_rmse_share_is_the_ratio_of_the_position_rmses_with_a_paired_interval():
+    model = af.models.coordinated_turn(n_steps=20)
+    traj = model.simulate(n_runs=60, rng=np.random.default_rng(2))
+    ukf, ukf50 = af.UKF(model).run(traj.z), af.UKF(model).run(traj.z, params=50.0)
+    rmse = lambda r: float(np.sqrt(((traj.x[..., [0, 2]] - r.mean[..., [0, 2]]) ** 2).sum(-1).mean(0)).mean())
+    share, lo, hi = ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3)
+    assert share == pytest.approx(1 - rmse(ukf) / rmse(ukf50), rel=1e-12)
+    assert lo < share < hi and hi - lo > 0.01  # 60 runs: a real interval around the point estimate
+    assert ctm_ukf.position_rmse_share(traj.x, ukf50, ukf, n_boot=500, seed=3) == (share, lo, hi)
+    # the share of the better filter's error that the worse one lacks is negative
+    assert ctm_ukf.position_rmse_share(traj.x, ukf, ukf50, n_boot=500)[0] < 0
 
 
 def test_reach_on_a_linear_model_is_nothing_and_greedy_on_ungm_pushes_to_the_ends():

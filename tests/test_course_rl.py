@@ -11,6 +11,7 @@ from adaptfilt.course import beyond_studies, policy_reading, seed_results, train
 from adaptfilt.evaluation import evaluate
 from adaptfilt.experiment_registry import get_experiment
 from adaptfilt import seed_stats as sd
+from adaptfilt import verdicts
 from adaptfilt.features import FeatureSet, fit_scaler, observe, visited_states
 from adaptfilt.policies import FixedPolicy, GreedyPolicy, default_policy
 
@@ -121,7 +122,12 @@ def test_seed_lines_and_verdicts(ungm_results):
     assert sum(v["counts"].values()) == 4
     for n, (d, lo, hi, verdict) in v["per_seed"].items():
         assert (d, lo, hi) == ungm_results.paired_difference(n, "fixed-kappa=200", "rmse")
-        assert verdict == sd.seed_verdict((d, lo, hi))
+        assert verdict == verdicts.verdict("lower", (lo, hi))
+    m = verdicts.margin("adaptive vs best fixed", "rmse", ungm_results["fixed-kappa=200"].rmse)
+    eq = seed_results.seed_verdicts(ungm_results, "a", "fixed-kappa=200", "rmse", "equal", m)["per_seed"]
+    assert all(v[3] == verdicts.verdict("equal", v[1:3], m) for v in eq.values())
+    with pytest.raises(ValueError, match="'equal' claim needs a declared margin"):
+        seed_results.seed_verdicts(ungm_results, "a", "fixed-kappa=200", "rmse", "equal")
 
 
 def test_claims_table_keeps_rows_with_per_seed_counts():
@@ -129,7 +135,7 @@ def test_claims_table_keeps_rows_with_per_seed_counts():
         {"experiment": "e", "claim": "adaptive lower than ml", "metric": "rmse", "diff": 0.5, "ci": [0.1, 0.9],
          "verdict": "contradicted", "seeds_holding": 0, "n_seeds": 8},
         {"experiment": "e", "claim": "adaptive lower than myopic", "metric": "rmse", "diff": 0.1, "ci": [-0.1, 0.3],
-         "verdict": "not confirmed (n.s.)", "seeds_holding": None, "n_seeds": 8},
+         "verdict": "not confirmed", "seeds_holding": None, "n_seeds": 8},
         {"experiment": "other", "claim": "adaptive lower than ml", "metric": "rmse", "diff": 0.5, "ci": [0.1, 0.9],
          "verdict": "contradicted", "seeds_holding": 3, "n_seeds": 8}]}
     rows = seed_results.claims_table(claims, "e").strip().splitlines()[2:]
@@ -139,10 +145,10 @@ def test_claims_table_keeps_rows_with_per_seed_counts():
 
 def test_claims_table_shows_the_margin_of_an_equal_claim():
     claims = {"C2": [{"experiment": "e", "claim": "adaptive equal than fixed", "metric": "rmse", "diff": -0.2,
-                      "ci": [-0.24, -0.15], "verdict": "contradicted (lower)", "seeds_holding": 2, "n_seeds": 8,
-                      "margin": 0.154, "verdict_no_margin": "contradicted (lower)"}]}
+                      "ci": [-0.24, -0.15], "verdict": "not confirmed", "seeds_holding": 2, "n_seeds": 8,
+                      "margin": 0.154, "declared": "adaptive vs best fixed"}]}
     row = seed_results.claims_table(claims, "e").strip().splitlines()[2]
-    assert "adaptive equal to fixed" in row and "contradicted (lower) (margin 0.154)" in row and "2/8" in row
+    assert "adaptive equal to fixed" in row and "not confirmed (margin 0.154)" in row and "2/8" in row
 
 
 def test_seed_spread_and_differences_figures(ungm_results):

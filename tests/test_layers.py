@@ -35,7 +35,7 @@ SUBLAYERS = {
     "core": ("_version", "linalg", "linalg_kernels", "models", "rules", "gaf", "metrics", "exact", "particles",
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
-    "evaluation": ("evaluation", "results", "seed_stats", "plots"),
+    "evaluation": ("evaluation", "results", "seed_stats", "verdicts", "plots"),
     "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet"),
 }
 #: What each sub-layer never imports.

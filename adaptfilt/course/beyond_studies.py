@@ -26,15 +26,16 @@ import numpy as np
 
 from adaptfilt.course.common import figure_axes
 from adaptfilt.course.seed_results import seed_verdicts
-from adaptfilt.seed_stats import seed_groups, seed_verdict
+from adaptfilt.seed_stats import seed_groups
+from adaptfilt.verdicts import verdict
 
 __all__ = ["verdict_counts", "plot_seed_differences", "divergence_onsets", "plot_cost_divergence", "plot_ood_gains"]
 
 
 def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("cost", "rmse")) -> str:
     r"""One line per metric: ``group - other`` as IQM over seeds [two-level 95 % CI], the seed-level
-    verdict, and how many seeds alone (their own paired run-level interval) find ``group`` lower,
-    tied or higher."""
+    verdict on "``group`` lower than ``other``" (:func:`adaptfilt.verdicts.verdict`), and what the seeds
+    alone (their own paired run-level interval) say about it."""
     from adaptfilt.seed_stats import difference
 
     names = seed_groups(results.names)[group]
@@ -43,7 +44,7 @@ def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("c
         d = difference(results, names, [other], m)["iqm"]
         c = seed_verdicts(results, group, other, m)["counts"]
         alone = ", ".join(f"{n} {v}" for v, n in sorted(c.items(), key=lambda kv: -kv[1]))
-        lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {seed_verdict(d)}"
+        lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {verdict('lower', d)}"
                      f"   (seeds alone: {alone})")
     return "\n".join(lines)
 

@@ -213,7 +213,8 @@ def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[s
                     d = v["rmse_diff"]
                     ds = "n/a" if d[0] is None or d[1] is None else \
                         f"{d[0]:+.3g} [{d[1]:+.3g}, {_end(d[2]):+.3g}]"
-                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {v['not_worse']} |")
+                    nw = v["not_worse"] or "n/a (no margin)"
+                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {nw} |")
     return "\n".join(lines)
 
 

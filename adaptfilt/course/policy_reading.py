@@ -8,6 +8,7 @@ function                                  what
 plot_share_over_time                      the share of runs at a parameter ``>=`` a value, per step
                                           (a seed group: averaged over its seeds)
 usage_lines                               per policy: RMSE and the grid values it uses
+equal_count_bins                          medians of x and means of y in bins of equal count of x
 plot_switch_off                           the probability of the large values against a feature
 ungm_state, plot_policy_probs             every policy's ``pi(theta | s)`` at one raw UNGM state
 show_policy_probs                         the widget body (chapters 7 and 8)
@@ -24,8 +25,8 @@ import numpy as np
 from adaptfilt.course.common import figure_axes
 from adaptfilt.seed_stats import seed_groups
 
-__all__ = ["plot_share_over_time", "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs",
-           "show_policy_probs"]
+__all__ = ["plot_share_over_time", "usage_lines", "equal_count_bins", "plot_switch_off", "ungm_state",
+           "plot_policy_probs", "show_policy_probs"]
 
 
 def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=None,
@@ -64,7 +65,7 @@ def usage_lines(results, names: Sequence[str], split: float = 50.0, min_share: f
     return "\n".join(out)
 
 
-def _binned(x: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+def equal_count_bins(x: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
     """Medians of ``x`` and means of ``y`` in ``n_bins`` bins of equal count of ``x``."""
     order = np.argsort(x)
     parts = np.array_split(order, n_bins)
@@ -88,7 +89,7 @@ def plot_switch_off(policies: Sequence, states: np.ndarray, columns: Mapping[str
         x = np.abs(states[:, j])
         for pol, c in zip(policies, cols):
             p = pol.probs(states)[:, np.asarray(pol.grid) >= at_least].sum(axis=1)
-            mid, mean = _binned(x, p, n_bins)
+            mid, mean = equal_count_bins(x, p, n_bins)
             ax.plot(mid, mean, "o-", ms=3, color=c, label=pol.name)
         ax.set(xscale="log", xlabel=f"{label} (bins of equal count)", ylim=(-0.02, 1.02))
     axes[0].set_ylabel(f"$\\pi(\\kappa \\geq$ {at_least:g}$\\,|\\,s)$")

@@ -149,13 +149,28 @@ class GateAnatomy:
     (:math:`\kappa_\min`, the full update) would give (:func:`ungm_nis`: a function of the
     information state, so a learned policy can see it too); ``wrong_sign``: the prediction is on
     the other branch than the truth (:math:`\operatorname{sign}\hat x_{k|k-1} \ne \operatorname{sign} x_k`);
-    ``sq_err``: the squared filtering error."""
+    ``sq_err``: the squared filtering error; ``x_pred``, ``P_pred``, ``z`` and ``R``: the predicted
+    moments, the measurement and its noise variance at each decision, from which :meth:`nis_at` gives
+    the NIS of any other :math:`\kappa` in the same state."""
 
     name: str
     kappa: np.ndarray
     nis0: np.ndarray
     wrong_sign: np.ndarray
     sq_err: np.ndarray
+    x_pred: np.ndarray | None = None
+    P_pred: np.ndarray | None = None
+    z: np.ndarray | None = None
+    R: float = 1.0
+
+    def nis_at(self, kappa) -> np.ndarray:
+        r"""The NIS that each value of ``kappa`` would give at every recorded decision
+        (:func:`ungm_nis` in the states this policy visited): shape ``kappa.shape + (M, T)``,
+        so ``nis_at(grid)`` holds the whole grid, one row per value. ``nis_at(grid[0])`` is ``nis0``."""
+        if self.x_pred is None:
+            raise ValueError(f"the anatomy of {self.name!r} holds no predicted moments (made without gate_anatomy)")
+        k = np.asarray(kappa, dtype=float)
+        return ungm_nis(k.reshape(k.shape + (1, 1)), self.x_pred, self.P_pred, self.z, R=self.R)
 
     @property
     def rmse(self) -> float:
@@ -188,9 +203,10 @@ def gate_anatomy(env, policy, traj, name: str | None = None) -> GateAnatomy:
     m, P = run.x_pred[..., 0], run.P_pred[..., 0, 0]
     T = m.shape[1]
     x, z = traj.x[:, :T, 0], traj.z[:, :T, 0]
-    nis0 = ungm_nis(float(np.min(env.grid)), m, P, z, R=float(env.filt.model.R[0, 0]))
+    R = float(env.filt.model.R[0, 0])
+    nis0 = ungm_nis(float(np.min(env.grid)), m, P, z, R=R)
     return GateAnatomy(name or getattr(policy, "name", "policy"), run.params, nis0, np.sign(m) != np.sign(x),
-                       (run.mean[..., 0] - x) ** 2)
+                       (run.mean[..., 0] - x) ** 2, m, P, z, R)
 
 
 def gate_table(anatomies: Sequence[GateAnatomy], coast: float = 1000.0) -> str:

@@ -20,6 +20,7 @@ for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 14 reads beyond.SIF_EXPERIMENTS
@@ -32,7 +33,8 @@ from adaptfilt.experiments.study import (FULL, QUICK, BeyondScale, Run, listed_p
                                          same_training, study_rows)
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "command", "summary_md", "STUDIES", "JOURNAL", "SELECTION_SEED",
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "report_only", "command", "summary_md", "STUDIES", "JOURNAL",
+           "SELECTION_SEED",
            "select_safe_actions", "SIF_EXPERIMENTS", "study_rows"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
@@ -113,6 +115,45 @@ def _write(r: Run, summary: dict, version: str) -> dict:
                       "version": version, "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
     atomic_write(out / "manifest.json", json.dumps({"scale": r.scale.name, "files": [files[k] for k in sorted(files)]},
                                                    indent=1) + "\n")
+    return summary
+
+
+def report_only(out_dir: str | Path, progress: bool = True) -> dict:
+    """``adaptfilt beyond --out DIR --report-only``: the studies' verdict words judged again by the one rule
+    (:mod:`adaptfilt.verdicts`) from what ``DIR/beyond`` holds, nothing trained or evaluated: the look-ahead
+    references' "lower cost than greedy" from their stored intervals, the learned-gain study's verdicts from
+    its stored evaluations (``results/gain-<model>-<regime>`` and ``-curve``). ``summary.json`` (its manifest
+    entry: the new sha256 and this command) and ``summary.md`` are rewritten when they change. Returns the
+    summary."""
+    from adaptfilt.experiments.look import rejudge as rejudge_look
+    from adaptfilt.experiments.studies import gain
+    from adaptfilt.results import Results
+
+    out = Path(out_dir).resolve() / "beyond"
+    summary = json.loads((out / "summary.json").read_text())
+    if "look" in summary:
+        summary["look"] = rejudge_look(summary["look"])
+    if "gain" in summary:
+        sc = gain.FULL if summary["gain"]["scale"] == gain.FULL.name else gain.QUICK
+        last = len(summary["gain"]["target_cpu_s"])
+        for e, regimes in summary["gain"]["models"].items():
+            for r, m in regimes.items():
+                final, curve = (Results.load(out / f"results/gain-{e}-{r}{x}") for x in ("", "-curve"))
+                m["verdicts"] = gain.verdict_rows(final, last, sc.seeds) + [
+                    v for b in gain.budgets(sc) if b < last for v in gain.verdict_rows(curve, b, sc.seeds)]
+    text = json.dumps(summary, indent=1) + "\n"
+    if text != (out / "summary.json").read_text():
+        atomic_write(out / "summary.json", text)
+        man = json.loads((out / "manifest.json").read_text())
+        for f in man["files"]:
+            if f["path"] == "summary.json":
+                f.update(sha256=sha256(out / "summary.json"), command=f"adaptfilt beyond --out {out_dir} --report-only")
+        atomic_write(out / "manifest.json", json.dumps(man, indent=1) + "\n")
+    md = summary_md(summary)
+    if not (out / "summary.md").exists() or md != (out / "summary.md").read_text():
+        atomic_write(out / "summary.md", md)
+    if progress:
+        print(f"[beyond report-only] {out}: summary.json and summary.md judged again", file=sys.stderr)
     return summary
 
 

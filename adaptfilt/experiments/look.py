@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.report import md_table
+from adaptfilt.verdicts import verdict
 
-__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "plot_look_gain", "look_md", "look_files"]
+__all__ = ["LOOK", "LOOK_QUICK", "look_specs", "look_job", "look_summary", "rejudge", "plot_look_gain", "look_md",
+           "look_files"]
 
 #: experiment -> (paired runs, ((H, S), ...)): the rollout references; UNGM also gets the two-step cross-check.
 #: Sized by ``benchmarks/bench_lookahead.py`` (rollout H = 1, S = 4 costs 36x greedy's time on UNGM, 59x on
@@ -109,10 +111,20 @@ def look_summary(res) -> dict:
                              **{m: aggregate(res, names, m).iqm for m in metrics},
                              "minus_greedy": {m: list(difference(res, names, ["greedy"], m)["iqm"]) for m in metrics}}
     # Bertsekas' cost improvement: rollout on greedy costs no more than greedy (exact expectations, full
-    # horizon); here truncated and sampled, so measured: "holds" when the paired interval is not above 0
+    # horizon); here truncated and sampled, so measured: the verdict on "the reference is lower than greedy"
     for n, row in out["references"].items():
-        d = row["minus_greedy"][cost]
-        row["improves_on_greedy"] = "yes" if d[2] < 0 else ("no (worse)" if d[1] > 0 else "not separable")
+        row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
+    return out
+
+
+def rejudge(look: dict) -> dict:
+    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` judged again
+    by the one rule from its stored interval of the verdict cost's difference to greedy."""
+    out = {}
+    for e, s in look.items():
+        refs = {n: {**row, "improves_on_greedy": verdict("lower", row["minus_greedy"][s["verdict_cost"]])}
+                for n, row in s["references"].items()}
+        out[e] = {**s, "references": refs}
     return out
 
 
@@ -217,7 +229,7 @@ def look_md(look: dict) -> str:
              "cost: the experiment's verdict cost, charged for what a policy computes where the cost charges "
              "compute; compute per step in UKF updates or SIF iterations)", "",
              *md_table(["experiment", "policy", "cost", "cost - greedy", "RMSE - greedy", "ANEES - greedy",
-                        "compute per step", "improves on greedy?"])]
+                        "compute per step", "lower cost than greedy"])]
     for e, s in look.items():
         c = s["verdict_cost"]
         g = s["baselines"]["greedy"]

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from adaptfilt.experiments.report import md_table
+from adaptfilt.verdicts import verdict
 
 __all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "EVAL_PARTS", "evaluate_model_job",
            "merge_model_parts", "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
@@ -204,10 +205,11 @@ def particle_rows(res, floor: dict | None = None) -> dict:
         for label, other in (("best kld", kld), ("best fixed", best), ("best reference", best_ref)):
             if other is not None:
                 g[f"minus_{label}"] = {m: list(difference(res, members, [other], m)["iqm"]) for m in ("cost_charged", "rmse")}
-        # a seed is below a baseline alone when its own paired run-level interval lies below zero
+        # a seed is below a baseline alone when its own paired run-level interval confirms "lower"
         for label, other in (("kld", kld), ("fixed", best), ("reference", best_ref)):
             if other is not None:
-                g[f"seeds_below_{label}"] = int(sum(res.paired_difference(n, other, "cost_charged")[2] < 0 for n in members))
+                g[f"seeds_below_{label}"] = sum(verdict("lower", res.paired_difference(n, other, "cost_charged"))
+                                                == "confirmed" for n in members)
         rows["adaptive"] = g
     return rows
 

@@ -19,7 +19,7 @@ from adaptfilt.seed_stats import aggregate, seed_groups
 
 __all__ = ["summary_md", "table1_md", "table1_columns_md", "table1_compute_md", "claims_md", "claim_rows",
            "claims_subset_md", "recon_md", "timings_md", "report_tables", "figures", "figure_policies",
-           "embed_report_tables", "BEGIN_MARK", "END_MARK", "fmt", "CLAIM_KEYS"]
+           "embed_report_tables", "replace_sections", "BEGIN_MARK", "END_MARK", "fmt", "CLAIM_KEYS"]
 
 BEGIN_MARK, END_MARK = "<!-- BEGIN report-tables -->", "<!-- END report-tables -->"
 
@@ -84,12 +84,10 @@ def metric_label(row: dict) -> str:
 
 
 def verdict_text(row: dict) -> str:
-    """A claim row's verdict, with its margin, and the verdict without it where the two differ."""
+    """A claim row's verdict (:func:`adaptfilt.verdicts.verdict`), with its declared margin where it has one."""
     v = row["verdict"]
     if "margin" in row:
         v += f" (margin {row['margin']:.3g})"
-        if row.get("verdict_no_margin") not in (None, row["verdict"]):
-            v += f"; without a margin: {row['verdict_no_margin']}"
     return v
 
 
@@ -213,8 +211,10 @@ def claim_rows(cl: dict, keys=CLAIM_KEYS, experiments=None, metrics=None) -> lis
 
 
 def _better(row: dict) -> str:
-    """The claimed direction of a row: its ``claim`` reads "``a`` <better> than ``b``"."""
-    return row["claim"][len(row["a"]) + 1: len(row["claim"]) - len(row["b"]) - len(" than ")]
+    """The claim of a row (:func:`adaptfilt.experiments.claims.claim_of`)."""
+    from adaptfilt.experiments.claims import claim_of
+
+    return claim_of(row)
 
 
 def _phrase(row: dict) -> str:
@@ -246,7 +246,8 @@ def claims_subset_md(cl: dict, keys=CLAIM_KEYS, experiments=None, metrics=None, 
         for r in rows:
             if r["experiment"] not in results:
                 raise ValueError(f"{r['key']} {r['claim']} ({r['experiment']}): no results given for this experiment")
-            new = compare(results[r["experiment"]], r["a"], r["b"], r["metric"], better=_better(r))
+            new = compare(results[r["experiment"]], r["a"], r["b"], r["metric"], better=_better(r),
+                          declared=r.get("declared"))
             got = [new["a_value"], new["b_value"], new["diff"], *new["ci"]]
             want = [r["a_value"], r["b_value"], r["diff"], *r["ci"]]
             if not np.allclose(got, want, rtol=1e-9, atol=0) or new["verdict"] != r["verdict"]:
@@ -301,6 +302,18 @@ def report_tables(results: dict, floor: dict | None, t1: dict, claims: dict, rec
         parts.append("### CTM reconciliation\n\n" + recon_md(rec))
     parts.append("### Stage times\n\n" + timings_md(timings))
     return "\n".join(parts)
+
+
+def replace_sections(tables_md: str, sections: dict[str, str]) -> str:
+    """``tables_md`` (:func:`report_tables`' document) with the body of each ``### title`` section named in
+    ``sections`` replaced; a title the document lacks is an error (nothing is appended)."""
+    parts = tables_md.split("\n### ")
+    titles = [p.split("\n", 1)[0] for p in parts]
+    missing = [t for t in sections if t not in titles[1:]]
+    if missing:
+        raise ValueError(f"no section {missing[0]!r} in the report's tables; have: {', '.join(titles[1:])}")
+    return "\n### ".join(p if i == 0 or titles[i] not in sections else f"{titles[i]}\n\n{sections[titles[i]]}"
+                         for i, p in enumerate(parts))
 
 
 def figure_policies(res) -> list[str]:

@@ -70,7 +70,7 @@ from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # n
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["reproduce", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command", "sha256",
+__all__ = ["reproduce", "report_only", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command", "sha256",
            "ungm_floor", "ctm_reconciliation", "embed_report_tables"]
 
 #: Training seeds of every learned policy.
@@ -515,6 +515,117 @@ def _extra_tables(r: _Run, results: dict, cl: dict) -> dict[str, str]:
         extra[f"{title} against the full scale (data/)"] = agreement_md(agr, here, "full scale (data/)")
         r.say(f"[report] {agr['n_same']} of {agr['n']} seed-level verdicts as in data/ (results/agreement.json)")
     return extra
+
+
+def report_only(out_dir: str | Path, data: str | Path | None = None, progress: bool = True) -> list[str]:
+    """``adaptfilt reproduce --out DIR --report-only``: the verdicts and the report's tables again, from what
+    ``DIR`` holds, nothing trained or evaluated; for a change of the verdict rule or of the report. Returns the
+    files rewritten; each is listed in DIR's manifest with its new sha256 and, as its command, this one.
+
+    * A reproduction (``data/``, or a full-scale ``DIR``): the claims, Table I and the fast-vs-faithful
+      comparison recomputed from its evaluations (``results/<experiment>/``), and ``report-tables.md`` with
+      every stage time and training time that ``timings.json`` recorded (kept unchanged: no run was made);
+      the figures are kept (they hold no verdict); a ``DIR`` other than ``data/`` also gets its agreement
+      with ``data/`` again, as ``reproduce`` writes it.
+    * A stored check (``data/medium``, ``data/retrain``: its summaries only,
+      :func:`adaptfilt.experiments.artefacts.store_check`): every stored row judged again by the one rule from
+      its stored interval and margin (:func:`adaptfilt.experiments.claims.rejudge`), its agreement with
+      ``data/``'s claims recomputed, and the verdict sections of its ``report-tables.md`` rewritten.
+    """
+    from adaptfilt.experiment_registry import EXPERIMENTS
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+    from adaptfilt.experiments.artefacts import CHECK_FILES, find_data
+    from adaptfilt.experiments.claims import rejudge
+    from adaptfilt.experiments.fast_vs_faithful import comparison_md, rejudge as rejudge_ff
+    from adaptfilt.experiments.report import claims_md, replace_sections
+    from adaptfilt.results import Results
+
+    out = Path(out_dir).resolve()
+    man = _load_manifest(out)
+    if not man.get("files"):
+        raise ValueError(f"{out}: no manifest.json listing files; not a reproduction or a stored check")
+    read = lambda rel: json.loads((out / rel).read_text()) if (out / rel).exists() else None  # noqa: E731
+    found = find_data(data)
+    ref_dir = found.resolve() if found is not None else None
+    files: dict[str, str] = {}
+    exps = [e for e in EXPERIMENTS if (out / f"results/{e}/results.json").exists()]  # the reproduction's order
+    if exps:  # a reproduction: everything from its evaluations
+        results = {e: Results.load(out / f"results/{e}") for e in exps}
+        stored = read("timings.json") or {}
+        t1, cl = table1(results), claims(results)
+        files["results/table1.json"], files["results/claims.json"] = _dump(t1), _dump(cl)
+        files["results/table1.md"] = table1_md(t1)
+        extra = {}
+        if any("adaptive-faithful-s0" in x for x in results.values()):
+            from adaptfilt.experiments.fast_vs_faithful import comparison
+
+            ff = comparison(results, stored.get("jobs", {}))
+            files["results/fast-vs-faithful.json"] = _dump(ff)
+            extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+        if ref_dir is not None and ref_dir != out and (ref_dir / "results/claims.json").exists():
+            agr = agreement(json.loads(files["results/claims.json"]), json.loads((ref_dir / "results/claims.json")
+                                                                                .read_text()))
+            files["results/agreement.json"] = _dump(agr)
+            extra["Verdicts of this full-scale run against the full scale (data/)"] = agreement_md(
+                agr, "this run", "full scale (data/)")
+        files["report-tables.md"] = report_tables(results, read("results/ungm-floor.json"), t1, cl,
+                                                  read("results/ctm-reconciliation.json"), stored.get("timings", {}),
+                                                  extra)
+    else:  # a stored check: its rows judged again from their intervals
+        have = [rel for rel in CHECK_FILES if (out / rel).exists()]
+        if "results/claims.json" not in have:
+            raise ValueError(f"{out}: neither evaluations (results/<experiment>/) nor stored claims to judge again")
+        cl = rejudge(read("results/claims.json"))
+        files["results/claims.json"] = _dump(cl)
+        sections = {"Claims (fast trainer, seed level)": claims_md(cl)}
+        if "faithful" in cl:
+            sections["Claims, paper-faithful training (seed level)"] = claims_md(cl["faithful"])
+        if "results/table1.json" in have:
+            files["results/table1.json"] = _dump(rejudge(read("results/table1.json")))
+        if "results/fast-vs-faithful.json" in have:
+            ff = rejudge_ff(read("results/fast-vs-faithful.json"))
+            files["results/fast-vs-faithful.json"] = _dump(ff)
+            sections["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+        if "results/agreement.json" in have:
+            if ref_dir is None or not (ref_dir / "results/claims.json").exists():
+                raise ValueError(f"{out} holds an agreement with data/'s claims, and no data/ was found")
+            agr = agreement(cl, json.loads((ref_dir / "results/claims.json").read_text()))
+            files["results/agreement.json"] = _dump(agr)
+            tables = (out / "report-tables.md").read_text()
+            title = next(t for t in ("Verdicts at medium scale against the full scale (data/)",
+                                     "Verdicts of this full-scale run against the full scale (data/)")
+                         if f"\n### {t}\n" in tables)
+            here = "medium scale" if "medium" in title else "this run"
+            sections[title] = agreement_md(agr, here, "full scale (data/)")
+        if "report-tables.md" in have:
+            files["report-tables.md"] = replace_sections((out / "report-tables.md").read_text(), sections)
+    cmd = report_only_command(out, ref_dir)
+    files = {rel: text for rel, text in files.items()  # a file that comes out byte for byte the same stays as made
+             if not (out / rel).exists() or (out / rel).read_text() != text}
+    for rel, text in files.items():
+        atomic_write(out / rel, text)
+    for e in man["files"]:  # the files the manifest lists (data/'s does not list its report-tables.md)
+        if e["path"] in files:
+            e.update(sha256=sha256(out / e["path"]), command=cmd)
+    atomic_write(out / "manifest.json", json.dumps(man, indent=1) + "\n")
+    if progress:
+        print(f"[report-only] {out}: {len(files)} files rewritten ({', '.join(sorted(files))})", file=sys.stderr)
+    return sorted(files)
+
+
+def report_only_command(out: Path, data: Path | None = None) -> str:
+    """The command a file rewritten by :func:`report_only` records: ``--out data`` for the repository's
+    ``data/`` and its checks (``data/medium``), ``--out DIR`` elsewhere."""
+    try:
+        rel = out.relative_to(data.parent) if data is not None else None
+    except ValueError:
+        rel = None
+    where = str(rel) if rel is not None and str(rel).split("/")[0] == data.name == "data" else "DIR"
+    return f"adaptfilt reproduce --out {where} --report-only"
+
+
+def _dump(value) -> str:
+    return json.dumps(value, indent=1) + "\n"
 
 
 def run_command(scale: Scale) -> str:

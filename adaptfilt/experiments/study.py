@@ -25,6 +25,7 @@ import numpy as np
 from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, evaluate_spec, job_key, load_learned, take_times
 from adaptfilt.experiments.report import md_table
 from adaptfilt.files import sha256
+from adaptfilt.verdicts import verdict
 
 __all__ = ["Study", "Run", "BeyondScale", "FULL", "QUICK", "GROUPS", "COMPACT", "study_rows", "groups_md",
            "evaluation", "evaluate_job", "divergence", "listed_policies", "same_training"]
@@ -179,9 +180,10 @@ def study_rows(study: str, res, selection: dict | None = None) -> dict:
         rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
         rows[g].update(divergence(res, members))
         rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
-        # each seed alone: is its own paired run-level interval of the cost difference below 0?
+        # each seed alone: does its own paired run-level interval confirm a lower cost than greedy's?
         c = "cost_charged" if study == "sif" else "cost"
-        rows[g]["seeds_below_greedy"] = int(sum(res.paired_difference(n, "greedy", c)[2] < 0 for n in members))
+        rows[g]["seeds_below_greedy"] = sum(verdict("lower", res.paired_difference(n, "greedy", c)) == "confirmed"
+                                            for n in members)
     if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
         rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
                                                                      groups["adaptive"], m)["iqm"])

@@ -58,8 +58,9 @@ and steps, KalmanNet's unit; per seed, IQM over seeds without an interval), ANEE
 defined, divergent runs by the error rule (a non-finite estimate, counted as an infinite error, never
 dropped, or a run RMSE above :data:`DIVERGED_RMSE`) for every arm and by the library's NEES rule where a
 covariance exists, training CPU-s, microseconds per run-step (the evaluation's wall time over its
-``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level with
-:data:`adaptfilt.seed_stats.MARGINS` for the pairs of :data:`PAIRS`, at every budget, model and regime.
+``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level by the one rule of
+:mod:`adaptfilt.verdicts`, "not worse" with the margin declared for :data:`DECLARED`, for the pairs of
+:data:`PAIRS`, at every budget, model and regime.
 
 **Size of the full run.** Estimated before it from one training per arm and budget (seed 0, :data:`SIZE`:
 about 250 CPU-s of training per seed and model, ~4,000 CPU-s in all); the CTM's kappa budgets were then set
@@ -460,6 +461,8 @@ def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -
 
 # ------------------------------------------------------------------ rows
 #: The pairs judged: (a, b, what the pair isolates). ``default`` and ``best fixed`` are the references.
+#: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) whose margin judges "not worse".
+DECLARED = "learned gain vs learned kappa"
 PAIRS = (("gain-sup", "kappa-sqerr", "what is learned (objective: squared error)"),
          ("gain-unsup", "kappa-nis", "what is learned (objective: measurements only)"),
          ("kappa-sqerr", "kappa-nis", "what it is trained on (learning kappa)"),
@@ -563,9 +566,10 @@ def reference_rows(res, experiment: str) -> dict:
 
 def verdict_rows(res, budget: int, seeds: tuple[int, ...]) -> list[dict]:
     """Seed-level verdicts on RMSE for :data:`PAIRS` at ``budget``: the IQM difference ``a - b`` with its
-    two-level interval, "a lower than b" and "a not worse than b" (margin :func:`~adaptfilt.seed_stats.margin_for`
-    of b's IQM)."""
-    from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
+    two-level interval, "a lower than b" and "a not worse than b" (:func:`adaptfilt.verdicts.judge`, the margin
+    declared for :data:`DECLARED` around b's IQM; none where that IQM is infinite)."""
+    from adaptfilt.seed_stats import aggregate, difference
+    from adaptfilt.verdicts import judge
 
     fixed = [n for n in res.names if n.startswith("fixed-")]
     refs = {"default": ["default"], "best fixed": [min(fixed, key=lambda n: res[n].rmse)] if fixed else []}
@@ -578,10 +582,10 @@ def verdict_rows(res, budget: int, seeds: tuple[int, ...]) -> list[dict]:
         with np.errstate(invalid="ignore", over="ignore"):
             d = difference(res, na, nb, "rmse")["iqm"]
             ref = aggregate(res, nb, "rmse").iqm
-        margin = margin_for("rmse", ref) if np.isfinite(ref) else 0.0
+        not_worse, margin = judge("not worse", d, DECLARED, "rmse", ref) if np.isfinite(ref) else (None, None)
         out.append({"a": a, "b": b if b in groups else f"{b} ({nb[0]})", "isolates": what, "budget": budget,
-                    "rmse_diff": [_num(v) for v in d], "lower": seed_verdict(d, "lower"),
-                    "not_worse": seed_verdict(d, "not worse", margin), "margin": margin})
+                    "rmse_diff": [_num(v) for v in d], "lower": judge("lower", d)[0],
+                    "not_worse": not_worse, "margin": margin})
     return out
 
 
@@ -724,7 +728,8 @@ def markdown(summary: dict) -> str:
                     lines.append(_arm_line(e, r, a, int(b), row, g["budgets"][e]))
                 lines.append(_arm_line(e, r, a, len(g["target_cpu_s"]), m["final"][a], g["budgets"][e], final=True))
     lines += ["", "**Learn the parameter or learn the gain: seed-level verdicts on RMSE** (a - b, IQM over seeds "
-              "[two-level 95 % CI]; 'not worse' within 5 % of b's RMSE, seeds.MARGINS)", "",
+              "[two-level 95 % CI]; 'not worse' within 5 % of b's RMSE, the margin declared in "
+              "adaptfilt.verdicts.DECLARED_MARGINS)", "",
               *md_table(["model", "regime", "budget", "a", "b", "isolates", "RMSE a - b", "a lower", "a not worse"])]
     for e, regimes in g["models"].items():
         for r, m in regimes.items():
@@ -732,7 +737,7 @@ def markdown(summary: dict) -> str:
                 d = v["rmse_diff"]
                 ds = "n/a" if None in d else diff_ci(d)
                 lines.append(f"| {e} | {r} | {v['budget']} | {v['a']} | {v['b']} | {v['isolates']} | {ds} | "
-                             f"{v['lower']} | {v['not_worse']} |")
+                             f"{v['lower']} | {v['not_worse'] or 'n/a (no margin)'} |")
     return "\n".join(lines) + "\n"
 
 
