@@ -40,21 +40,22 @@ Numerics: covariances are symmetrised; a covariance that is not positive
 definite (negative centre weights can do that) raises :class:`FilterError`
 naming the quantity, the step and the runs, unless the filter was built with
 ``on_indefinite="clip"``, the documented opt-in repair that clips the offending
-runs' eigenvalues and counts the repairs in ``FilterRun.n_repairs``.
+runs' eigenvalues and counts the repairs in ``FilterRun.n_repairs`` (:class:`~adaptfilt.filters.FilterRun`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Literal
 
 import numpy as np
 
+from adaptfilt.filters import FilterRun
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym, sym_fresh
 from adaptfilt.models import StateSpaceModel
 from adaptfilt.rules import MomentRule, Moments, StochasticIntegrationRule, UnscentedRule
 from adaptfilt.rules import scalar_kernels
 
-__all__ = ["FilterError", "Prediction", "Update", "FilterRun", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
+__all__ = ["FilterError", "Prediction", "Update", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
 
 _PREDICT, _UPDATE = 0, 1
 _LOG2PI = np.log(2.0 * np.pi)
@@ -144,40 +145,6 @@ class _UpdateRL:
     L_filt = None
 
 
-@dataclass
-class FilterRun:
-    """A filter run over ``M`` runs and ``T`` steps (public layout).
-
-    ``mean (M, T, nx)`` and ``cov (M, T, nx, nx)`` are the filtering moments,
-    ``nis``/``loglik`` ``(M, T)`` the per-step normalised innovation squared and
-    measurement log-likelihood, ``params (M, T)`` the update-step parameter used
-    (read-only when it is one value for all runs and steps).
-    ``x_pred``/``P_pred`` are kept when the run was asked to (``keep_pred``).
-    With a stochastic rule, ``info["n_iter_spent"]`` and
-    ``info["n_iter_spent_predict"]`` ``(M, T)`` hold the iterations each run
-    spent in each update and predict step (0 where nothing was drawn: the
-    first step's predict, exact linear steps).
-    """
-
-    mean: np.ndarray
-    cov: np.ndarray
-    nis: np.ndarray
-    loglik: np.ndarray
-    params: np.ndarray
-    x_pred: np.ndarray | None = None
-    P_pred: np.ndarray | None = None
-    n_repairs: int = 0
-    info: dict = field(default_factory=dict)
-
-    @property
-    def n_runs(self) -> int:
-        return self.mean.shape[0]
-
-    @property
-    def n_steps(self) -> int:
-        return self.mean.shape[1]
-
-
 class GaussianAssumedFilter:
     """Algorithm 1 with a pluggable moment rule, batched over runs.
 
@@ -251,6 +218,11 @@ class GaussianAssumedFilter:
     # ---------------------------------------------------------------- helpers
     def __repr__(self) -> str:
         return f"{type(self).__name__}(model={self.model.name!r}, {self.rule.param_name}={self.param:g})"
+
+    @property
+    def param_name(self) -> str:
+        """The rule's parameter, what ``run(z).params`` holds (:class:`~adaptfilt.filters.Filter`)."""
+        return self.rule.param_name
 
     def rng(self, stage: int, t: int, stream: int | None = None) -> np.random.Generator | None:
         """The random numbers of a stochastic rule at ``(stage, t)`` (stage 0 =

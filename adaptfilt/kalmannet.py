@@ -82,8 +82,8 @@ clipping (``clip``), the model with the best validation loss kept (validated onc
 predicted measurement, ``|z_t - h(x_{t|t-1})|^2``, no true state used). A non-finite loss or
 gradient stops training with :class:`TrainingDiverged` naming the epoch and step.
 
-Files (:meth:`KalmanNet.save`, :func:`load_kalmannet`): one ``.npz`` without pickles (as
-:mod:`adaptfilt.learned`) holding the weights and a JSON record of the model's name and
+Files (:meth:`KalmanNet.save`, :func:`load_kalmannet`): one ``.npz`` without pickles
+(:func:`adaptfilt.files.write_npz`, as a policy's) holding the weights and a JSON record of the model's name and
 dimensions, the options, the seed, the training summary and the package version; loading it for
 another model is a ``ValueError`` naming both.
 
@@ -114,9 +114,10 @@ import torch
 from torch import nn
 
 from adaptfilt._version import __version__
-from adaptfilt.gaf import FilterRun
-from adaptfilt.learned import arrays_to_state, one_torch_thread, read_npz, state_to_arrays, write_npz
+from adaptfilt.files import read_npz, write_npz
+from adaptfilt.filters import FilterRun
 from adaptfilt.models import StateSpaceModel, Trajectory
+from adaptfilt.nets import arrays_to_state, one_torch_thread, state_to_arrays
 
 __all__ = ["GainNet", "KalmanNet", "train_kalmannet", "load_kalmannet", "TrainingDiverged", "KALMANNET_FORMAT"]
 
@@ -411,7 +412,7 @@ class KalmanNet:
         return np.concatenate([z0[:, None, :], z[:, :-1]], axis=1)
 
     def run(self, z, *, keep_gain: bool = False, seed: int | None = None, chunk: int = 4096) -> FilterRun:
-        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.gaf.FilterRun`.
+        """Filter measurements ``z (M, T, nz)``; a :class:`~adaptfilt.filters.FilterRun`.
 
         ``mean`` and ``x_pred`` are the estimates; ``cov`` is the sample covariance of the
         Bayesian variant, else NaN (no covariance: :func:`adaptfilt.metrics.nees` raises on it);

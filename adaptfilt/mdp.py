@@ -36,33 +36,18 @@ import numpy as np
 
 from adaptfilt.costs import Cost, StepCost
 from adaptfilt.features import PAPER, FeatureScaler, FeatureSet, feature_names, fit_scaler
-from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter
+from adaptfilt.filters import FilterRun
+from adaptfilt.gaf import FilterError, GaussianAssumedFilter
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
-from adaptfilt.paramenv import ParamEnv
+from adaptfilt.paramenv import ParamEnv, grid_actions
 
 __all__ = ["Cost", "FeatureScaler", "FeatureSet", "Decision", "FilterEnv", "feature_names", "fit_scaler",
-           "grid_actions", "rollout", "run_policy", "PREDICT", "UPDATE"]
+           "rollout", "run_policy", "PREDICT", "UPDATE"]
 
 #: Keys of the two steps' random streams (``filt.rng(PREDICT, t, stream)``): a look-ahead that simulates
 #: the filter's next steps draws what the environment would (:mod:`adaptfilt.lookahead`).
 PREDICT, UPDATE = 0, 1
-
-
-def grid_actions(actions, n_runs: int, grid_size: int) -> np.ndarray:
-    """``actions`` as grid indices, an int array ``(n_runs,)``; ValueError naming what is wrong (shape,
-    a non-integer, an index off the grid). Every environment's ``step`` checks its actions with it."""
-    a = np.asarray(actions)
-    if a.shape != (n_runs,):
-        raise ValueError(f"actions must be one grid index per run, shape ({n_runs},); got shape {a.shape}")
-    if not np.issubdtype(a.dtype, np.integer):
-        if not (np.isfinite(a).all() and (a == np.round(a)).all()):
-            raise ValueError("actions must be integer grid indices")
-        a = a.astype(np.int64)
-    if (a < 0).any() or (a >= grid_size).any():
-        bad = a[(a < 0) | (a >= grid_size)]
-        raise ValueError(f"action index {int(bad[0])} out of range: the grid has {grid_size} values (0..{grid_size - 1})")
-    return a
 
 
 # ------------------------------------------------------------------ decision

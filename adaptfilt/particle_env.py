@@ -49,8 +49,8 @@ import numpy as np
 
 from adaptfilt.costs import Cost, ParticleCost, StepCost
 from adaptfilt.features import FeatureSet
-from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
+from adaptfilt.paramenv import grid_actions
 
 __all__ = ["PARTICLE_GRID", "ParticleUpdate", "check_counts", "FILTER_DESCRIPTION", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]

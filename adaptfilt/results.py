@@ -156,14 +156,16 @@ class Results:
         """One evaluation from its parts, jobs that simulated the same runs (same seed, runs, horizon:
         an evaluation's trajectories, filter draws and bootstrap resamples depend on its seed only, so the
         merge is exact), policies in the order of the parts. Their configurations must agree but for
-        ``"policies"`` and the keys in ``ignore`` (RuntimeError otherwise). The first part is the one
-        returned, extended in place: the parts are a job's values, not kept.
+        ``"policies"``, what ran (``"filters"``, ``"failed_filters"``: joined) and the keys in ``ignore``
+        (RuntimeError otherwise). The first part is the one returned, extended in place: the parts are a
+        job's values, not kept.
 
         >>> a = Results({"n_runs": 2, "policies": ["x"]}, {"x": None}); b = Results({"n_runs": 2}, {"y": None})
         >>> Results.merge([a, b]).config["policies"]
         ['x', 'y']
         """
-        skip = {"policies", *ignore}
+        joined = ("filters", "failed_filters")
+        skip = {"policies", *joined, *ignore}
         first = parts[0]
         mine = {k: v for k, v in first.config.items() if k not in skip}
         for other in parts[1:]:
@@ -172,6 +174,9 @@ class Results:
                 diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
                 raise RuntimeError(f"parts of the {mine.get('experiment', '')} evaluation disagree on {', '.join(diff)}")
             first.policies.update(other.policies)
+            for k in joined:
+                if k in other.config:
+                    first.config[k] = {**first.config.get(k, {}), **other.config[k]}
         first.config["policies"] = list(first.policies)
         return first
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from adaptfilt.mdp import grid_actions
+from adaptfilt.paramenv import grid_actions
 
 __all__ = ["ToyDecision", "ToyCost", "BanditEnv", "TrapEnv"]
 

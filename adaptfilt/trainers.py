@@ -154,7 +154,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
 
     from adaptfilt._version import __version__
     from adaptfilt.gym import make_vec, to_learned_policy
-    from adaptfilt.learned import one_torch_thread
+    from adaptfilt.nets import one_torch_thread
 
     classes = {"a2c": A2C, "ppo": PPO}
     if config.algo not in classes:

@@ -99,7 +99,7 @@ DECLARED = "anchored vs greedy"
 def train_one(experiment: str, seed: int, out: str, kw: dict, command: str, method: str = "ppo") -> dict:
     """One anchored policy (module level: runs in a worker); reused when ``out`` holds this command."""
     from adaptfilt.distill import distill_rollout
-    from adaptfilt.learned import read_npz
+    from adaptfilt.files import read_npz
     from adaptfilt.trainers import train_policy
 
     if Path(out).exists():

@@ -337,8 +337,8 @@ def test_rmse_steps_tell_the_fixed_conventions_apart_and_draw_a_floor_per_step(u
 
 
 def test_ungm_floor_steps_is_the_point_mass_filter_on_the_evaluation_runs():
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     f = ungm_ukf.ungm_floor_steps(n_runs=3, n_steps=20, eval_runs=5, chunk=2)
     env = get_experiment("ungm-ukf").make_env(n_steps=20)

@@ -211,10 +211,10 @@ def test_the_stored_particle_evaluations_rerun():
     OpenBLAS's kernels for another CPU round otherwise. The study is reproducible."""
     import warnings
 
-    from adaptfilt.evaluation import evaluate, learned_name
+    from adaptfilt.evaluation import evaluate
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments import artefacts
-    from adaptfilt.learned import load_policy
+    from adaptfilt.learned import learned_name, load_policy
     from adaptfilt.metrics import DIVERGED_NEES
 
     for e, learned in (("ungm-pf-1e-4", True), ("ctm-pf-1", False)):
@@ -232,6 +232,36 @@ def test_the_stored_particle_evaluations_rerun():
         for name in res.names:
             for key in ("rmse_t", "anees_t", "cost_t", "usage"):
                 line = DIVERGED_NEES * nx if key == "anees_t" else None
+                assert_same_numbers(getattr(res[name], key), getattr(stored[name], key), err_msg=f"{e} {name} {key}",
+                                    exact=False, diverged_above=line)
+
+
+@pytest.mark.crosscpu
+def test_the_stored_reference_filter_rows_rerun():
+    """The particle study's reference rows (``bpf-N``, the bootstrap particle filter evaluated beside the
+    policies as a filter) rerun to the stored per-step RMSE, ANEES and cost, the usage of the count and the
+    bootstrap replicates, for two counts on UNGM and the CTM (the study's 250 runs), to the stated relative
+    tolerance (tests/same_numbers.py; they were made on another CPU)."""
+    import warnings
+
+    from adaptfilt.evaluation import evaluate
+    from adaptfilt.exact import BootstrapParticleFilter
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.metrics import DIVERGED_NEES
+
+    for e in ("ungm-pf-1e-4", "ctm-pf-1"):
+        stored = artefacts.load_beyond_results(f"particles-{e}")
+        exp = get_experiment(e)
+        model = exp.make_model()
+        filters = {f"bpf-{N}": BootstrapParticleFilter(model, n_particles=N, seed=[24, 0, N]) for N in (50, 100)}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a collapsed cloud's infinite NEES, as in the study
+            res = evaluate(exp, [], filters=filters, n_runs=stored.config["n_runs"], seed=stored.config["seed"],
+                           progress=False)
+        for name in filters:
+            for key in ("rmse_t", "anees_t", "cost_t", "usage", "boot_rmse", "boot_cost"):
+                line = DIVERGED_NEES * model.nx if key == "anees_t" else None
                 assert_same_numbers(getattr(res[name], key), getattr(stored[name], key), err_msg=f"{e} {name} {key}",
                                     exact=False, diverged_above=line)
 

@@ -397,7 +397,7 @@ def test_innovation_spread_is_flat_on_ungm_only():
 
 
 def test_kappa_sweep_is_the_fixed_update_kappa_filter():
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     model = af.models.ungm(n_steps=20)
     res = adaptation.kappa_sweep(model, [2.0, 200.0], n_runs=15, seed=4)

@@ -151,10 +151,10 @@ def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):
     """The stored evaluation's default is a direct UKF run on the trajectories the study's KalmanNet entries
     were computed on, run for run; and the KalmanNet entry is the file's filter on those runs."""
     import adaptfilt as af
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.studies.gain import QUICK, _env, evaluate_part, policy_rel
     from adaptfilt.kalmannet import load_kalmannet
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     root, _ = quick
     e = "ungm-ukf"

@@ -32,11 +32,11 @@ CLI = {"adaptfilt.cli", "adaptfilt.__main__"}
 
 #: The library's sub-layers by module (``adaptfilt.<name>``; a package stands for its modules).
 SUBLAYERS = {
-    "core": ("_version", "linalg", "linalg_kernels", "models", "rules", "gaf", "metrics", "exact", "particles",
+    "core": ("_version", "linalg", "linalg_kernels", "models", "filters", "rules", "gaf", "metrics", "exact", "particles",
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
-    "evaluation": ("evaluation", "results", "seed_stats", "verdicts", "plots"),
-    "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet"),
+    "evaluation": ("runs", "evaluation", "results", "seed_stats", "verdicts", "plots"),
+    "learning": ("nets", "anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet"),
 }
 #: What each sub-layer never imports.
 NEVER = {"core": {"decision", "evaluation", "learning"}, "decision": {"evaluation", "learning"},
@@ -314,3 +314,55 @@ def test_the_check_sees_a_private_import(tmp_path):
     (pkg / "course" / "a.py").write_text("from adaptfilt.course.common import _ax\n")
     (pkg / "b.py").write_text("from adaptfilt.style import colors as _colors\n")
     assert private_imports(pkg) == ["adaptfilt/course/a.py: from adaptfilt.course.common import _ax"]
+
+
+# ------------------------------------------------------------------ one place each
+_RNG_CALLS = {"default_rng", "SeedSequence", "Generator", "PCG64", "Philox"}
+
+
+def _call_name(node: ast.Call) -> str:
+    f = node.func
+    return f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+
+
+def one_place_breaches(root: Path = PKG) -> list[str]:
+    """Code outside its one place: the evaluation's runs' seed (``TRAJ_SEED_KEY`` in a generator) outside
+    ``adaptfilt/runs.py``, a point-mass filter built (for a Bayes floor) outside ``exact.bayes_floor``."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root.parent).as_posix()
+        tree = ast.parse(path.read_text())
+        floor = {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "bayes_floor"
+                 and rel == "adaptfilt/exact.py" for n in ast.walk(f)}
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Call):
+                continue
+            name = _call_name(node)
+            if name in _RNG_CALLS and rel != "adaptfilt/runs.py" and any(
+                    isinstance(n, (ast.Name, ast.Attribute)) and "TRAJ_SEED_KEY" in (getattr(n, "id", None), getattr(n, "attr", None))
+                    for a in [*node.args, *(k.value for k in node.keywords)] for n in ast.walk(a)):
+                bad.append(f"{rel}:{node.lineno}: the evaluation's runs re-derived ({name} with TRAJ_SEED_KEY): "
+                           "use adaptfilt.runs (EvalRuns, trajectory_rng, bootstrap_counts)")
+            if name == "PointMassFilter" and id(node) not in floor:
+                bad.append(f"{rel}:{node.lineno}: a point-mass filter built outside exact.bayes_floor: use the one floor")
+    return bad
+
+
+def test_the_runs_seed_and_the_bayes_floor_each_have_one_place():
+    bad = one_place_breaches()
+    assert not bad, "\n".join(bad)
+
+
+def test_the_one_place_check_sees_a_copy(tmp_path):
+    pkg = tmp_path / "adaptfilt"
+    (pkg / "experiments").mkdir(parents=True)
+    (pkg / "exact.py").write_text("def bayes_floor(model):\n    return PointMassFilter(model)\n")
+    (pkg / "runs.py").write_text("import numpy as np\nTRAJ_SEED_KEY = 1\nrng = np.random.default_rng([TRAJ_SEED_KEY, 0])\n")
+    (pkg / "experiments" / "floor.py").write_text(
+        "import numpy as np\nfrom adaptfilt import runs\n\ndef f(model, seed):\n"
+        "    traj = model.simulate(9, rng=np.random.default_rng([runs.TRAJ_SEED_KEY, seed]))\n"
+        "    return PointMassFilter(model).run(traj.z)\n")
+    assert one_place_breaches(pkg) == [
+        "adaptfilt/experiments/floor.py:5: the evaluation's runs re-derived (default_rng with TRAJ_SEED_KEY): use "
+        "adaptfilt.runs (EvalRuns, trajectory_rng, bootstrap_counts)",
+        "adaptfilt/experiments/floor.py:6: a point-mass filter built outside exact.bayes_floor: use the one floor"]

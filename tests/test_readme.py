@@ -75,3 +75,13 @@ def test_particle_count_example_runs_and_kld_uses_fewer_particles_than_the_defau
     res = ns["res"]
     assert res["default"].spent == 1000
     assert res["kld-x1"].spent < res["default"].spent  # what the example is there to show: KLD adapts the count
+
+
+def test_filters_example_runs_and_pairs_the_particle_filter_with_the_policies():
+    block = next(b for b in _python_blocks() if "filters=" in b)
+    ns: dict = {}
+    exec(compile(block.replace("print(", "(lambda *a: None)("), "README-example-filters", "exec"), ns)
+    res = ns["res"]
+    assert res.names == ["default", "greedy", "bpf-500"] and res.config["filters"]["bpf-500"].startswith("Bootstrap")
+    d, lo, hi = res.paired_difference("bpf-500", "default", "rmse")
+    assert hi < 0 and np.isnan(res["bpf-500"].cost) and np.isfinite(res["bpf-500"].anees)

@@ -89,7 +89,7 @@ def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
         elif rel in ("results/ungm-floor.json", "results/ctm-reconciliation.json"):
             want = json.loads((DATA / rel).read_text())["command"]
             assert f"({FULL.floor_runs if 'floor' in rel else FULL.recon_runs}, 0" in want, rel
-        elif rel in REPORT_ONLY:  # the verdicts judged again by the one rule from the stored evaluations
+        elif rel in REPORT_ONLY and cmd != man["generated_by"]:  # judged again from the stored evaluations
             want = "adaptfilt reproduce --out data --report-only"
         else:
             want = man["generated_by"]
@@ -374,10 +374,10 @@ def test_agreement_pairs_the_verdicts_of_two_reproductions():
 def test_the_floor_runs_on_the_evaluations_trajectories():
     """ungm_floor(eval_runs=M) filters the first runs of the very trajectories evaluate() draws for M runs."""
     from adaptfilt import metrics
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import PointMassFilter
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.references import ungm_floor
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     env = get_experiment("ungm-ukf").make_env(seed=0, n_steps=8)
     traj = env.truth.simulate(30, 8, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))  # as evaluate(n_runs=30)

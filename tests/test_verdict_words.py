@@ -15,9 +15,9 @@ from adaptfilt.verdicts import DECLARED_MARGINS
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("[0-9][0-9]-*.ipynb"))
 FIXTURES = ROOT / "tests" / "fixtures" / "verdicts"
-#: Chapters not yet brought to the rule: the course's verdict sentences are declared after its restructure
-#: (RL in two chapters, the beyond chapter in two) lands; the mark goes when they pass.
-PENDING = True
+#: Chapters not yet brought to the rule: held by the course restructure when the rest was (strict: the mark goes
+#: when they pass).
+PENDING = {"14-beyond-the-paper", "15-out-of-distribution-and-the-raw-cost"}
 
 
 def _fixture(name: str) -> dict:
@@ -25,8 +25,8 @@ def _fixture(name: str) -> dict:
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.xfail(
-    PENDING, strict=False, reason="the chapters' verdict sentences are declared after the course restructure"))
-    for p in NOTEBOOKS], ids=lambda p: p.stem)
+    strict=True, reason="its verdict sentences are declared when the course restructure releases it"))
+    if p.stem in PENDING else p for p in NOTEBOOKS], ids=lambda p: p.stem)
 def test_every_verdict_in_a_chapter_is_the_rules(path):
     bad = problems(json.loads(path.read_text(encoding="utf-8")))
     assert not bad, f"{path.name}: verdict words the rule does not give, or not tied to an interval (declare " \

@@ -89,7 +89,7 @@ def score(x: np.ndarray, run, counts: np.ndarray, level: float = 0.95) -> Score:
         \mathrm{ANEES}_k = \tfrac1M\textstyle\sum_\ell \tilde x_{k|k}(\ell)^T P_{k|k}(\ell)^{-1}\tilde x_{k|k}(\ell)
 
     ``run`` has ``mean (M, T, nx)`` and ``cov (M, T, nx, nx)`` (a
-    :class:`~adaptfilt.gaf.FilterRun`); ``counts`` are bootstrap resampling
+    :class:`~adaptfilt.filters.FilterRun`); ``counts`` are bootstrap resampling
     counts (:func:`adaptfilt.metrics.bootstrap_counts`): reuse them across
     filters for paired intervals. A covariance that a clipping filter stored
     indefinite is scored through a plain solve (``on_indefinite="solve"``).

@@ -284,20 +284,14 @@ def plot_rmse_steps(res, names: Sequence[str], floor_t: np.ndarray | None = None
 
 def ungm_floor_steps(n_runs: int = 200, seed: int = 0, n_steps: int | None = None,
                      eval_runs: int = 10_000, chunk: int = 100) -> np.ndarray:
-    """The Bayes floor per step on UNGM, ``RMSE_k (T,)`` of the point-mass filter (grid -45..45, 901
-    points, as :func:`adaptfilt.experiments.references.ungm_floor`) on the first ``n_runs``
-    trajectories of the UNGM evaluation with ``seed`` (the runs the stored floor and the policies
-    are scored on; ``data/`` stores only the floor's time average)."""
-    from adaptfilt import metrics
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
-    from adaptfilt.exact import PointMassFilter
+    """The Bayes floor per step on UNGM, ``RMSE_k (T,)`` of :func:`adaptfilt.exact.bayes_floor` (the
+    point-mass filter, grid -45..45, 901 points, as :func:`adaptfilt.experiments.references.ungm_floor`) on
+    the first ``n_runs`` trajectories of the UNGM evaluation with ``seed`` (the runs the stored floor and
+    the policies are scored on; ``data/`` stores only the floor's time average)."""
+    from adaptfilt.exact import UNGM_FLOOR_GRID, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.runs import EvalRuns
 
     env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
-    traj = env.model.simulate(max(int(eval_runs), n_runs), env.n_steps,
-                              rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
-    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
-    x, z = traj.x[:n_runs], traj.z[:n_runs]
-    se = np.concatenate([metrics.squared_error(x[i:i + chunk], pmf.run(z[i:i + chunk]).mean)
-                         for i in range(0, n_runs, chunk)])
-    return np.sqrt(se.mean(axis=0))
+    runs = EvalRuns(env.model, max(int(eval_runs), n_runs), seed, env.n_steps)
+    return bayes_floor(env.model, runs, n_runs, UNGM_FLOOR_GRID, chunk=chunk).rmse_t

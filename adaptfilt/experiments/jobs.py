@@ -88,9 +88,8 @@ def evaluate_command(experiment: str, runs: int, seed: int, out: str | Path, pol
 
 def load_learned(experiment, files: Sequence[str | Path]) -> list:
     """The policy files of ``experiment`` (an :class:`~adaptfilt.experiment_registry.Experiment`), each
-    named after its file (:func:`adaptfilt.evaluation.learned_name`: ``adaptive-s3``)."""
-    from adaptfilt.evaluation import learned_name
-    from adaptfilt.learned import load_policy
+    named after its file (:func:`adaptfilt.learned.learned_name`: ``adaptive-s3``)."""
+    from adaptfilt.learned import learned_name, load_policy
 
     return [load_policy(f, experiment=experiment, name=learned_name(f, experiment.name)) for f in files]
 

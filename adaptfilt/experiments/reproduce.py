@@ -275,7 +275,7 @@ class _Run:
 
     def adopt(self, rel: str, command: str, keep: bool = False) -> bool:
         """A policy file in data/ that no manifest lists yet, made by the expected command."""
-        from adaptfilt.learned import read_npz
+        from adaptfilt.files import read_npz
 
         if self.quick or self.found is None or (self.retrain and not keep) or not (self.data / rel).exists():
             return False
@@ -668,7 +668,7 @@ def _load_parts(folder: Path, stored: dict) -> tuple[list, dict]:
 
 
 def _names(experiment: str, rels: list[str]) -> list[str]:
-    from adaptfilt.evaluation import learned_name
+    from adaptfilt.learned import learned_name
 
     return [learned_name(r, experiment) for r in rels]
 

@@ -45,11 +45,11 @@ constant kappa (the best one in hindsight by RMSE is the bar), greedy and ML (on
 reproduction's), the bootstrap particle filter (:class:`~adaptfilt.exact.BootstrapParticleFilter`,
 :data:`PF_PARTICLES`) and, on UNGM, the point-mass filter on the first :attr:`GainScale.floor_runs`
 runs with the truth's own model (the Bayes floor; under the mismatch the filter that knows ``Q x 4``).
-KalmanNet enters the same :class:`~adaptfilt.results.Results` through :func:`kalmannet_result`, the
-library's own :func:`~adaptfilt.evaluation.summarise_rollout` on the evaluation's trajectories and
-bootstrap counts (:func:`~adaptfilt.evaluation.setup_evaluation`), so its differences to every other
-policy are paired. Two regimes (:data:`REGIMES`): the nominal model and a truth with ``Q x 4``
-(:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the nominal model, the filters keep it).
+KalmanNet and the particle filter are filters (:class:`~adaptfilt.filters.Filter`) evaluated beside the
+policies by the same :func:`~adaptfilt.evaluation.evaluate` (``filters=``), on the same runs and bootstrap
+resamples, so their differences to every other policy are paired. Two regimes (:data:`REGIMES`): the
+nominal model and a truth with ``Q x 4`` (:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the
+nominal model, the filters keep it).
 The final budget is evaluated on :attr:`GainScale.eval_runs` runs (10^4), the budget curve (all three
 budgets, default and constants) on :attr:`GainScale.curve_runs` runs (2000: a cheaper, separate set).
 
@@ -73,7 +73,6 @@ means over seeds; the CTM kappa's first budget took 1.6 CPU-s, not the 5 targete
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -303,126 +302,50 @@ def _kappa(experiment: str, files: dict[str, str]) -> list:
     return out
 
 
-def kalmannet_result(name: str, knet, env, traj, counts: np.ndarray, level: float = 0.95):
-    """One :class:`~adaptfilt.results.PolicyResult` for a trained KalmanNet on an evaluation's runs ``traj``
-    and bootstrap ``counts`` (:func:`~adaptfilt.evaluation.setup_evaluation`), reduced by the library's
-    :func:`~adaptfilt.evaluation.summarise_rollout` as any policy, so that it is paired with the others.
+def _kalmannets(gains: dict[str, str], model) -> dict:
+    """The KalmanNet files ``{name: file}``, each loaded (and checked) for ``model``: filters to evaluate."""
+    from adaptfilt.kalmannet import load_kalmannet
 
-    A non-finite estimate (a learned gain can make the recursion unstable) counts as an infinite error from
-    that step on: the run is kept and diverged. Plain KalmanNet has no covariance: its ANEES fields and its
-    NEES-based ``divergent_frac`` are set to NaN here explicitly (summarise_rollout is given an identity
-    covariance to run, whose NEES is discarded); the Bayesian variant keeps its own. No NIS cost (no
-    innovation covariance): ``cost`` and the objective are NaN, as for a cost-less evaluation.
-    ``wall_time_s``: filtering plus reduction, as for every policy."""
-    from adaptfilt.evaluation import summarise_rollout
-    from adaptfilt.gaf import FilterRun
-    from adaptfilt.results import PolicyResult
-
-    T = env.n_steps
-    x = traj.x[:, :T]
-    M = x.shape[0]
-    t0 = time.perf_counter()
-    with np.errstate(over="ignore", invalid="ignore"):
-        r = knet.run(traj.z[:, :T])
-    mean = np.where(np.isfinite(r.mean).all(axis=-1, keepdims=True), r.mean, np.inf)
-    # a step after a non-finite one stays diverged (the recursion has no way back)
-    bad = np.maximum.accumulate(~np.isfinite(mean).all(axis=-1), axis=1)
-    mean = np.where(bad[..., None], np.inf, mean)
-    has_cov = knet.bayesian
-    cov = r.cov if has_cov else np.broadcast_to(np.eye(env.nx), (M, T, env.nx, env.nx))
-    nan = np.full((M, T), np.nan)
-    fr = FilterRun(mean=mean, cov=np.where(np.isfinite(cov), cov, np.inf) if has_cov else cov, nis=nan, loglik=nan,
-                   params=nan, info={"spent": np.full(M, np.nan), "on_indefinite": "inf"})
-    with np.errstate(over="ignore", invalid="ignore"):
-        summ = summarise_rollout(name, x, fr, None, env.grid, counts, 0, level)
-    if not has_cov:
-        B = counts.shape[0]
-        summ.update(anees=np.nan, anees_ci=(np.nan, np.nan), anees_t=np.full(T, np.nan),
-                    anees_t_band=np.full((2, T), np.nan), boot_anees=np.full(B, np.nan), run_anees=np.full(M, np.nan),
-                    anees_run_median=np.nan, divergent_frac=np.nan)
-    summ["nis"] = np.nan
-    return PolicyResult(name=name, **summ, wall_time_s=time.perf_counter() - t0)
-
-
-def _runs(env, exp, n_runs: int, seed: int = 0):
-    """The evaluation's trajectories, bootstrap counts and config, as :func:`~adaptfilt.evaluation.evaluate`
-    makes them for ``env`` (the same draws: the pairing of KalmanNet with the filters rests on it)."""
-    from adaptfilt.evaluation import setup_evaluation
-
-    probe = [p for p in exp.baselines() if p.name == "default"]
-    _, _, traj, counts, config = setup_evaluation(env, probe, n_runs, seed, 1000, None, 0.95, None)
-    return traj, counts, config
+    return {name: load_kalmannet(f, model) for name, f in gains.items()}
 
 
 def evaluate_part(experiment: str, regime: str, part: str, kappa: dict[str, str], gains: dict[str, str],
                   scale: GainScale, seed: int = 0):
     """One part (:data:`PARTS`) of the evaluation of ``experiment`` under ``regime``: a
     :class:`~adaptfilt.results.Results` (``"reference"``: also the floor, in ``config["floor"]``).
-    ``kappa``/``gains``: policy name -> file."""
+    ``kappa``/``gains``: policy name -> file. The UKF's policies and the filters (KalmanNet, the particle
+    filter) are evaluated on the same runs by one :func:`~adaptfilt.evaluation.evaluate` (``filters=``), so
+    that every difference between them is paired."""
     from adaptfilt.evaluation import evaluate
+    from adaptfilt.exact import UNGM_STUDY_FLOOR_GRID, BootstrapParticleFilter, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.kalmannet import load_kalmannet
-    from adaptfilt.results import Results
+    from adaptfilt.runs import EvalRuns
 
     if part not in PARTS:
         raise ValueError(f"unknown part {part!r}; known: {', '.join(PARTS)}")
     exp = get_experiment(experiment)
     env = _env(experiment, regime, scale, seed)
-    n = scale.curve_runs if part == "curve" else scale.eval_runs
+    runs = EvalRuns(env.truth, scale.curve_runs if part == "curve" else scale.eval_runs, seed, env.n_steps)
     if part == "anchored":  # kappa: the anchored learner's files (study 5's), evaluated as any policy
         from adaptfilt.experiments.jobs import load_learned
 
-        res = evaluate(env, load_learned(exp, list(kappa.values())), n_runs=n, seed=seed, progress=False)
-        res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
-        return res
-    fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
-    if part in ("ukf", "curve"):
-        base = [p for p in exp.baselines() if p.name in ("default", "ml", "greedy")] if part == "ukf" else \
-            [p for p in exp.baselines() if p.name == "default"]
-        res = evaluate(env, base + fixed + _kappa(experiment, kappa), n_runs=n, seed=seed, progress=False)
-    if part != "ukf":
-        traj, counts, config = _runs(env, exp, n, seed)
-        if part != "curve":
-            res = Results(config=dict(config))
-    if part in ("gain", "curve"):
-        for name, f in gains.items():
-            res.policies[name] = kalmannet_result(name, load_kalmannet(f, env.model), env, traj, counts)
-    if part == "reference":
-        res.policies[f"bpf-{scale.pf_particles[experiment]}"] = _pf_result(env, traj, counts, scale.pf_particles[experiment], seed)
-        res.config["floor"] = _floor(env, traj, scale.floor_runs)
-    res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
+        pols = load_learned(exp, list(kappa.values()))
+    else:
+        named = {"ukf": ("default", "ml", "greedy"), "curve": ("default",)}.get(part, ())
+        pols = [p for p in exp.baselines() if p.name in named]
+        if part in ("ukf", "curve"):  # every update-only constant: the best one in hindsight is the bar
+            pols += [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
+            pols += _kappa(experiment, kappa)
+    filters = _kalmannets(gains, env.model) if part in ("gain", "curve") else {}
+    if part == "reference":  # the particle filter, knowing the nominal model like the others
+        N = scale.pf_particles[experiment]
+        filters = {f"bpf-{N}": BootstrapParticleFilter(env.model, n_particles=N, seed=[_PF_KEY, seed, N])}
+    res = evaluate(env, pols, filters=filters, runs=runs, progress=False)
+    if part == "reference":  # the point-mass filter with the truth's model on the first runs (scalar models)
+        res.config["floor"] = (bayes_floor(env.truth, runs, scale.floor_runs, UNGM_STUDY_FLOOR_GRID).summary()
+                               if env.nx == 1 else {"rmse": None, "runs": 0})
+    res.config.update(experiment=experiment, regime=regime)
     return res
-
-
-def _pf_result(env, traj, counts, N: int, seed: int):
-    """The bootstrap particle filter with ``N`` particles on the runs, knowing the nominal model like the others."""
-    from adaptfilt.evaluation import summarise_rollout
-    from adaptfilt.exact import BootstrapParticleFilter
-    from adaptfilt.gaf import FilterRun
-    from adaptfilt.results import PolicyResult
-
-    T = env.n_steps
-    M = traj.n_runs
-    t0 = time.perf_counter()
-    pf = BootstrapParticleFilter(env.model, n_particles=int(N), seed=np.random.default_rng([_PF_KEY, seed, int(N)]))
-    r = pf.run(traj.z[:, :T])
-    fr = FilterRun(mean=r.mean, cov=r.cov, nis=r.nis, loglik=r.loglik, params=np.full((M, T), np.nan),
-                   info={**r.info, "spent": np.full(M, np.nan), "on_indefinite": "inf"})
-    summ = summarise_rollout(f"bpf-{N}", traj.x[:, :T], fr, None, env.grid, counts, 0, 0.95)
-    return PolicyResult(name=f"bpf-{N}", **summ, wall_time_s=time.perf_counter() - t0)
-
-
-def _floor(env, traj, n: int) -> dict:
-    """RMSE of the point-mass filter with the truth's model on the first ``n`` runs (scalar models; else None)."""
-    from adaptfilt.exact import PointMassFilter
-
-    if env.nx != 1:
-        return {"rmse": None, "runs": 0}
-    T = env.n_steps
-    sub = traj[:n]
-    r = PointMassFilter(env.truth, grid=np.linspace(-45, 45, 1801)).run(sub.z[:, :T])
-    se = ((r.mean - sub.x[:, :T]) ** 2).sum(axis=-1)
-    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "runs": int(n)}
 
 
 def _files(run: Run, experiment: str, budgets_: range) -> tuple[dict, dict]:
@@ -493,7 +416,7 @@ def _train_cpu(run: Run, rel: str) -> float | None:
                 return float(f["cpu_time_s"])
     p = run.out / rel
     if p.exists() and "-gain-" in p.name:  # a KalmanNet file records its own
-        from adaptfilt.learned import read_npz
+        from adaptfilt.files import read_npz
 
         return float(read_npz(p, what="KalmanNet file")[1]["history"]["cpu_s"])
     return None
@@ -501,7 +424,7 @@ def _train_cpu(run: Run, rel: str) -> float | None:
 
 def _stopped(run: Run, rel: str) -> bool:
     """Whether a KalmanNet file's training ended by divergence (its history says so)."""
-    from adaptfilt.learned import read_npz
+    from adaptfilt.files import read_npz
 
     p = run.out / rel
     return p.exists() and bool(read_npz(p, what="KalmanNet file")[1]["history"].get("stopped_by_divergence"))
