@@ -9,6 +9,8 @@ Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
 * the chapter ends with a ``## Summary`` of 4-6 bullets, ``## Exercises`` with
   at least three exercises, each with a worked solution folded in a
   ``<details>`` block whose code runs in the notebook, and ``## References``;
+  at least one exercise is an implement-it-yourself exercise whose solution a
+  checker (``check_*``) accepts;
 * a widget (``ipywidgets.interact``) is dropped from the static book
   (``remove-cell``) and followed by a static stand-in cell that draws a figure;
 * nothing machine-specific or private in what a reader sees (wall times,
@@ -249,6 +251,35 @@ def test_exercises_have_folded_worked_solutions_with_code(stem):
         else:
             i += 1
     assert len(exercises) >= MIN_EXERCISES, f"{stem}: {len(exercises)} exercises with solutions"
+
+
+#: Chapters whose implement-it-yourself exercise is being written while another helper holds them (the
+#: candidate costs of 14 and the mismatched NIS of 15 have their checkers in adaptfilt.course.study_exercises,
+#: tested; the exercises go in when the course restructure releases the two notebooks). Strict: a chapter
+#: that has its exercise fails here until it leaves this list.
+CHECKER_EXERCISE_PENDING = {"14-beyond-the-paper", "15-out-of-distribution-and-the-raw-cost"}
+
+
+@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="exercise pending"))
+                                  if s in CHECKER_EXERCISE_PENDING else s for s in CHAPTERS])
+def test_an_exercise_implements_and_its_checker_accepts_the_solution(stem):
+    """At least one exercise of every chapter is an implement-it-yourself exercise with a checker: its title
+    says "implement" (``**Exercise N (implement it yourself: ...)**``), its folded solution calls a checker
+    (a function ``check_*``, :mod:`adaptfilt.course.exercises`, :mod:`adaptfilt.course.study_exercises` and
+    the chapter helpers' own) and that call printed the checker's acceptance ("right: ..." or
+    "correct: ..."): the solution the chapter shows passes the check the reader runs."""
+    cells = load(stem)["cells"]
+    start = next(i for i, c in enumerate(cells) if c["cell_type"] == "markdown" and re.search(r"^## Exercises", text(c), re.M))
+    accepted = []
+    for i in range(start, len(cells)):
+        if not (cells[i]["cell_type"] == "markdown" and re.search(r"\*\*Exercise \d+ \([^)]*\bimplement", text(cells[i]))):
+            continue
+        j = next(j for j in range(i + 1, len(cells))
+                 if cells[j]["cell_type"] == "markdown" and text(cells[j]).lstrip().startswith("</details>"))
+        calls = [c for c in cells[i + 1:j] if c["cell_type"] == "code" and re.search(r"\bcheck_\w+\(", text(c))]
+        if any(re.search(r"^(right|correct)\b", outputs_text(c), re.M) for c in calls):
+            accepted.append(i)
+    assert accepted, f"{stem}: no implement-it-yourself exercise whose solution a checker accepts"
 
 
 @pytest.mark.parametrize("stem", CHAPTERS)
