@@ -131,7 +131,8 @@ DECLARED_MARGINS: dict[str, DeclaredMargin] = {m.comparison: m for m in (
         "2026-11-25, commit ad51a71, before C2 and C3b were derived at the seed level with a margin"),
     DeclaredMargin(
         "fast vs faithful", "not worse", {"cost": 0.10, "rmse": 0.05, "anees": 0.10, "objective": 0.05},
-        "the fast trainer's target: not worse than Algorithm 2 as printed (the paper-faithful policies) on "
+        "the fast trainer's target: not worse than Algorithm 2's loop with the library's recipe (the faithful "
+        "trainer's policies) on "
         "what the paper measures and on the objective both minimise",
         "2026-11-25, commit ad51a71, before the fast trainer's verdicts were derived with a margin"),
     DeclaredMargin(
