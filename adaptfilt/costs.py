@@ -6,8 +6,8 @@ policy's extra computation at) and ``cost(update, theta, nz) -> (M,)``, where ``
 environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
 around a function; an environment takes any of them.
 
-The costs of Section VI-D, as NIS-type estimates written once (:func:`nis_cost`, :func:`logmaxnis_cost`)
-and read by both families:
+The costs of Section VI-D, as functions (:func:`nis_cost`, :func:`logmaxnis_cost`, :func:`stateinnov_cost`); the
+NIS-type ones are read by both families:
 
 * :class:`Cost`, for a Gaussian-assumed filter's update (:class:`~adaptfilt.mdp.FilterEnv`):
   ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"`` ``log(1 + max(0, NIS - nz))``, ``"stateinnov"``
@@ -34,8 +34,8 @@ from typing import Any, Callable, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "NIS_COSTS",
-           "transform_cost"]
+__all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "stateinnov_cost",
+           "NIS_COSTS", "transform_cost"]
 
 
 @runtime_checkable
@@ -59,6 +59,13 @@ def nis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
 def logmaxnis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
     """``L_logmaxNIS = log(1 + max(0, NIS - nz))``: overconfidence only, compressed."""
     return np.log1p(np.maximum(0.0, nis - nz))
+
+
+def stateinnov_cost(K: np.ndarray, innovation: np.ndarray) -> np.ndarray:
+    """``L_stateInnov = ||K z~||``: the size of the correction the update applies to the mean, per run
+    (run-last: ``K (nx, nz, M)``, ``innovation (nz, M)``)."""
+    dx = np.einsum("ijM,jM->iM", K, innovation)
+    return np.sqrt((dx * dx).sum(axis=0))
 
 
 #: The NIS-type estimation costs by kind: both cost families read them from here.
@@ -136,8 +143,7 @@ class Cost:
                                  "got non-finite ones")
             e = u.x_filt - truth
             return (e * e).sum(axis=0)
-        dx = np.einsum("ijM,jM->iM", u.K, u.innovation)
-        return np.sqrt((dx * dx).sum(axis=0))
+        return stateinnov_cost(u.K, u.innovation)
 
     def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
         """Cost per run of update ``u`` made with parameter(s) ``theta`` (``truth``: see :meth:`estimation_cost`)."""

@@ -2,7 +2,7 @@ r"""What every chapter of the course uses: :func:`show_source` (a chapter shows 
 lesson), the per-step RMSE with a bootstrap band over runs (:class:`Score`, :func:`score`,
 :func:`score_table`, :func:`paired_rmse_difference`, :func:`plot_rmse_k`) and :func:`chi2_median`.
 
-The chapters' helpers: :mod:`adaptfilt.course.bayes` (1), :mod:`adaptfilt.course.moments` (2),
+The chapters' helpers: :mod:`adaptfilt.course.bayes` (1), :mod:`adaptfilt.course.moments` and :mod:`adaptfilt.course.plain_filter` (2),
 :mod:`adaptfilt.course.myopia` (3), :mod:`adaptfilt.course.adaptation` (4). Arrays follow the
 library's public layout: runs first, ``(M, T, ...)``; a grid density is ``(N,)`` for one run and
 ``(M, T, N)`` for all of them. Figures use :mod:`adaptfilt.style`.
