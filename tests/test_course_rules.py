@@ -253,14 +253,7 @@ def test_exercises_have_folded_worked_solutions_with_code(stem):
     assert len(exercises) >= MIN_EXERCISES, f"{stem}: {len(exercises)} exercises with solutions"
 
 
-#: Chapters whose implement-it-yourself exercise is being written (the mismatched NIS of 15 has its checker in
-#: adaptfilt.course.study_exercises, tested). Strict: a chapter that has its exercise fails here until it
-#: leaves this list.
-CHECKER_EXERCISE_PENDING = {"15-out-of-distribution-and-the-raw-cost"}
-
-
-@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="exercise pending"))
-                                  if s in CHECKER_EXERCISE_PENDING else s for s in CHAPTERS])
+@pytest.mark.parametrize("stem", CHAPTERS)
 def test_an_exercise_implements_and_its_checker_accepts_the_solution(stem):
     """At least one exercise of every chapter is an implement-it-yourself exercise with a checker: its title
     says "implement" (``**Exercise N (implement it yourself: ...)**``), its folded solution calls a checker
