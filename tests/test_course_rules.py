@@ -253,15 +253,7 @@ def test_exercises_have_folded_worked_solutions_with_code(stem):
     assert len(exercises) >= MIN_EXERCISES, f"{stem}: {len(exercises)} exercises with solutions"
 
 
-#: Chapters whose implement-it-yourself exercise is being written while another helper holds them (the
-#: candidate costs of 14 and the mismatched NIS of 15 have their checkers in adaptfilt.course.study_exercises,
-#: tested; the exercises go in when the course restructure releases the two notebooks). Strict: a chapter
-#: that has its exercise fails here until it leaves this list.
-CHECKER_EXERCISE_PENDING = {"14-beyond-the-paper", "15-out-of-distribution-and-the-raw-cost"}
-
-
-@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="exercise pending"))
-                                  if s in CHECKER_EXERCISE_PENDING else s for s in CHAPTERS])
+@pytest.mark.parametrize("stem", CHAPTERS)
 def test_an_exercise_implements_and_its_checker_accepts_the_solution(stem):
     """At least one exercise of every chapter is an implement-it-yourself exercise with a checker: its title
     says "implement" (``**Exercise N (implement it yourself: ...)**``), its folded solution calls a checker
