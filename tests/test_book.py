@@ -332,7 +332,13 @@ def test_deviations_page_states_what_the_code_does():
         assert stored == -(-1000 * steps // rollout) * rollout and f"{stored:,}" in page
     faithful = sorted(p.name for p in (artefacts.data_dir() / "policies").glob("*faithful*"))
     assert len(faithful) == 16 and not [n for n in faithful if "sif" in n]
-    assert "16 in all" in page and "There are no paper-faithful SIF policies" in page
+    assert "16 in all" in page and "There are no faithful-trainer SIF policies" in page
+    # the faithful trainer's departures from the printed Algorithm 2, as its policy files record them
+    for name, features in (("ungm-ukf", "paper+time"), ("ctm-ukf", "paper+circ")):
+        hyper = artefacts.stored_policy(name, "adaptive-faithful", 0).metadata["hyper"]
+        assert hyper["features"] == features
+        for key in ("actor_sign", "cost_transform", "scaler_visit", "scaler_squash", "bootstrap_at_limit"):
+            assert f"`{key}: {hyper[key]}`" in page, key
 
 
 # ---------------------------------------------------------------- the build
