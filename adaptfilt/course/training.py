@@ -246,9 +246,9 @@ def check_actor_update(actor_loss: Callable, beta: float = 0.1, seed: int = 0) -
 
 
 def plain_soft_update(target, source, tau: float) -> None:
-    r"""The target critic's soft (Polyak) update, :math:`\bar\psi \leftarrow \tau\psi + (1-\tau)\bar\psi`,
-    one weight tensor at a time: the numbers of :func:`adaptfilt.actor_critic.soft_update`, which
-    updates all tensors in two batched calls (``tests/test_course_rl.py`` holds the two equal)."""
+    """The target critic's soft (Polyak) update psi_bar <- tau psi + (1 - tau) psi_bar, one weight
+    tensor at a time. ``adaptfilt.actor_critic.soft_update`` computes the same numbers for all the
+    tensors in two batched calls (``tests/test_course_rl.py`` holds the two equal, bit for bit)."""
     import torch
 
     with torch.no_grad():
