@@ -418,10 +418,7 @@ def test_states_its_learning_goals(stem):
 REPORT_CHAPTERS = ["09-ukf-ungm", "10-ukf-ctm", "11-sif-ctm", "14-beyond-the-paper",
                    "15-out-of-distribution-and-the-raw-cost", "16-looking-ahead", "17-adaptive-particle-count"]
 #: Report chapters whose boxes are not written yet, with who holds the chapter.
-REMEMBER_PENDING: dict[str, str] = {
-    "14-beyond-the-paper": "course-findings-b, once course-restructure releases the chapter",
-    "15-out-of-distribution-and-the-raw-cost": "course-findings-b, once course-restructure releases the chapter",
-}
+REMEMBER_PENDING: dict[str, str] = {}
 _BOX = re.compile(r"\A> \*\*What to remember\*\*[ \t]*\n(?:> [*-] [^\n]+\n){2}> [*-] [^\n]+(?:\n|\Z)(?!>)")
 _FIXED_SECTIONS = {"Summary", "Exercises", "References"}
 
