@@ -475,7 +475,7 @@ def _add_evaluate(sub) -> None:
 def _add_train(sub) -> None:
     from adaptfilt.trainers import ALGOS
 
-    p = sub.add_parser("train", help="train a policy (Algorithm 2 as printed, or the fast mode)")
+    p = sub.add_parser("train", help="train a policy (Algorithm 2's loop with the library's recipe, or the fast mode)")
     p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
     p.add_argument("--algo", choices=ALGOS, default="faithful",
                    help="faithful: Algorithm 2, one episode at a time (the reference, minutes); batched: the "

@@ -3,9 +3,12 @@ r"""Training a parameter policy by name of algorithm: ``adaptfilt train NAME --a
 =============  ==========================================================================
 ``algo``       what trains the policy
 =============  ==========================================================================
-``faithful``   our Algorithm 2 as printed (:func:`adaptfilt.actor_critic.train`,
-               ``parallel=1``): one episode at a time, one Adam step per time step.
-               The reference; about 11 CPU-minutes per UNGM policy.
+``faithful``   Algorithm 2's update loop with the library's recipe
+               (:func:`adaptfilt.actor_critic.train`, ``parallel=1``): one episode at a
+               time, one Adam step per time step; the corrected sign, log(1 + L), the
+               feature set, the asinh scaler and the time-limit bootstrap of the
+               defaults (``docs/DEVIATIONS.md``). The reference; about 11 CPU-minutes
+               per UNGM policy.
 ``batched``    the same code with ``parallel`` episodes per Adam step
                (:func:`adaptfilt.actor_critic.train`): faster, measurably worse.
 ``fast``       the fast mode: Stable-Baselines3's PPO through :mod:`adaptfilt.gym`

@@ -24,12 +24,15 @@ import re
 import shutil
 import threading
 import time
+import urllib.parse
+import urllib.request
 from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
 
-from adaptfilt.course.book import FRONT_PAGES, BookBuildError, build_book, collect_chapters, notebook_chapters
+from adaptfilt.course.book import (FRONT_PAGES, NOTEBOOK_DIR, BookBuildError, build_book, collect_chapters,
+                                   notebook_chapters, notebook_link)
 from adaptfilt.course.notebook_markdown import escape_math, notebook_title
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
@@ -93,7 +96,13 @@ def test_deviations_page_states_what_the_code_does():
         assert stored == -(-1000 * steps // rollout) * rollout and f"{stored:,}" in page
     faithful = sorted(p.name for p in (artefacts.data_dir() / "policies").glob("*faithful*"))
     assert len(faithful) == 16 and not [n for n in faithful if "sif" in n]
-    assert "16 in all" in page and "There are no paper-faithful SIF policies" in page
+    assert "16 in all" in page and "There are no faithful-trainer SIF policies" in page
+    # the faithful trainer's departures from the printed Algorithm 2, as its policy files record them
+    for name, features in (("ungm-ukf", "paper+time"), ("ctm-ukf", "paper+circ")):
+        hyper = artefacts.stored_policy(name, "adaptive-faithful", 0).metadata["hyper"]
+        assert hyper["features"] == features
+        for key in ("actor_sign", "cost_transform", "scaler_visit", "scaler_squash", "bootstrap_at_limit"):
+            assert f"`{key}: {hyper[key]}`" in page, key
 
 
 # ---------------------------------------------------------------- the build
@@ -210,6 +219,23 @@ def test_links_between_pages_reach_files(repo_book, tmp_path):
                                       ' <a href="#top">here</a>'
                                       ' <a href="reference/adaptfilt/gaff.html">typo</a>')
     assert _broken_links(tmp_path) == ["ch.html: reference/adaptfilt/gaff.html"]
+
+
+def test_every_chapter_page_links_its_notebook_which_the_book_ships(repo_book, served_book):
+    """A reader who wants to run a chapter downloads its notebook from the page: the book holds each
+    notebook as committed (outputs included), each chapter's page links it right under the title, and a
+    web server hands it out byte for byte."""
+    out, notebooks = repo_book
+    for nb in notebooks:
+        shipped = out / NOTEBOOK_DIR / nb.name
+        assert shipped.read_bytes() == nb.read_bytes(), nb.name
+        page = (out / f"{nb.stem}.html").read_text(encoding="utf-8")
+        assert page.count(f'href="{NOTEBOOK_DIR}/{nb.name}"') == 1, nb.name
+        md = (out.with_name(out.name + "-src") / f"{nb.stem}.md").read_text(encoding="utf-8").split("\n")
+        title = next(i for i, line in enumerate(md) if line.startswith("# "))
+        assert md[title + 2] == notebook_link(nb.name), nb.name  # right under the title
+    with urllib.request.urlopen(f"{served_book}/{NOTEBOOK_DIR}/{notebooks[0].name}") as got:
+        assert got.read() == notebooks[0].read_bytes()
 
 
 def test_readme_links_to_the_architecture_page(repo_book):
@@ -433,7 +459,10 @@ _PROBE = r"""
         return {src: i.getAttribute("src"), width: i.naturalWidth};
       }),
       clipped: clipped(main),
-      scrolls: scrollers.map(describe)  // boxes wider than the column that scroll sideways
+      scrolls: scrollers.map(describe),  // boxes wider than the column that scroll sideways
+      notebooks: Array.prototype.map.call(main.querySelectorAll('a[href$=".ipynb"]'), function (a) {
+        return {href: a.getAttribute("href"), url: a.href};  // as written, and as the browser resolved it
+      })
     };
   }
   return new Promise(function (resolve) {
@@ -603,16 +632,26 @@ def test_browser_probe_sees_math_errors(browser, fixture_book):
 
 def test_browser_every_page_of_the_book(browser, repo_book, served_book):
     """Every page: no console error, MathJax done without an error or an undefined macro, every image
-    loaded, no text cut off."""
+    loaded, no text cut off; and every chapter's page links its own notebook, which the browser
+    resolves (from ``file://``, offline) to a file the book ships."""
     out, notebooks = repo_book
     pages = sorted(p.name for p in out.glob("*.html"))
     assert set(p.name for p in _expected_pages(out, notebooks)) <= set(pages)
     problems, timings = [], []
+    chapter_pages = {f"{nb.stem}.html": nb.name for nb in notebooks}
     for name in pages:
         # 404.html is written for a web server (its links start at the site root).
         url = f"{served_book}/{name}" if name == "404.html" else (out / name).as_uri()
         started = time.monotonic()
-        problems += _problems(name, _visit(browser, url))
+        visit = _visit(browser, url)
+        problems += _problems(name, visit)
+        if name in chapter_pages:
+            links = visit["value"]["notebooks"]
+            want = f"{NOTEBOOK_DIR}/{chapter_pages[name]}"
+            if [a["href"] for a in links] != [want]:
+                problems.append(f"{name}: links the notebooks {[a['href'] for a in links]}, not {want}")
+            elif not Path(urllib.request.url2pathname(urllib.parse.urlparse(links[0]["url"]).path)).is_file():
+                problems.append(f"{name}: its notebook link {links[0]['url']} reaches no file")
         timings.append(f"{time.monotonic() - started:6.1f} s  {name}")
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     (ARTEFACTS / "browser-pages.txt").write_text("\n".join(timings) + "\n", encoding="utf-8")

@@ -130,3 +130,26 @@ def test_kappa_bands_partition_the_grid():
     bands = training.kappa_bands(grid)
     assert list(bands) == ["0-2", "5-50", "100-500", "1000-10000"]
     assert (np.sum(list(bands.values()), axis=0) == 1).all()
+
+
+def test_plain_soft_update_is_the_librarys_bit_for_bit():
+    """Chapter 6 shows the target critic's Polyak averaging one tensor at a time; the library batches it
+    (torch._foreach_*). Same numbers, over many updates of networks that keep changing."""
+    import torch
+
+    from adaptfilt.actor_critic import soft_update
+    from adaptfilt.learned import mlp
+
+    torch.manual_seed(0)
+    source = mlp(7, 1, (64, 64))
+    target_lib, target_plain = mlp(7, 1, (64, 64)), mlp(7, 1, (64, 64))
+    target_plain.load_state_dict(target_lib.state_dict())
+    for _ in range(50):
+        with torch.no_grad():
+            for p in source.parameters():
+                p.add_(0.01 * torch.randn_like(p))
+        soft_update(target_lib, source, 0.01)
+        training.plain_soft_update(target_plain, source, 0.01)
+    for a, b, s in zip(target_lib.parameters(), target_plain.parameters(), source.parameters()):
+        assert torch.equal(a, b)
+        assert not torch.equal(a, s)  # the target lags the source: the averaging did something

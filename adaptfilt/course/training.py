@@ -7,6 +7,9 @@ several information states.
 function                                  what
 ========================================  =========================================================
 plot_sign_demo                            ``pi(a | s)`` of toy policies and their learning curves
+plain_soft_update                         the target critic's Polyak averaging, one weight tensor at
+                                          a time (what :func:`adaptfilt.actor_critic.soft_update`
+                                          computes in two batched calls)
 plot_training, kappa_bands                a learning curve of :func:`adaptfilt.actor_critic.train`,
                                           the grid values sampled shown by band
 candidate_cost_range                      the range of the one-step costs a critic regresses on
@@ -30,7 +33,7 @@ import numpy as np
 
 from adaptfilt.course.common import figure_axes
 
-__all__ = ["plot_sign_demo", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
+__all__ = ["plot_sign_demo", "plain_soft_update", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
            "actor_update_batch", "library_actor_loss", "check_actor_update", "plot_state_probs"]
 
 
@@ -240,6 +243,17 @@ def check_actor_update(actor_loss: Callable, beta: float = 0.1, seed: int = 0) -
         print("  your loss sends a gradient into the critic: detach the TD error (delta.detach())")
     print("right: your update is the library's" if right else "not yet right")
     return right
+
+
+def plain_soft_update(target, source, tau: float) -> None:
+    """The target critic's soft (Polyak) update psi_bar <- tau psi + (1 - tau) psi_bar, one weight
+    tensor at a time. ``adaptfilt.actor_critic.soft_update`` computes the same numbers for all the
+    tensors in two batched calls (``tests/test_course_training.py`` holds them equal bit for bit)."""
+    import torch
+
+    with torch.no_grad():
+        for psi_bar, psi in zip(target.parameters(), source.parameters()):
+            psi_bar.mul_(1.0 - tau).add_(psi, alpha=tau)    # (1 - tau) psi_bar + tau psi
 
 
 def plot_state_probs(policy, cases: Mapping[str, np.ndarray], ax=None, title: str | None = None):

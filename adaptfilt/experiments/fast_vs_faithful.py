@@ -1,4 +1,4 @@
-r"""Is the fast trainer as good as Algorithm 2 as printed? The seed-level comparison.
+r"""Is the fast trainer as good as Algorithm 2's loop (the faithful trainer)? The seed-level comparison.
 
 For an experiment evaluated with both seed groups, ``adaptive`` (the fast
 mode, :data:`adaptfilt.trainers.FAST`) and ``adaptive-faithful`` (Algorithm 2,

@@ -20,7 +20,7 @@ Learned policies (``kind``):
   :data:`SEEDS` training seeds each, trained by the fast mode
   (:mod:`adaptfilt.trainers`, ``--algo fast``);
 * ``adaptive-faithful``, on UNGM-UKF and CTM-UKF, the same seeds trained by
-  Algorithm 2 as printed (``--algo faithful``): the reference the fast mode is
+  Algorithm 2's loop with the library's recipe (``--algo faithful``): the reference the fast mode is
   measured against. About 11 CPU-minutes each, so trained only with
   ``faithful=True`` (``--faithful``) and otherwise reused from ``data/`` when
   their file records the expected command.

@@ -377,7 +377,8 @@ def _train_cpu(run: Run, rel: str) -> float | None:
     if p.exists() and "-gain-" in p.name:  # a KalmanNet file records its own
         from adaptfilt.files import read_npz
 
-        return float(read_npz(p, what="KalmanNet file")[1]["history"]["cpu_s"])
+        cpu = read_npz(p, what="KalmanNet file")[1]["history"].get("cpu_s")  # files before the byte-reproducible ones
+        return None if cpu is None else float(cpu)
     return None
 
 
