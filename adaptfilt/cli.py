@@ -217,7 +217,8 @@ def _train_gain(args: argparse.Namespace) -> int:
     spec = GainSpec(args.name, args.loss, args.epochs, args.seed, tuple(args.out), snapshots=snaps, arch=args.arch,
                     truth=args.truth, horizon=args.horizon, train_runs=args.train_runs, val_runs=args.val_runs,
                     batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, clip=args.clip,
-                    tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged)
+                    tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged,
+                    model_grad=args.model_grad)
     spec.run(progress=not args.no_progress)
     print("wrote " + ", ".join(spec.outputs))
     return 0
@@ -523,6 +524,7 @@ def _add_train(sub) -> None:
 
 def _add_train_gain(sub) -> None:
     from adaptfilt.experiments.jobs import GAIN_ARCHS, GAIN_FEATURE_NORMS, GainSpec
+    from adaptfilt.kalmannet import MODEL_GRADS
 
     d = GainSpec.__dataclass_fields__
     p = sub.add_parser("train-gain", help="train a filter with a learned gain (KalmanNet) on simulated trajectories",
@@ -561,6 +563,11 @@ def _add_train_gain(sub) -> None:
     p.add_argument("--on-diverged", choices=("raise", "restore", "stop"), default=d["on_diverged"].default,
                    help="a non-finite loss: raise (default), restore the best weights at half the learning rate, "
                         "or that and stop after 5 such restores, keeping the best weights")
+    p.add_argument("--model-grad", choices=MODEL_GRADS, default=d["model_grad"].default,
+                   help="how the loss's gradient passes through f and h: jacobian (the model's torch forms, "
+                        f"default {d['model_grad'].default}), finite-difference (the numpy path with "
+                        "finite-difference Jacobians: the files the gain study stored before the torch forms), "
+                        "or detach")
     p.add_argument("--out", required=True, action="append", type=_out_file,
                    help="file to write (.npz); one per snapshot, in their order, with --snapshots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -182,8 +182,13 @@ class GainSpec:
     tbptt: int | None = None
     feature_norm: str = "scale"
     on_diverged: str = "raise"
+    model_grad: str = "jacobian"
 
     def __post_init__(self):
+        from adaptfilt.kalmannet import MODEL_GRADS
+
+        if self.model_grad not in MODEL_GRADS:
+            raise ValueError(f"unknown model_grad {self.model_grad!r}; known: {', '.join(MODEL_GRADS)}")
         if self.arch not in GAIN_ARCHS:
             raise ValueError(f"unknown learned-gain architecture {self.arch!r}; known: {', '.join(GAIN_ARCHS)}")
         n = 1 if self.snapshots is None else len(self.snapshots)
@@ -201,6 +206,7 @@ class GainSpec:
                 f"--batch-size {self.batch_size} --lr {_exact(self.lr)} --weight-decay {_exact(self.weight_decay)}"
                 + ("" if self.clip is None else f" --clip {_exact(self.clip)}") + _flag("tbptt", self.tbptt)
                 + f" --feature-norm {self.feature_norm} --on-diverged {self.on_diverged}"
+                + f" --model-grad {self.model_grad}"
                 + "".join(f" --out {o}" for o in self.outs))
 
     @property
@@ -230,7 +236,8 @@ class GainSpec:
                                progress=progress, snapshots=self.snapshots or (), n_train=self.train_runs,
                                n_val=self.val_runs, batch_size=self.batch_size, lr=self.lr,
                                weight_decay=self.weight_decay, clip=self.clip, tbptt=self.tbptt,
-                               feature_norm=self.feature_norm, on_diverged=self.on_diverged, **data)
+                               feature_norm=self.feature_norm, on_diverged=self.on_diverged,
+                               model_grad=self.model_grad, **data)
         filters = [knet] if self.snapshots is None else [knet.snapshot(e) for e in self.snapshots]
         out = {}
         for f, path in zip(filters, self.outputs):

@@ -101,7 +101,7 @@ REGIMES = {"nominal": (1.0, 1.0), "q4": (4.0, 1.0)}
 TARGET_CPU_S = (5.0, 15.0, 45.0)
 #: KalmanNet's training recipe (module docstring); ``n_steps`` is the model's horizon (the scale's at quick).
 KNET = dict(n_train=100, n_val=50, batch_size=20, lr=1e-3, weight_decay=1e-4, clip=10.0, feature_norm="scale",
-            on_diverged="stop", tbptt=100)
+            on_diverged="stop", tbptt=100, model_grad="finite-difference")
 #: Particles of the bootstrap particle filter reference (the reproduction's references: bpf-500 on UNGM,
 #: bpf-1000 on the CTM).
 PF_PARTICLES = {"ungm-ukf": 500, "ctm-ukf": 1000}
@@ -207,7 +207,7 @@ def knet_spec(experiment: str, arm: str, seed: int, scale: GainScale, root: Path
                     tuple(str(root / policy_rel(experiment, arm, b, seed)) for b in budgets(scale)), snapshots=epochs,
                     horizon=scale.n_steps, train_runs=k["n_train"], val_runs=k["n_val"], batch_size=k["batch_size"],
                     lr=k["lr"], weight_decay=k["weight_decay"], clip=k["clip"], tbptt=k["tbptt"],
-                    feature_norm=k["feature_norm"], on_diverged=k["on_diverged"])
+                    feature_norm=k["feature_norm"], on_diverged=k["on_diverged"], model_grad=k["model_grad"])
 
 
 def prepare(run: Run) -> dict:
