@@ -75,8 +75,8 @@ def test_train_gain_writes_one_file_per_snapshot_with_its_command(tmp_path, caps
                     val_runs=2, batch_size=2, clip=10.0)
     assert spec.command == ("adaptfilt train-gain ungm-ukf --arch kalmannet --loss supervised --epochs 2 "
                             "--snapshots 1,2 --seed 3 --horizon 8 --train-runs 4 --val-runs 2 --batch-size 2 "
-                            f"--lr 0.001 --weight-decay 0.0001 --clip 10 --feature-norm scale --on-diverged raise --model-grad jacobian "
-                            f"--out {outs[0]} --out {outs[1]}")
+                            "--lr 0.001 --weight-decay 0.0001 --clip 10 --feature-norm scale --on-diverged raise "
+                            f"--model-grad jacobian --out {outs[0]} --out {outs[1]}")
 
 
 def test_train_gain_on_a_truth_trains_on_its_trajectories(tmp_path):
