@@ -1,7 +1,8 @@
 r"""Learned policies anchored on greedy: a residual over greedy's choice, kept near it by a KL term.
 
-Issue 23, item 2: a learned policy that starts *as* greedy (the exact one-step optimum, the bar every
-learned policy is measured against) and moves away only where the learner finds that it pays.
+The anchored learner (study 5 of ``adaptfilt beyond``): a learned policy that starts *as* greedy (the
+exact one-step optimum, the bar every learned policy is measured against) and moves away only where the
+learner finds that it pays.
 
 **The policy.** With ``g(s)`` greedy's choice (the argmin of the one-step cost over the grid,
 :class:`~adaptfilt.policies.GreedyPolicy`) and ``f(s)`` the actor network's logits,

@@ -2,8 +2,9 @@ r"""One-step costs ``L(s_t, z_t, theta_t)`` of the parameter MDPs, and the trans
 
 A cost is anything that meets :class:`StepCost`: a ``name`` (what results and policy files record),
 a ``compute_weight`` (the price of one unit of the parameter's compute, what an evaluation charges a
-policy's extra computation at) and ``cost(update, theta, nz) -> (M,)``, where ``update`` is what the
-environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
+policy's extra computation at), ``needs_truth`` (whether it reads the true state, which only a simulation
+has: the environment then hands it over, and refuses candidate features that would leak it) and
+``cost(update, theta, nz) -> (M,)``, where ``update`` is what the environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
 around a function; an environment takes any of them.
 
 The costs of Section VI-D, as functions (:func:`nis_cost`, :func:`logmaxnis_cost`, :func:`stateinnov_cost`); the
@@ -47,6 +48,9 @@ class StepCost(Protocol):
 
     @property
     def compute_weight(self) -> float: ...
+
+    @property
+    def needs_truth(self) -> bool: ...
 
     def __call__(self, update: Any, theta: np.ndarray, nz: int) -> np.ndarray: ...
 
@@ -108,9 +112,9 @@ class Cost:
     ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
     (``log(1 + max(0, NIS - nz))``), ``"stateinnov"`` (``||K z~||``) or ``"sqerr"``
     (``||x_{t|t} - x_t||^2``, the squared error of the update's mean against the true state ``x_t``:
-    beyond the paper, for the learned-gain study of issue 38, where the kappa policy is trained on the
-    objective supervised KalmanNet is trained on); ``compute_weight`` adds ``weight * theta`` (the
-    iteration count of the SIF).
+    beyond the paper, for the learned-gain study (``adaptfilt beyond --studies gain``), where the kappa
+    policy is trained on the objective supervised KalmanNet is trained on); ``compute_weight`` adds
+    ``weight * theta`` (the iteration count of the SIF).
 
     ``nll_weight`` (``"sqerr"`` only; beyond the paper, the learned-gain study's consistency arm) adds
     ``w`` times the Gaussian negative log-likelihood of the true state under the filter's claim
@@ -224,6 +228,11 @@ class ParticleCost:
     def name(self) -> str:
         return self.kind if self.price == 0 else f"{self.kind}+{self.price:.0e}*N"
 
+    @property
+    def needs_truth(self) -> bool:
+        """Whether the cost reads the true state (``"sqerr"``: the particle update carries the error itself)."""
+        return self.kind == "sqerr"
+
     def estimation_cost(self, u, nz: int) -> np.ndarray:
         if self.kind in NIS_COSTS:
             return NIS_COSTS[self.kind](u.nis, nz)
@@ -233,7 +242,9 @@ class ParticleCost:
             raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
         return (u.err * u.err).sum(axis=1)
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        """Cost per run of update ``u`` with ``theta`` particles; ``truth`` is not read: the particle update
+        carries the estimate's error itself (``u.err``), which ``"sqerr"`` reads."""
         c = self.estimation_cost(u, nz)
         return c + self.price * np.asarray(theta, dtype=float) if self.price else c
 
@@ -242,11 +253,13 @@ class ParticleCost:
 class FunctionCost:
     """A cost of one's own from a function ``fn(update, nz) -> (M,)`` of the step's update (what the
     environment's ``info["update"]`` holds), plus ``compute_weight * theta``. ``name`` is what results
-    and policy files record, so give each function its own."""
+    and policy files record, so give each function its own. ``needs_truth``: ``fn(update, nz, truth)``
+    reads the true state too (a :class:`~adaptfilt.mdp.FilterEnv` passes it run-last, ``(nx, M)``)."""
 
     name: str
-    fn: Callable[[Any, int], np.ndarray]
+    fn: Callable[..., np.ndarray]
     compute_weight: float = 0.0
+    needs_truth: bool = False
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -255,8 +268,10 @@ class FunctionCost:
             raise TypeError(f"fn must be callable (update, nz) -> cost per run, got {type(self.fn).__name__}")
         _check_weight("compute_weight", self.compute_weight)
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
-        c = np.asarray(self.fn(u, nz), dtype=float)
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        if self.needs_truth and truth is None:
+            raise ValueError(f"the cost {self.name!r} needs the true state: call it with truth= (a FilterEnv does)")
+        c = np.asarray(self.fn(u, nz, truth) if self.needs_truth else self.fn(u, nz), dtype=float)
         return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
 
 

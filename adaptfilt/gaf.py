@@ -246,8 +246,11 @@ class GaussianAssumedFilter:
             return None
         return lambda a, b: _first_last(r(_last_first(a), _last_first(b)))
 
-    def _chol(self, P: np.ndarray, quantity: str, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """Cholesky factor, or FilterError / documented repair."""
+    def factor(self, P: np.ndarray, quantity: str, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(L, P)``: the Cholesky factor of ``P`` (run-last ``(n, n, M)``, named ``quantity`` in errors) as
+        this filter's step ``t`` takes it: ``FilterError`` naming the step and runs where it is not positive
+        definite, or (``on_indefinite="clip"``) the documented repair of those runs, counted in ``n_repairs``
+        and logged in ``repair_log``, with the repaired ``P``."""
         try:
             return chol(P, quantity), P
         except NotPositiveDefinite as e:
@@ -285,7 +288,7 @@ class GaussianAssumedFilter:
             P_pred = mm(mm(F, P), F.swapaxes(0, 1)) + self._Q
         else:
             if L is None:
-                L, P = self._chol(sym(P), "P_filt", t)
+                L, P = self.factor(sym(P), "P_filt", t)
             mo = self.predict_rule.moments(self._wrap(model.f, t + 1), m, P, self.param if param is None else param,
                                            rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False,
                                            tile=tile)
@@ -318,7 +321,7 @@ class GaussianAssumedFilter:
         the same draws in every copy, the draws an untiled call of the ``M / G``
         runs with the same ``rng`` gets. ``tile = 1``: independent draws per run.
         """
-        L, P = self._chol(sym(P), "P_pred", t)
+        L, P = self.factor(sym(P), "P_pred", t)
         return self._update_factored(m, P, L, z, t, self.param if param is None else param, rng, tile)
 
     def _update_factored(self, m, P, L, z, t: int, param, rng, tile: int) -> _UpdateRL:
@@ -404,7 +407,7 @@ class GaussianAssumedFilter:
         zt = z if callable(z) else copies(z)
         if model.H is not None or not (self.candidate_prefixes and rule.supports_prefixes):
             return self.update_rl(copies(m), copies(P), zt, t, np.repeat(grid, M), rng=rng, tile=G * tile)
-        L, P = self._chol(sym(P), "P_pred", t)
+        L, P = self.factor(sym(P), "P_pred", t)
         if rng is None:
             rng = self.rng(_UPDATE, t)
         mos = rule.moments_prefixes(self._wrap(model.h, t + 1), m, P, grid, residual=self._residual_rl(), rng=rng, L=L,
@@ -428,7 +431,7 @@ class GaussianAssumedFilter:
                 u.L_filt = L_filt
                 return u
         Pzz = sym_fresh(S + self._R)
-        Lz, Pzz = self._chol(Pzz, "Pzz", t)
+        Lz, Pzz = self.factor(Pzz, "Pzz", t)
         if callable(z):
             z = z(z_pred, Lz)
         innov = z - z_pred if model.residual is None else self._residual_rl()(z, z_pred)
@@ -449,7 +452,7 @@ class GaussianAssumedFilter:
         # What the filter returns is a covariance: an indefinite P_filt (a negative centre weight, a
         # stochastic rule's bad draw) is an error naming the step, or repaired here and counted, so that
         # no stored covariance gives a negative NEES.
-        L_filt, P_checked = self._chol(P_filt, "P_filt", t)
+        L_filt, P_checked = self.factor(P_filt, "P_filt", t)
         u = _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_checked, n_iter)
         if P_checked is P_filt:  # not repaired: L_filt is the factor of sym(P_filt) = P_filt
             u.L_filt = L_filt
@@ -548,7 +551,7 @@ class GaussianAssumedFilter:
                 xp[t], Pp[t] = m, P
             param = sched[0, t] if const else sched[:, t]
             if t:  # predict_rl's P_pred is symmetric: sym(P_pred) = P_pred, bit for bit
-                L, P = self._chol(P, "P_pred", t)
+                L, P = self.factor(P, "P_pred", t)
                 u = self._update_factored(m, P, L, zt[t], t, param, None, 1)
             else:
                 u = self.update_rl(m, P, zt[t], t, param)

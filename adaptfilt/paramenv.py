@@ -178,7 +178,7 @@ def check_env(env: Any, n_runs: int = 3, seed: int = 0) -> None:
         if not isinstance(getattr(env, attr), str) or not getattr(env, attr):
             raise fail(f"{attr} must be a non-empty string, got {getattr(env, attr)!r}")
     if env.cost is not None and not isinstance(env.cost, StepCost):
-        raise fail(f"cost must be None or a StepCost (name, compute_weight, __call__(update, theta, nz)), "
+        raise fail(f"cost must be None or a StepCost (name, compute_weight, needs_truth, __call__(update, theta, nz)), "
                    f"got {type(env.cost).__name__}")
     desc = env.describe()
     if not isinstance(desc, dict) or set(desc) != set(DESCRIBE_KEYS):

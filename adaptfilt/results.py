@@ -141,10 +141,15 @@ class Results:
         lo, hi = metrics.percentile_ci(getattr(pa, "boot_" + metric) - getattr(pb, "boot_" + metric), level)
         return diff, lo, hi
 
+    def fixed_names(self, both_steps: bool = False) -> list[str]:
+        """The fixed-value policies (:class:`~adaptfilt.policies.FixedPolicy`, by the names it gives), fixed in
+        the update only (default) or, ``both_steps``, in both steps; in their order here."""
+        return [n for n in self.policies if n.startswith("fixed-") and n.startswith("fixed-both-") == both_steps]
+
     def best_fixed(self, metric: Literal["rmse", "anees", "cost"] = "rmse", both_steps: bool = False) -> str:
         """Name of the fixed-value policy with the lowest ``metric`` (ANEES: closest to ``nx``),
         among those fixed in the update only (default) or, ``both_steps``, in both steps."""
-        fixed = [n for n in self.policies if n.startswith("fixed-") and n.startswith("fixed-both-") == both_steps]
+        fixed = self.fixed_names(both_steps)
         if not fixed:
             raise ValueError("these results have no fixed-value policies")
         if metric == "anees":

@@ -147,24 +147,6 @@ def difference(results, names_a, names_b, metric: str = "rmse", level: float = 0
             "iqm": (point_iqm, *_ci(d_iqm, level)), "mean": (point_mean, *_ci(d_mean, level))}
 
 
-# Transitional, for the chapters not yet brought to the one rule (removed when they are): the old names,
-# delegating to adaptfilt.verdicts. No special case: a margin of 0 is 0.
-#: The old per-metric margins (fractions of the reference); the declared ones are adaptfilt.verdicts.DECLARED_MARGINS.
-MARGINS = {"rmse": 0.05, "objective": 0.05, "anees": 0.10, "cost": 0.10, "cost_charged": 0.10}
-
-
-def margin_for(metric: str, reference: float) -> float:
-    """Transitional: ``MARGINS[metric] * |reference|`` (use :func:`adaptfilt.verdicts.margin`)."""
-    return MARGINS[metric] * abs(float(reference))
-
-
-def seed_verdict(diff, better: str = "lower", margin: float | None = None) -> str:
-    """Transitional: :func:`adaptfilt.verdicts.verdict` (``better`` is the claim)."""
-    from adaptfilt.verdicts import verdict
-
-    return verdict(better, diff, margin)
-
-
 def collapse_seeds(results, level: float = 0.95):
     """A :class:`~adaptfilt.evaluation.Results` in which every seed group is one policy: its IQM
     over seeds with the two-level interval (``rmse``, ``anees``, ``cost``, ``objective``; the

@@ -6,13 +6,13 @@ paper, the report and the course. A **claim** is a statement about the true diff
 :math:`\delta = a - b` of a metric where lower is better (RMSE, a cost, the objective; ANEES where both
 sides lie above :math:`n_x`), with a **margin** :math:`m \ge 0`, a difference too small to matter:
 
-==============  =====================  ==========================  ================================
-claim           holds when             **confirmed** when          **contradicted** when
-==============  =====================  ==========================  ================================
-``"lower"``     :math:`\delta < -m`    :math:`hi < -m`             :math:`lo \ge -m`
-``"not worse"`` :math:`\delta < +m`    :math:`hi < +m`             :math:`lo \ge +m`
-``"equal"``     :math:`|\delta| < m`   :math:`-m < lo`, :math:`hi < m`  :math:`hi \le -m` or :math:`lo \ge m`
-==============  =====================  ==========================  ================================
+==============  ===============================  ===============================  ================================
+claim           holds when                       **confirmed** when               **contradicted** when
+==============  ===============================  ===============================  ================================
+``"lower"``     :math:`\delta < -m`              :math:`hi < -m`                  :math:`lo \ge -m`
+``"not worse"`` :math:`\delta < +m`              :math:`hi < +m`                  :math:`lo \ge +m`
+``"equal"``     :math:`\lvert\delta\rvert < m`   :math:`-m < lo`, :math:`hi < m`  :math:`hi \le -m` or :math:`lo \ge m`
+==============  ===============================  ===============================  ================================
 
 and **not confirmed** otherwise. It is one rule: a claim is an open region of :math:`\delta`; the verdict
 on the seed-level 95 % interval :math:`[lo, hi]` is *confirmed* when the interval lies inside the region,

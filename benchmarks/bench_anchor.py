@@ -1,4 +1,4 @@
-"""Learned policies anchored on greedy against greedy, seed by seed (issue 23, item 2).
+"""Learned policies anchored on greedy against greedy, seed by seed (study 5, the anchored learner).
 
     python benchmarks/bench_anchor.py --out results/anchor [--experiments ungm-ukf ctm-ukf]
         [--seeds 0-7] [--runs 10000] [--eval-seed 0] [--strength 3] [--kl 0.01] [--shield 1]

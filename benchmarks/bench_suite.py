@@ -1,4 +1,4 @@
-"""The README's test command against the clock (issue 35, item 3: at most 15 minutes on 2 cores).
+"""The README's test command against the clock (the target: at most 15 minutes on 2 cores).
 
     python benchmarks/bench_suite.py [--target 900] [--top 15] [-- PYTEST ARGS]
 

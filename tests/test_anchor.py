@@ -1,4 +1,4 @@
-"""adaptfilt.anchor: learned policies anchored on greedy (issue 23, item 2)."""
+"""adaptfilt.anchor: learned policies anchored on greedy (the anchored learner of study 5)."""
 import numpy as np
 import pytest
 

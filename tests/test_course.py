@@ -459,3 +459,27 @@ def test_separated_modes_is_the_smaller_mass_of_two_modes_beyond_the_gap():
     m = separated_modes({0: np.stack([one, two]), 1: np.stack([skew, one])}, grid)
     tail = stats.norm.sf(3)                                               # one mode's own mass beyond +-3
     np.testing.assert_allclose(m, [[tail, 0.2], [0.5, tail]], atol=2e-4)
+
+
+def test_a_split_table_repeats_every_column_that_names_a_row():
+    """tables.fit: a claims table split for width keeps claim, experiment, comparison and metric in each
+    part (the verdict part is readable without counting rows), and no cell is lost or repeated."""
+    from adaptfilt.course.tables import fit
+
+    head = ["claim", "experiment", "comparison", "metric", "a / b", "a - b", "seeds alone", "margin", "verdict"]
+    rows = [["C5", f"e{i}", "adaptive lower than default", m, f"{i}.1", f"-{i}.2", "8/8", "0.1", "confirmed"]
+            for i in range(3) for m in ("rmse", "cost")]
+    wide = "\n".join(["| " + " | ".join(r) + " |" for r in [head]] + ["|" + "---|" * len(head)]
+                     + ["| " + " | ".join(r) + " |" for r in rows])
+    parts = [p.split("\n") for p in fit(wide).split("\n\n")]
+    assert len(parts) == 2
+    values = []
+    for p in parts:
+        cells = [[c.strip() for c in line.strip("|").split("|")] for line in p]
+        assert cells[0][:4] == head[:4] and len(cells[0]) <= 7
+        assert [r[:4] for r in cells[2:]] == [r[:4] for r in rows]
+        values += [c[4:] for c in cells[0:1]][0]
+    assert values == head[4:]
+    narrow = "| experiment | policy | cost | log(1+L) | RMSE | ANEES | compute | a | b |\n" + "|---" * 9 + "|\n" \
+             + "| x | p | 1 | 2 | 3 | 4 | 5 | 6 | 7 |"
+    assert fit(narrow).split("\n\n")[1].startswith("| experiment | policy | a | b |")  # cost is a value

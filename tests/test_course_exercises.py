@@ -1,6 +1,6 @@
-"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 18
+"""The checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5, 6, 7 and 18
 (adaptfilt.course.exercises): each accepts the right answer and rejects wrong ones, naming the
-slip where it can (issue 37, item 6)."""
+slip where it can (the course's rule)."""
 import numpy as np
 import pytest
 
@@ -248,3 +248,56 @@ def test_kalmannet_step(capsys):
     assert "returned None" in capsys.readouterr().out
     assert not ex.check_kalmannet_step(lambda *a: (1, 2))
     assert "expected two of" in capsys.readouterr().out
+
+
+def score_gradient(theta, actions, costs, baseline):
+    """A correct alternative to the library's: autograd through log softmax, one sample at a time."""
+    import torch
+
+    th = torch.tensor(theta, dtype=torch.float64, requires_grad=True)
+    logp = torch.log_softmax(th, dim=0)[torch.as_tensor(actions)]
+    ((torch.as_tensor(costs) - baseline) * logp).mean().backward()
+    return th.grad.numpy()
+
+
+def test_score_gradient(capsys):
+    assert ex.check_score_gradient(score_gradient)
+    assert "right" in capsys.readouterr().out
+    from adaptfilt.course.policy_gradient import softmax
+
+    def loop(theta, a, c, b, sign=1.0, minus_pi=True, times_pi=False, base=True, mean=True):
+        pi, g = softmax(theta), np.zeros(len(theta))
+        for an, cn in zip(a, c):
+            score = np.eye(len(theta))[an] - (pi if minus_pi else 0.0)
+            g += sign * (cn - (b if base else 0.0)) * (pi[an] if times_pi else 1.0) * score
+        return g / len(a) if mean else g
+
+    assert ex.check_score_gradient(loop)
+    capsys.readouterr()
+    for says, kw in (("a reward", dict(sign=-1.0)), ("without -pi", dict(minus_pi=False)),
+                     ("grad pi_a, not grad log pi_a", dict(times_pi=True)), ("without the baseline", dict(base=False)),
+                     ("a sum over the batch", dict(mean=False))):
+        assert not ex.check_score_gradient(lambda *a, kw=kw: loop(*a, **kw))
+        assert says in capsys.readouterr().out
+    assert not ex.check_score_gradient(lambda th, a, c, b: np.zeros(2))
+    assert "shape" in capsys.readouterr().out
+
+
+def test_gae_checker_of_chapter_7(capsys):
+    """ppo_step.check_gae (chapter 7): a correct alternative in matrix form is accepted; three slips
+    are rejected and named (tests/test_ppo_step.py has the rest)."""
+    from adaptfilt.course.ppo_step import check_gae
+
+    def matrix_form(c, v, last, gamma, lam, weight=None, boot=1.0, sign=1.0):
+        K = c.shape[0]
+        delta = c + gamma * np.vstack([v[1:], boot * last[None]]) - v
+        w = gamma * lam if weight is None else weight(gamma, lam)
+        upper = np.triu(w ** (np.arange(K)[None, :] - np.arange(K)[:, None]).clip(0))   # A = U delta
+        return sign * upper @ delta
+
+    assert check_gae(matrix_form)
+    capsys.readouterr()
+    for says, kw in (("lambda alone", dict(weight=lambda g, lam: lam)), ("a reward's sign", dict(sign=-1.0)),
+                     ("no bootstrap", dict(boot=0.0))):
+        assert not check_gae(lambda *a, kw=kw: matrix_form(*a, **kw))
+        assert says in capsys.readouterr().out

@@ -1,9 +1,11 @@
 """The writing rules of the course, checked on the committed (executed) notebooks.
 
-Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
+Every chapter is listed in ``CHAPTERS``. The rules:
 
 * prose first: the code of a chapter is at most half its prose, by characters
-  (``MAX_CODE_TO_PROSE``), and no code cell is longer than ``MAX_CODE_LINES``;
+  (``MAX_CODE_TO_PROSE``), no code cell is longer than ``MAX_CODE_LINES`` statements
+  nor ``MAX_CELL_LINES`` lines as printed, and no chapter has more than
+  ``MAX_PROSE_WORDS`` words of prose (a reader meets one subject at a time);
 * the chapter ends with a ``## Summary`` of 4-6 bullets, ``## Exercises`` with
   at least three exercises, each with a worked solution folded in a
   ``<details>`` block whose code runs in the notebook, and ``## References``;
@@ -13,7 +15,7 @@ Every chapter is listed in ``CHAPTERS``. The rules (issues 13 and 27):
   (``remove-cell``) and followed by a static stand-in cell that draws a figure;
 * nothing machine-specific or private in what a reader sees (wall times,
   files the reader does not have), and every "Section N-X" exists in the paper;
-* the apparatus of a textbook (issue 37): learning goals, a link to the notation
+* the apparatus of a textbook: learning goals, a link to the notation
   and the deviations pages, a numbered caption ("*Figure 13.2: ...*") right after
   every figure and alt text of its own (cell metadata ``alt``), no table in a
   chapter wider than ``MAX_TABLE_COLUMNS`` (wider ones are split, or live in
@@ -58,6 +60,11 @@ MIN_WIDGETS = {"02-gaussian-assumed-filters": 2, "07-ppo-and-the-training-recipe
 
 MAX_CODE_TO_PROSE = 0.5
 MAX_CODE_LINES = 12
+MAX_CELL_LINES = 15
+MAX_PROSE_WORDS = 5000
+#: Chapters over MAX_PROSE_WORDS for now, each with the reason; strict, so an entry goes when its
+#: chapter is trimmed.
+PROSE_WORDS_PENDING: dict[str, str] = {}
 MAX_LINE = 88
 MAX_TABLE_COLUMNS = 7
 MIN_EXERCISES = 3
@@ -152,6 +159,28 @@ def test_no_long_code_cell(stem):
             assert n <= MAX_CODE_LINES, f"{stem} cell {i}: {n} lines > {MAX_CODE_LINES}"
 
 
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_no_code_cell_over_fifteen_printed_lines(stem):
+    """What a reader sees: at most MAX_CELL_LINES lines in a code cell, continuation lines counted;
+    a longer cell is split, or its code moves into ``adaptfilt/course/`` (shown with ``show_source``
+    where it is the lesson)."""
+    long = [(i, len(text(c).strip("\n").splitlines())) for i, c in enumerate(load(stem)["cells"])
+            if c["cell_type"] == "code" and len(text(c).strip("\n").splitlines()) > MAX_CELL_LINES]
+    assert not long, f"{stem}: code cells over {MAX_CELL_LINES} lines (cell, lines): {long}"
+
+
+def prose_words(nb: dict) -> int:
+    """The words of a chapter's Markdown cells (the prose a reader reads, declarations included)."""
+    return sum(len(t.split()) for t in markdown(nb))
+
+
+@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=PROSE_WORDS_PENDING[s]))
+                                  if s in PROSE_WORDS_PENDING else s for s in CHAPTERS])
+def test_prose_is_at_most_five_thousand_words(stem):
+    n = prose_words(load(stem))
+    assert n <= MAX_PROSE_WORDS, f"{stem}: {n} words of prose > {MAX_PROSE_WORDS}: split the chapter or trim it"
+
+
 def logical_lines(source: str) -> int:
     """The lines of ``source`` with every bracketed continuation joined to the line it continues."""
     import io
@@ -224,15 +253,7 @@ def test_exercises_have_folded_worked_solutions_with_code(stem):
     assert len(exercises) >= MIN_EXERCISES, f"{stem}: {len(exercises)} exercises with solutions"
 
 
-#: Chapters whose implement-it-yourself exercise is being written while another helper holds them (the
-#: candidate costs of 14 and the mismatched NIS of 15 have their checkers in adaptfilt.course.study_exercises,
-#: tested; the exercises go in when the course restructure releases the two notebooks). Strict: a chapter
-#: that has its exercise fails here until it leaves this list.
-CHECKER_EXERCISE_PENDING = {"14-beyond-the-paper", "15-out-of-distribution-and-the-raw-cost"}
-
-
-@pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="exercise pending"))
-                                  if s in CHECKER_EXERCISE_PENDING else s for s in CHAPTERS])
+@pytest.mark.parametrize("stem", CHAPTERS)
 def test_an_exercise_implements_and_its_checker_accepts_the_solution(stem):
     """At least one exercise of every chapter is an implement-it-yourself exercise with a checker: its title
     says "implement" (``**Exercise N (implement it yourself: ...)**``), its folded solution calls a checker
@@ -306,7 +327,7 @@ def test_section_outline_matches_the_paper():
     assert {k: norm(v) for k, v in found.items()} == {k: norm(v) for k, v in PAPER_SECTIONS.items()}
 
 
-#: Words that tell the project's history rather than teach (issue 27: a chapter teaches the current
+#: Words that tell the project's history rather than teach (a chapter teaches the current
 #: method and its evidence; REPRODUCTION.md, "Earlier releases", keeps the history).
 HISTORY = re.compile(r"\breleases?\b|\b(earlier|previous|first|old) (version|numbers|policies|tables?)\b"
                      r"|\bwhat changed\b|\bchangelog\b", re.I)
@@ -319,9 +340,9 @@ def test_no_teaching_cell_tells_the_projects_history(stem):
     assert not found, f"{stem}: history in teaching cells (move it to REPRODUCTION.md, 'Earlier releases'): {found}"
 
 
-# ---------------------------------------------------------------- the apparatus of a textbook (issue 37)
+# ---------------------------------------------------------------- the apparatus of a textbook
 
-#: Chapters whose code lines are not all within MAX_LINE yet (issue 37, item 6), by who owns the rewrap.
+#: Chapters whose code lines are not all within MAX_LINE yet, by who owns the rewrap.
 LONG_LINES_PENDING: dict[str, str] = {}
 
 
@@ -390,17 +411,14 @@ def test_states_its_learning_goals(stem):
         f"{stem}: no '**What you will learn**' in its opening cells"
 
 
-# ---------------------------------------------------------------- what to remember (issue 47, item 4)
+# ---------------------------------------------------------------- what to remember
 
 #: The chapters that read as reports (the third course read, part B, C9): each results section opens with
 #: a "What to remember" box of three lines, before the numbers.
 REPORT_CHAPTERS = ["09-ukf-ungm", "10-ukf-ctm", "11-sif-ctm", "14-beyond-the-paper",
                    "15-out-of-distribution-and-the-raw-cost", "16-looking-ahead", "17-adaptive-particle-count"]
 #: Report chapters whose boxes are not written yet, with who holds the chapter.
-REMEMBER_PENDING: dict[str, str] = {
-    "14-beyond-the-paper": "course-findings-b, once course-restructure releases the chapter",
-    "15-out-of-distribution-and-the-raw-cost": "course-findings-b, once course-restructure releases the chapter",
-}
+REMEMBER_PENDING: dict[str, str] = {}
 _BOX = re.compile(r"\A> \*\*What to remember\*\*[ \t]*\n(?:> [*-] [^\n]+\n){2}> [*-] [^\n]+(?:\n|\Z)(?!>)")
 _FIXED_SECTIONS = {"Summary", "Exercises", "References"}
 

@@ -149,7 +149,7 @@ def test_evaluate_costs_equals_one_evaluation_per_experiment_bit_for_bit():
     it, gives each experiment exactly what its own evaluation gives; ``default`` (the constant 10)
     is ``fixed-n_iter=10`` again and is not rolled out twice."""
     from adaptfilt.evaluation import evaluate_costs
-    from adaptfilt.experiments.claims import SIF_EXPERIMENTS
+    from adaptfilt.experiment_registry import SIF_EXPERIMENTS
 
     names = ("default", "fixed-n_iter=1", "fixed-n_iter=10")
     pols = lambda e: [p for p in get_experiment(e).baselines() if p.name in names]  # noqa: E731

@@ -1,6 +1,6 @@
 """Chapters 1-7: every figure has a numbered caption ("*Figure 3.2: ...*") in the Markdown cell right
 after it and its own alt text (cell metadata ``alt``), which the book uses instead of a placeholder;
-no code line is longer than 88 characters (issue 37, item 6)."""
+no code line is longer than 88 characters (the course's rule)."""
 import json
 import re
 from pathlib import Path

@@ -316,6 +316,54 @@ def test_the_check_sees_a_private_import(tmp_path):
     assert private_imports(pkg) == ["adaptfilt/course/a.py: from adaptfilt.course.common import _ax"]
 
 
+#: What a user reads: the library, its tests and benchmarks, the documents and what the commands wrote into data/.
+READ_BY_USERS = ("adaptfilt", "tests", "benchmarks", "docs", "README.md", "REPRODUCTION.md", "data")
+
+
+def internal_issue_numbers(root: Path = PKG.parent) -> list[str]:
+    """Lines that cite the project's internal issue tracker by number (the word "issue" and a number), which a
+    user cannot look up: a text names the study or the decision instead."""
+    import re
+
+    pattern = re.compile(r"issues? [0-9]+", re.IGNORECASE)
+    found = []
+    for top in READ_BY_USERS:
+        base = root / top
+        files = [base] if base.is_file() else sorted(p for p in base.rglob("*") if p.suffix in (".py", ".md", ".json"))
+        for p in files:
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1):
+                if pattern.search(line):
+                    found.append(f"{p.relative_to(root)}:{i}: {line.strip()[:100]}")
+    return found
+
+
+def test_no_internal_issue_numbers_in_what_a_user_reads():
+    assert not internal_issue_numbers()
+
+
+def test_the_issue_check_sees_one(tmp_path):
+    (tmp_path / "docs").mkdir()
+    cited = "as decided in Issue " + "12, item 3"  # written apart: this file is checked too
+    (tmp_path / "docs" / "a.md").write_text(f"fine\n{cited}\n")
+    assert internal_issue_numbers(tmp_path) == [f"docs/a.md:2: {cited}"]
+
+
+def long_functions(root: Path, limit: int = 80) -> list[str]:
+    """Functions (methods and nested ones too, docstrings included) longer than ``limit`` lines under ``root``."""
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > limit:
+                found.append(f"{p.relative_to(root.parent)}:{node.lineno} {node.name} "
+                             f"({node.end_lineno - node.lineno + 1} lines)")
+    return found
+
+
+def test_no_function_of_the_pipeline_is_over_80_lines():
+    """The pipeline reads top to bottom: a step that grows past 80 lines is split into named parts."""
+    assert not long_functions(PKG / "experiments")
+
+
 # ------------------------------------------------------------------ one place each
 _RNG_CALLS = {"default_rng", "SeedSequence", "Generator", "PCG64", "Philox"}
 

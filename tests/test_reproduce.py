@@ -69,7 +69,9 @@ def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
     byte, is what reproduce's builders make today for that file at full scale (the policies: experiment,
     kind and seed from the file name; an evaluation: its experiment's learned policies in the pipeline's
     order, the fast kinds then the paper-faithful one, seeds ascending); the files of the report carry the
-    run's own command, and the references the command their JSON records."""
+    run's own command, and the references their ``adaptfilt floor`` / ``adaptfilt reconcile`` line, which their
+    JSON records too."""
+    from adaptfilt.experiments.references import floor_command, reconcile_command
     from adaptfilt.experiments.reproduce import FULL, evaluate_command, policy_command, policy_rel
 
     man = artefacts.manifest()
@@ -86,9 +88,12 @@ def test_every_command_the_manifest_records_is_the_one_the_pipeline_builds():
         elif rel.startswith("results/") and rel.count("/") == 2:
             e = rel.split("/")[1]
             want = evaluate_command(e, [policy_rel(e, k, s) for k in kinds[e] for s in SEEDS], FULL)
-        elif rel in ("results/ungm-floor.json", "results/ctm-reconciliation.json"):
-            want = json.loads((DATA / rel).read_text())["command"]
-            assert f"({FULL.floor_runs if 'floor' in rel else FULL.recon_runs}, 0" in want, rel
+        elif rel == "results/ungm-floor.json":
+            want = floor_command(FULL.floor_runs, 0, FULL.floor_steps, FULL.eval_runs)
+            assert json.loads((DATA / rel).read_text())["command"] == want  # the JSON records the same line
+        elif rel == "results/ctm-reconciliation.json":
+            want = reconcile_command(FULL.recon_runs, 0, FULL.recon_steps)
+            assert json.loads((DATA / rel).read_text())["command"] == want
         elif rel in REPORT_ONLY and cmd != man["generated_by"]:  # judged again from the stored evaluations
             want = "adaptfilt reproduce --out data --report-only"
         else:
@@ -385,7 +390,7 @@ def test_the_floor_runs_on_the_evaluations_trajectories():
     se = metrics.squared_error(traj.x[:12], pmf.run(traj.z[:12]).mean)
     floor = ungm_floor(12, 0, 8, eval_runs=30)
     assert floor["rmse"] == pytest.approx(float(np.sqrt(se.mean(axis=0)).mean()), rel=1e-12)
-    assert "30 runs" in floor["trajectories"] and "eval_runs=30" in floor["command"]
+    assert "30 runs" in floor["trajectories"] and "--eval-runs 30" in floor["command"]
     assert ungm_floor(12, 0, 8)["rmse"] != floor["rmse"]  # the first 12 of 10^4 runs are other runs
 
 
@@ -486,7 +491,7 @@ def test_fast_vs_faithful_applies_the_declared_margin():
 
 @pytest.mark.crosscpu
 def test_the_reconciliations_sif_row_is_the_table1_default():
-    """Issue 25, item 5: the CTM reconciliation's "SIF n_iter 10 (the Table I default)" row runs the experiments'
+    """The CTM reconciliation's "SIF n_iter 10 (the Table I default)" row runs the experiments'
     SIF (two passes, integration-error term); built without the error term it had ANEES 2.7e4 against about 6."""
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.references import ctm_reconciliation
@@ -501,7 +506,7 @@ def test_the_reconciliations_sif_row_is_the_table1_default():
 
 @pytest.mark.crosscpu
 def test_choices_are_made_on_selection_seeds_not_on_the_evaluation_runs():
-    """Issue 25, item 3: the SIF study's safe action set and the fast mode's tuning are chosen on seeds that
+    """The SIF study's safe action set and the fast mode's tuning are chosen on seeds that
     are neither the reproduction's training seeds nor its evaluation seed (the tuning once reused training
     seeds 0-3 and the evaluation runs of seed 0); the stored safe set is the one the selection runs give."""
     import importlib.util

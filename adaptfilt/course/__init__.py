@@ -7,6 +7,7 @@ It may import the library and the pipeline (``adaptfilt.experiments``); nothing 
 * :mod:`~adaptfilt.course.bayes`, :mod:`~adaptfilt.course.moments`, :mod:`~adaptfilt.course.myopia`,
   :mod:`~adaptfilt.course.adaptation` -- chapters 1, 2, 3 and 4;
 * :mod:`~adaptfilt.course.reporting` -- chapter 5: the bootstrap, paired differences, intervals over seeds;
+* :mod:`~adaptfilt.course.policy_gradient` -- chapter 6: the policy gradient derived on toys with known answers;
 * :mod:`~adaptfilt.course.training` -- chapters 6 and 7: training the actor-critic;
 * :mod:`~adaptfilt.course.policy_reading` -- chapter 8 (and chapter 7's widget): what policies choose;
 * :mod:`~adaptfilt.course.paper_common` -- chapters 9-11: what they share of a stored evaluation (seed tables,

@@ -15,7 +15,7 @@ plot_ood_gains                            the gains over the default out of dist
                                           maps
 ========================================  =========================================================
 
-Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_rl.py``;
+Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_beyond_studies.py``;
 figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
@@ -192,7 +192,7 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
     lo, hi = xlim
     ax.set_xlim(lo, hi)
     ax.axvline(0.0, color="0.35", lw=1.2, ls=":", label="default ($n_{it}$ = 10): 0 %", zorder=1)
-    fixed = [n for n in results.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = results.fixed_names()
     x = np.array([rel(n) for n in fixed])
     y = np.array([100 * results[n].divergent_frac for n in fixed])
     ax.plot(np.clip(x, lo, hi), y, "o-", color="0.6", ms=4, label="fixed $n_{it}$", zorder=2)

@@ -1,10 +1,11 @@
-r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5 and 18.
+r"""Checkers of the implement-it-yourself exercises of chapters 1, 3, 4, 5, 6 and 18.
 
-Each chapter of 1-6 has one exercise in which the reader writes a function in an empty cell and
+Each chapter of 1-7 has one exercise in which the reader writes a function in an empty cell and
 hands it to a checker, which compares it with the library on several fixed cases, says what
 differs and, where it can, why (the pattern of :func:`adaptfilt.course.moments.check_unscented`,
 :func:`~adaptfilt.course.moments.check_update` of chapter 2 and
-:func:`adaptfilt.course.training.check_actor_update` of chapter 6). Every checker prints its
+:func:`adaptfilt.course.training.check_actor_update` of chapter 6 and
+:func:`adaptfilt.course.ppo_step.check_gae` of chapter 7). Every checker prints its
 verdict and returns whether the answer is right; ``tests/test_course_exercises.py`` feeds each
 one the right answer, correct alternatives and several wrong ones. The checkers of the chapters that
 read studies are in :mod:`adaptfilt.course.study_exercises`; what all checkers share is in
@@ -17,6 +18,7 @@ check_bayes_step                1            one step of the Bayesian recursion 
 check_discounted_choice         3            the per-run kappa of least discounted cost
 check_nis_cost                  4            the one-step NIS cost of a batch of updates
 check_paired_ci                 5            a paired bootstrap interval of a difference
+check_score_gradient            6            REINFORCE's estimate of the policy gradient
 check_kalmannet_step            18           one step of KalmanNet: features, gain, update
 ==============================  ===========  ==============================================
 """
@@ -31,7 +33,7 @@ from adaptfilt.course.checking import verdict as _verdict
 from adaptfilt.course.checking import within_a_replicate as _within_a_replicate
 
 __all__ = ["check_bayes_step", "check_discounted_choice", "check_nis_cost", "check_paired_ci",
-           "check_kalmannet_step"]
+           "check_score_gradient", "check_kalmannet_step"]
 
 
 # ======================================================================== chapter 1
@@ -328,6 +330,66 @@ def check_paired_ci(my_paired_ci: Callable) -> bool:
     return _verdict(problems, right,
                     "the replicates are counts @ (a - b) / M, one per row of counts; the interval is "
                     "their 2.5th and 97.5th percentiles (np.quantile), the estimate mean(a - b)")
+
+
+# ======================================================================== chapter 6
+def _score_cases():
+    """``(name, theta (K,), actions (N,), costs (N,), baseline)``: the bandit toy's three actions at
+    uniform and uneven logits, four actions, and a batch in which one action was never drawn."""
+    from adaptfilt.course.policy_gradient import sample_costs
+
+    rng = np.random.default_rng(6)
+    cases = []
+    for name, theta, mean, n, b in (
+            ("3 actions, uniform logits, no baseline", [0.0, 0.0, 0.0], [1.0, 0.0, 2.0], 12, 0.0),
+            ("3 actions, uneven logits, baseline 0.4", [0.5, 1.5, -1.0], [1.0, 0.0, 2.0], 9, 0.4),
+            ("4 actions, baseline 1.3", [0.2, -0.4, 0.9, 0.0], [0.5, 2.0, 1.0, 3.0], 15, 1.3)):
+        a, c = sample_costs(np.array(theta), np.array(mean), n, rng)
+        cases.append((name, np.array(theta), a, c, b))
+    cases.append(("3 actions, a batch that never drew action 2, baseline 1.0", np.array([0.0, 0.3, -0.3]),
+                  np.array([0, 1, 1, 0, 1]), np.array([0.2, 1.1, 0.9, -0.1, 1.3]), 1.0))
+    return cases
+
+
+def check_score_gradient(my_estimate: Callable) -> bool:
+    r"""Check a reader's ``my_estimate(theta, actions, costs, baseline) -> (K,)``, REINFORCE's estimate
+    :math:`\hat g = \frac1N\sum_n (L_n - b)(e_{a_n} - \pi)` of the gradient of the expected cost with
+    respect to the logits ``theta (K,)`` of a softmax policy, from ``N`` sampled ``actions`` and the
+    ``costs`` observed after them, against
+    :func:`adaptfilt.course.policy_gradient.score_function_estimate` on four batches. Names the usual
+    slips: a reward's sign, the score :math:`e_a` without :math:`-\pi`, :math:`\nabla\pi_a` in the
+    place of :math:`\nabla\log\pi_a`, the baseline left out, and a sum over the batch, not the mean."""
+    from adaptfilt.course.policy_gradient import score_function_estimate, softmax
+
+    problems = []
+    for name, theta, a, c, b in _score_cases():
+        ref = score_function_estimate(theta, a, c, b)
+        out, why = _run(my_estimate, (theta.copy(), a.copy(), c.copy(), b))
+        if why:
+            problems.append(f"{name}: your function {why}")
+            continue
+        mine = np.asarray(out, dtype=float).ravel()
+        if mine.shape != ref.shape:
+            problems.append(f"{name}: you returned shape {mine.shape}, one number per logit is {ref.shape}")
+            continue
+        if np.allclose(mine, ref, rtol=1e-9, atol=1e-12):
+            continue
+        pi, onehot = softmax(theta), np.eye(len(theta))[a]
+        wrong = {"the gradient of a reward, -g (for a cost it is +(L - b) grad log pi)": -ref,
+                 "(L - b) e_a: the score without -pi (grad log pi_a = e_a - pi)":
+                     ((c - b)[:, None] * onehot).mean(0),
+                 "(L - b) grad pi_a, not grad log pi_a (the score-function identity divides by pi_a)":
+                     ((c - b)[:, None] * pi[a][:, None] * (onehot - pi)).mean(0),
+                 "without the baseline": score_function_estimate(theta, a, c, 0.0),
+                 "a sum over the batch, not the mean": len(a) * ref}
+        what = next((k for k, v in wrong.items() if np.allclose(mine, v, rtol=1e-9, atol=1e-12)
+                     and not np.allclose(v, ref)), None)
+        problems.append(f"{name}: your gradient differs (largest difference {np.abs(mine - ref).max():.3g})"
+                        + (f"; yours is {what}" if what else ""))
+    return _verdict(problems, "your estimate is REINFORCE's, (L - b)(e_a - pi) averaged over the batch, "
+                    "on all four batches",
+                    "pi = softmax(theta); for each sample the score is grad log pi(a_n) = e_{a_n} - pi "
+                    "(np.eye(K)[actions] - pi); weight it by L_n - b and average over the samples")
 
 
 # ======================================================================== chapter 18

@@ -165,163 +165,70 @@ def kalman_gains(n_steps: int, F: float = 0.9, H: float = 1.0, Q: float = 1.0, R
 
 # ------------------------------------------------------------------ the head-to-head study (data/beyond)
 def _end(v) -> float:
-    """An interval's end from the summary (None: an infinite end, JSON has no infinity)."""
-    return np.inf if v is None else float(v)
+    """An interval's end: NaN from percentiles between infinite replicates (seeds with a diverged run) is inf."""
+    return np.inf if v is None or np.isnan(v) else float(v)
 
 
 def _ci(agg: dict | None, fmt: str = ".3g") -> str:
-    if agg is None or agg.get("iqm") is None:
+    if agg is None or agg.get("iqm") is None or not np.isfinite(agg["iqm"]):
         return "n/a"
-    lo, hi = agg["iqm_ci"]
-    lo = -np.inf if lo is None else lo
-    return f"{agg['iqm']:{fmt}} [{lo:{fmt}}, {_end(hi):{fmt}}]"
+    lo, hi = (_end(v) for v in agg["iqm_ci"])
+    return f"{agg['iqm']:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
 
 
-def _diff(d, fmt: str = "+.3g") -> str:
-    return "n/a" if d[0] is None else f"{d[0]:{fmt}} [{-np.inf if d[1] is None else d[1]:{fmt}}, {_end(d[2]):{fmt}}]"
+def final_table(g: Mapping, regime: str = "nominal") -> str:
+    """The study's final budget under ``regime`` (``summary["gain"]`` of ``data/beyond``), a Markdown table:
+    per model every arm (IQM over seeds [two-level 95 % CI]) and the references, with the MSE in dB, the
+    mean training CPU-s and the runs whose RMSE passed the divergence bound (per seed for the arms)."""
+    lines = ["| model | policy | RMSE | MSE (dB) | training CPU-s | divergent runs |", "|---|---|---|---|---|---|"]
+    for e, regimes in g["models"].items():
+        m = regimes[regime]
+        for a, row in m["final"].items():
+            cpu = [c for c in row["train_cpu_s"] if c is not None]
+            stop = f" ({row['stopped_trainings']} stopped)" if row.get("stopped_trainings") else ""
+            lines.append(f"| {e} | {a}{stop} | {_ci(row['rmse'])} | {row['mse_db']['iqm']:.3g} | "
+                         f"{np.mean(cpu):.3g} | {', '.join(map(str, row['divergent_error_rule']))} |")
+        for label, ref in m["references"].items():
+            name = label if label == ref["policy"] else ref["policy"] if ref["policy"].startswith(label) else \
+                f"{label} ({ref['policy']})"
+            lines.append(f"| {e} | {name} | {ref['rmse']:.3g} | {ref['mse_db']:.3g} | | "
+                         f"{ref['divergent_error_rule']} |")
+        if m["floor"]["rmse"] is not None:
+            lines.append(f"| {e} | point-mass floor ({m['floor']['runs']} runs) | {m['floor']['rmse']:.3g} | | | |")
+    return "\n".join(lines)
 
 
-def _cpu(row: Mapping) -> float:
-    cpu = [c for c in row["train_cpu_s"] if c is not None]
-    return float(np.mean(cpu)) if cpu else float("nan")
-
-
-def _trainings(row: Mapping) -> str:
-    """A KalmanNet row's restarts and failed trainings, e.g. ``2 restarts, 0 failed`` (empty for kappa)."""
-    if row.get("restarts") is None:
-        return ""
-    return f"{sum(row['restarts'])} restarts, {row['failed']} failed"
-
-
-def weight_counts() -> str:
-    """The learned networks' sizes: KalmanNet's two architectures on a scalar model and on the CTM, and the
-    kappa learner's actor (a stored policy)."""
-    import adaptfilt as af
-    from adaptfilt.kalmannet import KalmanNet
-
-    lin, ctm = linear_model(), af.models.coordinated_turn()
-    a2, a1 = KalmanNet(lin, seed=0).n_parameters(), KalmanNet(lin, arch=1, seed=0).n_parameters()
-    c2 = KalmanNet(ctm, seed=0).n_parameters()
-    return (f"KalmanNet weights, nx = nz = 1: architecture 2 {a2}, architecture 1 {a1}; "
-            f"the CTM (nx = 4, nz = 1): architecture 2 {c2}")
-
-
-def tuning_table(g: Mapping) -> str:
-    """The tuning that chose both learners' recipes (selection RMSE per configuration; the chosen one in bold),
-    per model: the kappa learner's learning rate x PPO epochs, KalmanNet's learning rate x window per
-    architecture."""
-    t = g["tuning"]
-    lines = ["| model | learner | configuration | selection RMSE | optimiser steps |", "|---|---|---|---|---|"]
-    for e in g["models"]:
-        m = e.split("-")[0]
-        rows = [(f"kappa (PPO)", k, v) for k, v in t["kappa"].get(e, {}).items()]
-        for arch in ("1", "2"):
-            rows += [(f"KalmanNet arch. {arch}", k, v) for k, v in t["knet"].get(m, {}).get(arch, {}).items()]
-        best = {}
-        for who, k, v in rows:
-            if who not in best or v[0] < best[who][1]:
-                best[who] = (k, v[0])
-        for who, k, v in rows:
-            mark = "**" if best[who][0] == k else ""
-            lines.append(f"| {e} | {who} | {mark}{k}{mark} | {mark}{v[0]:.3g}{mark} | {v[1]} |")
+def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[str, str]] | None = None) -> str:
+    """The study's seed-level verdicts on RMSE at ``budget`` (default: the last) for ``pairs`` (default: the
+    four of the 2 x 2 design), every model and regime: ``a - b`` (IQM over seeds [two-level 95 % CI]), "a lower"
+    and "a not worse" (within the project's margin)."""
+    budget = budget or len(g["target_cpu_s"])
+    pairs = pairs or (("gain-sup", "kappa-sqerr"), ("gain-unsup", "kappa-nis"), ("kappa-sqerr", "kappa-nis"),
+                      ("gain-sup", "gain-unsup"))
+    lines = ["| model, regime | a - b | RMSE a - b | a lower | a not worse |", "|---|---|---|---|---|"]
+    for e, regimes in g["models"].items():
+        for r, m in regimes.items():
+            for v in m["verdicts"]:
+                if v["budget"] == budget and (v["a"], v["b"].split(" (")[0]) in pairs:
+                    d = v["rmse_diff"]
+                    ds = "n/a" if d[0] is None or d[1] is None else \
+                        f"{d[0]:+.3g} [{d[1]:+.3g}, {_end(d[2]):+.3g}]"
+                    nw = v["not_worse"] or "n/a (no margin)"
+                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {nw} |")
     return "\n".join(lines)
 
 
 def curve_lines(g: Mapping, regime: str = "nominal") -> str:
-    """The budget curves as text: per model and arm, at each budget the mean training CPU-s over seeds and the
-    RMSE (IQM over seeds), and KalmanNet's restarts and failed trainings."""
+    """The budget curves of the stored study as text: per model and arm, at each budget the mean training
+    CPU-s over seeds and the RMSE (IQM over seeds), and how many KalmanNet trainings divergence stopped."""
     lines = []
     for e, regimes in g["models"].items():
-        if regime not in regimes:
-            continue
         for a, pts in regimes[regime]["curve"].items():
-            cells = [f"{_cpu(pts[b]):.0f} CPU-s: {pts[b]['rmse']['iqm']:.3g}" for b in sorted(pts, key=int)]
-            last = pts[max(pts, key=int)]
-            tr = _trainings(last)
-            lines.append(f"{e:8s} {a:14s} " + "; ".join(cells) + (f" ({tr})" if tr else ""))
-    return "\n".join(lines)
-
-
-def stop_lines(g: Mapping) -> str:
-    """Where each arm stops improving (the study's rule) and the step after it."""
-    lines = []
-    for e, regimes in g["models"].items():
-        for a, s in regimes["nominal"]["stops_improving"].items():
-            at = (f"stops improving at b{s['stops_at']}" if s["stops_at"] is not None else
-                  f"still improving at its top budget b{s['top']}")
-            steps = ", ".join(f"b{x['to']}-b{x['from']} {_diff(x['diff'])} {x['lower']}" for x in s["steps"])
-            lines.append(f"{e:8s} {a:14s} {at}: {steps}")
-    return "\n".join(lines)
-
-
-def final_table(g: Mapping) -> str:
-    """Every arm at its top budget under the nominal model on the final runs, beside the references: a Markdown
-    table with the RMSE (the paper's time-averaged RMSE; IQM over seeds [two-level 95 % CI]), the MSE in dB
-    (10 log10 of the squared error averaged over runs and steps, KalmanNet's unit), the ANEES where a covariance
-    exists, the mean training CPU-s, the divergent runs per seed and KalmanNet's restarts and failed trainings."""
-    lines = ["| model | policy | RMSE | MSE (dB) | ANEES | training CPU-s | divergent runs | trainings |",
-             "|---|---|---|---|---|---|---|---|"]
-    for e, regimes in g["models"].items():
-        m = regimes["nominal"]
-        for a, row in m["final"].items():
-            b = row["names"][0].rsplit("-b", 1)[1].split("-s")[0]
-            lines.append(f"| {e} | {a} b{b} | {_ci(row['rmse'])} | {row['mse_db']['iqm']:.3g} | {_ci(row['anees'])} | "
-                         f"{_cpu(row):.3g} | {', '.join(map(str, row['divergent_error_rule']))} | {_trainings(row)} |")
-        for label, ref in m["final_references"].items():
-            name = ref["policy"] if label in ref["policy"] else f"{label} ({ref['policy']})"
-            anees = "n/a" if ref["anees"] is None or not np.isfinite(ref["anees"]) else f"{ref['anees']:.3g}"
-            lines.append(f"| {e} | {name} | {ref['rmse']:.3g} | {ref['mse_db']:.3g} | {anees} | | "
-                         f"{ref['divergent_error_rule']} | |")
-        if m["final_floor"]["rmse"] is not None:
-            lines.append(f"| {e} | point-mass floor ({m['final_floor']['runs']} runs) | {m['final_floor']['rmse']:.3g} "
-                         "| | | | | |")
-    return "\n".join(lines)
-
-
-def mismatch_table(g: Mapping) -> str:
-    """Each mismatched truth: the references (the nominal model), every main arm trained on the nominal model
-    (at 45 CPU-s and its top budget: an unseen mismatch) and the arms trained on the truth's trajectories."""
-    lines = ["| model, truth | policy | trained on | RMSE | MSE (dB) | training CPU-s |", "|---|---|---|---|---|---|"]
-    for e, regimes in g["models"].items():
-        for r, m in regimes.items():
-            if r == "nominal":
-                continue
-            for label, ref in m["references"].items():
-                if label == "ml":
-                    continue
-                lines.append(f"| {e}, {r} | {label} ({ref['policy']}) | (the model) | {ref['rmse']:.3g} | "
-                             f"{ref['mse_db']:.3g} | |")
-            for a, pts in m["curve"].items():
-                on = "the truth" if "-on-" in a else "the model"
-                for b in sorted(pts, key=int):
-                    row = pts[b]
-                    lines.append(f"| {e}, {r} | {a.split('-on-')[0]} b{b} | {on} | {_ci(row['rmse'])} | "
-                                 f"{row['mse_db']['iqm']:.3g} | {_cpu(row):.3g} |")
-            if m["floor"]["rmse"] is not None:
-                lines.append(f"| {e}, {r} | point-mass floor, the truth's model ({m['floor']['runs']} runs) | | "
-                             f"{m['floor']['rmse']:.3g} | | |")
-    return "\n".join(lines)
-
-
-def verdict_table(g: Mapping, regime: str = "nominal", pairs: Sequence[tuple[str, str]] | None = None,
-                  budgets: Sequence[int] | None = None, metric: str = "rmse") -> str:
-    """The study's seed-level verdicts under ``regime`` for ``pairs`` (default: the 2 x 2 design's four) at
-    ``budgets`` (default: all): ``a - b`` (IQM over seeds [two-level 95 % CI]), "a lower" and, where a margin is
-    declared, "a not worse"."""
-    pairs = pairs or (("gain-sup", "kappa-sqerr"), ("gain-unsup", "kappa-nis"), ("kappa-sqerr", "kappa-nis"),
-                      ("gain-sup", "gain-unsup"))
-    lines = [f"| model | a - b | {metric.upper() if metric == 'rmse' else metric} a - b | a lower | a not worse |",
-             "|---|---|---|---|---|"]
-    for e, regimes in g["models"].items():
-        if regime not in regimes:
-            continue
-        for v in regimes[regime]["verdicts"]:
-            if (v["a"], v["b"].split(" (")[0]) not in pairs or v["metric"] != metric:
-                continue
-            if budgets is not None and v["budget"] not in budgets:
-                continue
-            bb = f" b{v['budget_b']}" if v.get("budget_b") is not None else ""
-            nw = v.get("not_worse", "")
-            nw = "" if "not_worse" not in v else nw or "n/a (no margin)"
-            lines.append(f"| {e} | {v['a']} b{v['budget']} - {v['b']}{bb} | {_diff(v['diff'])} | {v['lower']} | {nw} |")
+            cells = []
+            for b in sorted(pts, key=int):
+                row = pts[b]
+                cpu = np.mean([c for c in row["train_cpu_s"] if c is not None])
+                stop = f", {row['stopped_trainings']} stopped" if row.get("stopped_trainings") else ""
+                cells.append(f"{cpu:4.1f} CPU-s: {row['rmse']['iqm']:.3g}{stop}")
+            lines.append(f"{e:8s} {regime:7s} {a:11s} " + "; ".join(cells))
     return "\n".join(lines)

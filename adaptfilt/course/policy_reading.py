@@ -14,7 +14,7 @@ ungm_state, plot_policy_probs             every policy's ``pi(theta | s)`` at on
 show_policy_probs                         the widget body (chapters 7 and 8)
 ========================================  =========================================================
 
-Tested in ``tests/test_course_rl.py``; figures use :mod:`adaptfilt.style`.
+Tested in ``tests/test_course_policy_reading.py``; figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ chapter                                   helpers
 A *seed group* is a set of policies named ``<group>-s<seed>``
 (:func:`adaptfilt.seed_stats.seed_groups`); its aggregate is the IQM
 over seeds with the two-level (seeds x runs) bootstrap interval of
-:func:`adaptfilt.seed_stats.aggregate`. Tested in ``tests/test_course_rl.py``; figures use
+:func:`adaptfilt.seed_stats.aggregate`. Tested in ``tests/test_course_seed_results.py``; figures use
 :mod:`adaptfilt.style`.
 """
 from __future__ import annotations

@@ -23,24 +23,24 @@ import json
 import sys
 from pathlib import Path
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 14 reads beyond.SIF_EXPERIMENTS
-from adaptfilt.experiments.jobs import TrainSpec, train
+from adaptfilt.experiments.jobs import Training, run_training
 from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.studies import ALL
 from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions, selection_md
-# study_rows: REPRODUCTION.md cites it as beyond.study_rows
-from adaptfilt.experiments.study import (FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations,  # noqa: F401
-                                         same_training, study_rows)
+from adaptfilt.experiments.study import FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations, same_training
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "report_only", "command", "summary_md", "STUDIES", "JOURNAL",
-           "SELECTION_SEED",
-           "select_safe_actions", "SIF_EXPERIMENTS", "study_rows"]
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "report_only", "command", "summary_md", "STUDIES",
+           "STUDY_TITLES", "JOURNAL", "SELECTION_SEED", "select_safe_actions"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"
-#: The ``--studies`` words, in the order the command line lists them.
-STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look", "particles", "gain")
+#: The ``--studies`` words, in the order the command line lists them, with what each asks.
+STUDY_TITLES = {"cand": "a candidate-aware information state", "sif": "SIF policies and divergence",
+                "ood": "out of distribution and retuning", "raw": "training on the untransformed cost",
+                "anchor": "policies anchored on greedy", "look": "the look-ahead references",
+                "particles": "the particle count", "gain": "the learned kappa against KalmanNet's learned gain"}
+STUDIES = tuple(STUDY_TITLES)
 
 
 def command(out_dir: str | Path, quick: bool, studies: tuple[str, ...]) -> str:
@@ -83,17 +83,29 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     return summary
 
 
-def _train(r: Run, policies: list[tuple[str, TrainSpec]]) -> None:
-    """Train what neither the manifest (an earlier run's, same command) nor the journal holds."""
+def _train(r: Run, trainings: list[Training]) -> None:
+    """Run every training that neither the manifest (an earlier run's, same command, every file unchanged)
+    nor the journal holds; say how many of each kind (``adaptfilt train``, ``adaptfilt train-gain``) were
+    reused from where."""
     listed = listed_policies(r.out)
-    todo = [(rel, t) for rel, t in policies if not same_training(listed.get(rel), t.command, r.out / rel)]
-    keys = [t.key for _, t in todo]
-    resumed = r.journal.count(keys)
-    r.say(f"[beyond] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
-          f"{len(policies) - len(todo)} listed in the manifest")
-    times = r.jobs(train, [(t,) for _, t in todo], keys, files=[[r.out / rel] for rel, _ in todo],
-                   progress=r.progress, desc="beyond: train")
-    r.entries.update({rel: t for (rel, _), t in zip(todo, times)})
+
+    def rel(path: str) -> str:
+        return str(Path(path).relative_to(r.out))
+
+    todo = [t for t in trainings
+            if not all(same_training(listed.get(rel(o)), t.command, Path(o)) for o in t.outputs)]
+    keys = [t.key for t in todo]
+    for kind, noun in (("train", "policies to train"), ("train-gain", "learned-gain trainings (KalmanNet)")):
+        mine = [t for t in trainings if t.command.split()[1] == kind]
+        if not mine and kind != "train":
+            continue
+        left = [t.key for t in todo if t.command.split()[1] == kind]
+        resumed = r.journal.count(left)
+        r.say(f"[beyond] {len(left) - resumed} {noun}, {resumed} finished by an earlier run ({JOURNAL}), "
+              f"{len(mine) - len(left)} listed in the manifest")
+    records = r.jobs(run_training, [(t,) for t in todo], keys, files=[list(t.outputs) for t in todo],
+                     progress=r.progress, desc="beyond: train")
+    r.entries.update({rel(o): rec for made in records for o, rec in made.items()})
 
 
 def _write(r: Run, summary: dict, version: str) -> dict:

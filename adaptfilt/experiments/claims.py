@@ -43,12 +43,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: the course reads claims.SIF_EXPERIMENTS
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS
 from adaptfilt.seed_stats import aggregate, difference, seed_groups
 from adaptfilt.verdicts import judge, verdict
 
-__all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members", "claim_of",
-           "rejudge", "BEST_FIXED"]
+__all__ = ["PAPER_TABLE1", "COST_LABEL", "compare", "claims", "table1", "members", "claim_of", "rejudge", "BEST_FIXED"]
 
 
 #: Table I of the paper: {experiment: {policy: (RMSE, ANEES, cost)}}.

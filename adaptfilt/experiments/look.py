@@ -60,7 +60,7 @@ def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
 
     exp = get_experiment(experiment)
     if spec[0] == "base":
-        base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
+        base = [p for p in exp.baselines() if p.kind != "fixed-both"]
         return base + load_learned(exp, files)
     if spec[0] == "rollout":
         return [RolloutPolicy(exp.grid, horizon=spec[1], samples=spec[2], gamma=GAMMA, seed=0)]
@@ -101,7 +101,7 @@ def look_summary(res) -> dict:
         if n != "greedy":
             row["minus_greedy"] = {m: list(res.paired_difference(n, "greedy", m)) for m in metrics}
         (out["references"] if n in refs else out["baselines"])[n] = row
-    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = res.fixed_names()
     best = min(fixed, key=lambda n: getattr(res[n], cost))
     out["baselines"]["best fixed"] = {"policy": best, **{m: getattr(res[best], m) for m in metrics},
                                       "spent": res[best].spent,

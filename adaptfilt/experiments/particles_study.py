@@ -1,4 +1,4 @@
-"""The particle-count study of ``adaptfilt beyond --studies particles`` (issue 24's study, chapter 17).
+"""The particle-count study of ``adaptfilt beyond --studies particles`` (chapter 17).
 
 Learned particle counts (the fast mode, gamma 0.5, 8 seeds) on every experiment of
 :data:`~adaptfilt.experiment_registry.PARTICLE_EXPERIMENTS` (UNGM and the CTM, two prices per particle),
@@ -38,6 +38,10 @@ class ParticleScale:
     n_steps: int | None
     eval_runs: int
     floor_runs: int
+
+    def words(self) -> str:
+        """The budgets, as a journal key reads them."""
+        return f"episodes={self.episodes} steps={self.n_steps} runs={self.eval_runs} floor={self.floor_runs}"
 
 
 #: Budgets of the particle study: 500 training episodes (5x10^4 transitions on UNGM's 100 steps; about 6

@@ -6,7 +6,10 @@ r"""Independent references for the reproduction: the Bayes floor on UNGM and the
   match a filter on the CTM as printed: every reading of the set-up and every
   RMSE definition we could think of, side by side.
 
-``python -c "from adaptfilt.experiments.references import ungm_floor; print(ungm_floor(2000, 0))"``
+``adaptfilt floor --runs 2000 --seed 0 --out data/results/ungm-floor.json`` and ``adaptfilt reconcile --runs 2000
+--seed 0 --out data/results/ctm-reconciliation.json`` (the reproduction's stages of those names) write them;
+each JSON records that line (:func:`floor_command`, :func:`reconcile_command`), with the reproduction's path
+wherever it was written.
 """
 from __future__ import annotations
 
@@ -14,10 +17,22 @@ import time
 
 import numpy as np
 
-__all__ = ["ungm_floor", "ctm_reconciliation", "SEED"]
+__all__ = ["ungm_floor", "ctm_reconciliation", "floor_command", "reconcile_command", "SEED"]
 
 #: Seed of the reference computations (the evaluations' seed).
 SEED = 0
+
+
+def floor_command(n_runs: int, seed: int, n_steps: int | None = None, eval_runs: int = 10_000) -> str:
+    """The ``adaptfilt floor`` line of :func:`ungm_floor` (what its JSON and the manifest record)."""
+    return (f"adaptfilt floor --runs {n_runs} --seed {seed}" + ("" if n_steps is None else f" --horizon {n_steps}")
+            + ("" if eval_runs == 10_000 else f" --eval-runs {eval_runs}") + " --out data/results/ungm-floor.json")
+
+
+def reconcile_command(n_runs: int, seed: int, n_steps: int | None = None) -> str:
+    """The ``adaptfilt reconcile`` line of :func:`ctm_reconciliation`."""
+    return (f"adaptfilt reconcile --runs {n_runs} --seed {seed}" + ("" if n_steps is None else f" --horizon {n_steps}")
+            + " --out data/results/ctm-reconciliation.json")
 
 
 def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None, chunk: int = 250,
@@ -42,8 +57,7 @@ def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None,
             "trajectories": f"first {n_runs} of the UNGM evaluation ({runs.trajectories.replace('seed', str(seed))}, "
                             f"{'10^4' if eval_runs == 10_000 else eval_runs} runs)",
             "version": __version__,
-            "command": "python -c \"from adaptfilt.experiments.references import ungm_floor; "
-                       f"print(ungm_floor({n_runs}, {seed}{'' if eval_runs == 10_000 else f', eval_runs={eval_runs}'}))\"",
+            "command": floor_command(n_runs, seed, n_steps, eval_runs),
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
 
 
@@ -134,5 +148,5 @@ def ctm_reconciliation(n_runs: int = 2000, seed: int = SEED, n_steps: int | None
 
     return {"rows": rows, "paper_table1_rmse_range": [5.630, 6.866], "seed": int(seed),
             "version": __version__,
-            "command": f"python -c \"from adaptfilt.experiments.references import ctm_reconciliation; ctm_reconciliation({n_runs}, {seed})\"",
+            "command": reconcile_command(n_runs, seed, n_steps),
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
