@@ -11,7 +11,7 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--workers N] [--cluster ADDRESS]
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles] [--workers N] [--cluster ADDRESS] [--data DIR]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain,mlanchor] [--workers N] [--cluster ADDRESS] [--data DIR]
     adaptfilt book --out DIR
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
