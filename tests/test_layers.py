@@ -36,7 +36,7 @@ SUBLAYERS = {
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
     "evaluation": ("evaluation", "results", "seed_stats", "plots"),
-    "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet"),
+    "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "imitation", "kalmannet"),
 }
 #: What each sub-layer never imports.
 NEVER = {"core": {"decision", "evaluation", "learning"}, "decision": {"evaluation", "learning"},
