@@ -211,6 +211,9 @@ def _clipped_vbar(ax, x, v, lo, hi, lim, color, marker="o", ms=6, lw=1.5):
                     va="top" if end == b else "bottom", fontsize=8, color=color, zorder=6)
 
 
+#: The learned groups the study's figure shows (where they were evaluated): the reproduction's, the
+#: candidate-aware, the greedy-anchored and the ML-anchored learners (the tables list every group).
+FIGURE_GROUPS = ("adaptive", "adaptive-cand", "adaptive-anchored", "adaptive-mlanchored")
 #: Line colours of the rollout's bases in :func:`plot_look_gain`.
 _BASE_COLOURS = {"greedy": "C0", "ml": "C1", "best": "C2"}
 
@@ -268,7 +271,7 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None, ylim: dict 
             for x, (v, a, b) in zip(h, g[:, [0, 2, 1]]):  # gain interval: [-(upper), -(lower)]
                 _clipped_vbar(ax, x, v, a, b, lim, col)
         for i, (gname, (n_seeds, d)) in enumerate(learned_e.items()):
-            col, x = f"C{i + 3}", h_max + 0.35 + 0.3 * i * h_max / 2
+            col, x = f"C{(i + 3) % 10}", h_max + 0.35 + 0.3 * i * h_max / 2
             if lim[0] <= d[0] <= lim[1]:
                 ax.axhline(d[0], color=col, lw=1, ls="--", zorder=1)
             ax.plot([], [], "D--", color=col, mec="black", label=f"learned: {gname} (IQM of {n_seeds})")

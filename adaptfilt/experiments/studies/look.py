@@ -90,9 +90,10 @@ def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
 
 
 def figures(run: Run, summary: dict) -> list[str]:
-    from adaptfilt.experiments.look import plot_look_gain
+    from adaptfilt.experiments.look import FIGURE_GROUPS, plot_look_gain
 
-    return [run.figure(plot_look_gain(summary[NAME]), "look-gain.png")]
+    look = summary[NAME]
+    return [run.figure(plot_look_gain(look, learned={e: FIGURE_GROUPS for e in look}), "look-gain.png")]
 
 
 def markdown(summary: dict) -> str:
