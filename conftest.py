@@ -10,12 +10,15 @@ BLAS thread per process would be as fast, but it changes numbers: OpenBLAS on on
 matrix product (even a matrix-vector one) in another order than on two or more.
 
 Stable-Baselines3 makes an empty folder ``SB3-<time>`` in the temporary directory for every model
-that learns without a logger of its own (the tests' and chapter 12's small trainings; the library's
+that learns without a logger of its own (the tests' and chapter 13's small trainings; the library's
 trainers set one). ``SB3_LOGDIR`` names the one folder they all use instead, removed at the end.
 """
 import os
 import shutil
 import tempfile
+
+# the old chapters' notebooks that the verdict-word test reads are data, not notebooks to execute
+collect_ignore_glob = ["tests/fixtures/*"]
 
 
 def pytest_configure(config) -> None:

@@ -18,11 +18,12 @@ course (``adaptfilt.course``) are imported by their own names; the layers and th
 """
 import importlib as _importlib
 
-from adaptfilt import (costs, evaluation, experiment_registry, linalg, lookahead, mdp, metrics, models, paramenv,
-                       policies, rules, seed_stats)
+from adaptfilt import (costs, evaluation, experiment_registry, filters, linalg, lookahead, mdp, metrics, models,
+                       paramenv, policies, rules, seed_stats)
 from adaptfilt._version import __version__
 from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter, PointMassFilter
-from adaptfilt.gaf import CKF, SIF, UKF, FilterError, FilterRun, GaussianAssumedFilter, Prediction, Update
+from adaptfilt.filters import Filter, FilterRun, check_filter
+from adaptfilt.gaf import CKF, SIF, UKF, FilterError, GaussianAssumedFilter, Prediction, Update
 from adaptfilt.models import StateSpaceModel, Trajectory
 
 
@@ -39,10 +40,10 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'adaptfilt' has no attribute {name!r}")
 
 __all__ = [
-    "linalg", "metrics", "models", "rules", "costs", "paramenv", "mdp", "policies", "lookahead", "experiment_registry",
-    "seed_stats", "evaluation",
+    "linalg", "metrics", "models", "rules", "costs", "filters", "paramenv", "mdp", "policies", "lookahead",
+    "experiment_registry", "seed_stats", "evaluation",
     "StateSpaceModel", "Trajectory",
-    "GaussianAssumedFilter", "UKF", "SIF", "CKF", "FilterRun", "FilterError", "Prediction", "Update",
+    "GaussianAssumedFilter", "UKF", "SIF", "CKF", "Filter", "FilterRun", "check_filter", "FilterError", "Prediction", "Update",
     "KalmanFilter", "PointMassFilter", "BootstrapParticleFilter",
     "__version__",
 ]

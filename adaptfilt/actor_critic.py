@@ -104,7 +104,9 @@ from adaptfilt._version import __version__
 from adaptfilt.costs import transform_cost
 from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
-from adaptfilt.learned import Actor, Critic, LearnedPolicy, arrays_to_state, read_npz, state_to_arrays, write_npz
+from adaptfilt.files import read_npz, write_npz
+from adaptfilt.learned import Actor, Critic, LearnedPolicy
+from adaptfilt.nets import arrays_to_state, state_to_arrays
 
 __all__ = ["Hyper", "train", "train_experiment", "soft_update", "checkpoint_path"]
 

@@ -6,13 +6,27 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt experiments
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T] [--chunk-size C]
     adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
-                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy
+                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy|ml
                          [--anchor-strength C] [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--resume]
                          [--workers N] [--cluster ADDRESS]
+    adaptfilt train-gain NAME [--arch kalmannet] [--loss supervised|unsupervised] [--epochs N] [--snapshots E1,E2,...]
+                         [--seed S] [--truth q=4,r=1] [--horizon T] [--train-runs N] [--val-runs N] [--batch-size B]
+                         [--lr LR] [--weight-decay W] [--clip C] [--tbptt L] [--feature-norm l2|none|scale]
+                         [--on-diverged raise|restore|stop] --out FILE [--out FILE ...]
+    adaptfilt floor --runs M --seed S [--horizon T] [--eval-runs M] --out FILE
+    adaptfilt reconcile --runs M --seed S [--horizon T] --out FILE
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain,mlanchor] [--workers N] [--cluster ADDRESS] [--data DIR]
+    adaptfilt reproduce --out DIR --report-only [--data DIR]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain,mlanchor] [--workers N]
+                     [--cluster ADDRESS] [--data DIR]
+    adaptfilt beyond --out DIR --report-only
     adaptfilt book --out DIR
+    adaptfilt --version
+
+``train-gain`` trains a filter with a learned gain (KalmanNet); ``floor`` and ``reconcile`` are the
+reproduction's reference stages of those names (the point-mass Bayes floor on UNGM, the CTM variants), each
+writing the JSON that ``adaptfilt reproduce`` writes into ``DIR/results``.
 
 Each sub-command is a thin wrapper: the work lives in the module named in its
 handler, so that a notebook can call the same function directly.
@@ -76,44 +90,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_command(args: argparse.Namespace, seed: int, out: str) -> str:
-    """The one command that makes this file (recorded in it)."""
-    words = ["adaptfilt", "train", args.name, "--algo", args.algo, "--gamma", f"{args.gamma:g}",
-             "--episodes", str(args.episodes)]
-    if args.parallel is not None:
-        words += ["--parallel", str(args.parallel)]
-    words += ["--seed", str(seed)]
-    if args.features is not None:
-        words += ["--features", args.features]
-    if args.repair_penalty:
-        words += ["--repair-penalty", f"{args.repair_penalty:g}"]
-    if args.horizon is not None:
-        words += ["--horizon", str(args.horizon)]
-    if args.actions is not None:
-        words += ["--actions", ",".join(f"{v:g}" for v in args.actions)]
-    if args.cost_transform != "log1p":
-        words += ["--cost-transform", args.cost_transform]
-    if args.anchor is not None:
-        words += ["--anchor", args.anchor]
-        if args.anchor_strength is not None:
-            words += ["--anchor-strength", f"{args.anchor_strength:g}"]
-        if args.anchor_kl is not None:
-            words += ["--anchor-kl", f"{args.anchor_kl:g}"]
-        if args.anchor_shield is not None:
-            words += ["--anchor-shield", f"{args.anchor_shield:g}"]
-    return " ".join(words + ["--out", out])
+def _train_spec(args: argparse.Namespace, seed: int, out: str):
+    """The training ``adaptfilt train`` runs for ``seed`` into ``out``: its command line (recorded in the file)
+    is :attr:`~adaptfilt.experiments.jobs.TrainSpec.command`, the one author of it."""
+    from adaptfilt.experiments.jobs import TrainSpec
+
+    anchor = None if args.anchor is None else (args.anchor, args.anchor_strength, args.anchor_kl, args.anchor_shield)
+    return TrainSpec(args.name, args.gamma, args.episodes, seed, out, algo=args.algo, features=args.features,
+                     repair_penalty=args.repair_penalty, horizon=args.horizon, actions=args.actions,
+                     cost_transform=args.cost_transform, anchor=anchor, parallel=args.parallel)
 
 
 def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
     """One training of ``adaptfilt train`` (module level: it may run in a worker process)."""
-    from adaptfilt.trainers import train_policy
-
-    command = args.command_line or _train_command(args, seed, out)
-    train_policy(args.name, args.algo, args.gamma, args.episodes, seed, parallel=args.parallel,
-                 features=args.features, n_steps=args.horizon, progress=not args.no_progress, command=command,
-                 out=out, resume=args.resume, repair_penalty=args.repair_penalty, actions=args.actions,
-                 cost_transform=args.cost_transform, anchor=args.anchor, anchor_strength=args.anchor_strength,
-                 anchor_kl=args.anchor_kl, anchor_shield=args.anchor_shield)
+    _train_spec(args, seed, out).run(progress=not args.no_progress, resume=args.resume)
     return out
 
 
@@ -136,7 +126,7 @@ def _train(args: argparse.Namespace) -> int:
     args.no_progress = True  # one bar over the seeds instead of one per training
     outs = [str(seed_path(args.out, s)) for s in args.seeds]
     journal = Journal(_seeds_journal(args.out))
-    keys = [(args.command_line or _train_command(args, s, o), s) for s, o in zip(args.seeds, outs)]
+    keys = [_train_spec(args, s, o).key for s, o in zip(args.seeds, outs)]
     resumed = journal.count(keys)
     if resumed:
         print(f"{resumed} of {len(keys)} seeds finished by an earlier run ({journal.path}): reused", flush=True)
@@ -183,6 +173,15 @@ def _reproduce(args: argparse.Namespace) -> int:
 
     if args.quick and args.scale not in (None, "quick"):
         raise ValueError(f"--quick and --scale {args.scale}: give one of them")
+    if args.report_only:
+        from adaptfilt.experiments.reproduce import report_only
+
+        other = [f for f, on in (("--quick", args.quick), ("--scale", args.scale), ("--retrain", args.retrain),
+                                 ("--faithful", args.faithful)) if on]
+        if other:
+            raise ValueError(f"--report-only trains and evaluates nothing: drop {' and '.join(other)}")
+        report_only(Path(args.out), data=args.data, progress=not args.no_progress)
+        return 0
     with _resumable(Path(args.out) / JOURNAL):
         reproduce(out_dir=Path(args.out), quick=args.quick, scale=args.scale, retrain=args.retrain,
                   progress=not args.no_progress, faithful=args.faithful, workers=args.workers, cluster=args.cluster,
@@ -191,8 +190,13 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _beyond(args: argparse.Namespace) -> int:
-    from adaptfilt.experiments.beyond import JOURNAL, run, summary_md
+    from adaptfilt.experiments.beyond import JOURNAL, report_only, run, summary_md
 
+    if args.report_only:
+        if args.quick:
+            raise ValueError("--report-only trains and evaluates nothing: drop --quick")
+        report_only(Path(args.out), progress=not args.no_progress)
+        return 0
     with _resumable(Path(args.out) / "beyond" / JOURNAL):
         summary = run(Path(args.out), quick=args.quick, workers=args.workers, cluster=args.cluster,
                       studies=tuple(args.studies.split(",")), progress=not args.no_progress, data=args.data)
@@ -201,6 +205,39 @@ def _beyond(args: argparse.Namespace) -> int:
 
     atomic_write(Path(args.out) / "beyond" / "summary.md", text)
     print(text)
+    return 0
+
+
+def _train_gain(args: argparse.Namespace) -> int:
+    from adaptfilt.experiments.jobs import GainSpec
+
+    snaps = args.snapshots
+    if snaps is not None and max(snaps) > args.epochs:
+        raise ValueError(f"--snapshots {','.join(map(str, snaps))}: epochs up to --epochs {args.epochs}")
+    spec = GainSpec(args.name, args.loss, args.epochs, args.seed, tuple(args.out), snapshots=snaps, arch=args.arch,
+                    truth=args.truth, horizon=args.horizon, train_runs=args.train_runs, val_runs=args.val_runs,
+                    batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, clip=args.clip,
+                    tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged,
+                    model_grad=args.model_grad)
+    spec.run(progress=not args.no_progress)
+    print("wrote " + ", ".join(spec.outputs))
+    return 0
+
+
+def _reference(args: argparse.Namespace) -> int:
+    """``adaptfilt floor`` / ``adaptfilt reconcile``: the JSON the reproduction's stage of that name writes."""
+    import json
+
+    from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor
+    from adaptfilt.files import atomic_write
+
+    if args.cmd == "floor":
+        print(f"the point-mass filter on {args.runs} runs of UNGM (minutes at the full horizon) ...", flush=True)
+        value = ungm_floor(args.runs, args.seed, args.horizon, eval_runs=args.eval_runs)
+    else:
+        value = ctm_reconciliation(args.runs, args.seed, args.horizon)
+    atomic_write(Path(args.out), json.dumps(value, indent=1) + "\n")
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -249,31 +286,49 @@ def _int_at_least(lo: int, why: str = ""):
     return parse
 
 
-def _nonnegative(text: str) -> float:
+def _float_in(lo: float, hi: float = math.inf, closed: bool = True, name: str | None = None):
+    """A parser (argparse ``type=``) of a finite number in ``[lo, hi)`` (``closed``) or ``(lo, hi)``; NaN is
+    never in. Its error says "must be a finite number >= 0", or "<name> must be in [0, 1)" when named."""
+    bounds = f"{'>=' if closed else '>'} {lo:g}" if hi == math.inf else f"in {'[' if closed else '('}{lo:g}, {hi:g})"
+    rule = f"{name} must be {bounds}" if name else f"must be a finite number {bounds}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not ((value >= lo if closed else value > lo) and value < hi):  # also rejects nan
+            raise argparse.ArgumentTypeError(f"{rule}, got {text}")
+        return value
+
+    parse.__name__ = f"number {bounds}"
+    return parse
+
+
+_nonnegative = _float_in(0.0)
+_positive = _float_in(0.0, closed=False)
+_gamma = _float_in(0.0, 1.0, name="the discount gamma")
+
+
+def _epochs(text: str) -> tuple[int, ...]:
+    """``"3,8,25"`` -> (3, 8, 25): increasing epoch counts >= 1."""
     try:
-        value = float(text)
+        vals = tuple(int(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (value >= 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
+        raise argparse.ArgumentTypeError(f"expected comma-separated epochs, e.g. 3,8,25; got {text!r}") from None
+    if min(vals) < 1 or list(vals) != sorted(set(vals)):
+        raise argparse.ArgumentTypeError(f"expected increasing epochs >= 1, e.g. 3,8,25; got {text!r}")
+    return vals
 
 
-def _positive(text: str) -> float:
-    value = _nonnegative(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
+def _truth(text: str) -> str:
+    """A truth that differs from the model (``q=4``, ``q=1,r=0.25``), in its one written form (``q=4,r=1``)."""
+    from adaptfilt.experiment_registry import parse_truth, truth_words
 
-
-def _gamma(text: str) -> float:
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not 0.0 <= value < 1.0:  # also rejects nan
-        raise argparse.ArgumentTypeError(f"the discount gamma must be in [0, 1), got {text}")
-    return value
+        return truth_words(**parse_truth(text))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _seeds(text: str) -> list[int]:
@@ -380,15 +435,27 @@ def _user_message(e: BaseException) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``adaptfilt`` command's parser: one ``_add_<command>`` per sub-command."""
+    from adaptfilt._version import __version__
+
     parser = _Parser(
         prog="adaptfilt",
         description="Learning adaptive parameter policies for nonlinear Bayesian filters.",
     )
+    parser.add_argument("--version", action="version", version=f"adaptfilt {__version__}")
     sub = parser.add_subparsers(dest="cmd", required=True)
+    for add in (_add_experiments, _add_evaluate, _add_train, _add_train_gain, _add_floor, _add_reconcile,
+                _add_reproduce, _add_beyond, _add_book):
+        add(sub)
+    return parser
 
+
+def _add_experiments(sub) -> None:
     p = sub.add_parser("experiments", help="list the named experiments of the paper")
     p.set_defaults(func=_experiments)
 
+
+def _add_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate every baseline (and learned policies) of an experiment")
     p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
     p.add_argument("--runs", type=_int_at_least(2, " (the bootstrap needs two runs)"), default=10_000,
@@ -405,9 +472,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_evaluate)
 
+
+def _add_train(sub) -> None:
     from adaptfilt.trainers import ALGOS
 
-    p = sub.add_parser("train", help="train a policy (Algorithm 2 as printed, or the fast mode)")
+    p = sub.add_parser("train", help="train a policy (Algorithm 2's loop with the library's recipe, or the fast mode)")
     p.add_argument("name", type=_experiment, help="experiment name, see `adaptfilt experiments`")
     p.add_argument("--algo", choices=ALGOS, default="faithful",
                    help="faithful: Algorithm 2, one episode at a time (the reference, minutes); batched: the "
@@ -450,9 +519,84 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local processes for --seeds (default: every core)")
     p.add_argument("--cluster", default=None, help="run --seeds on a Dask cluster (scheduler address)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--command-line", default=None, help=argparse.SUPPRESS)
     p.set_defaults(func=_train)
 
+
+def _add_train_gain(sub) -> None:
+    from adaptfilt.experiments.jobs import GAIN_ARCHS, GAIN_FEATURE_NORMS, GainSpec
+    from adaptfilt.kalmannet import MODEL_GRADS
+
+    d = GainSpec.__dataclass_fields__
+    p = sub.add_parser("train-gain", help="train a filter with a learned gain (KalmanNet) on simulated trajectories",
+                       description="Train a filter whose gain is learned (KalmanNet's architecture 2, "
+                                   "adaptfilt.kalmannet) on trajectories of an experiment's model; every option "
+                                   "is recorded in the command line each file keeps.")
+    p.add_argument("name", type=_experiment, help="experiment name (its model), see `adaptfilt experiments`")
+    p.add_argument("--arch", choices=GAIN_ARCHS, default=d["arch"].default, help="the learned-gain architecture")
+    p.add_argument("--loss", choices=("supervised", "unsupervised"), default="supervised",
+                   help="supervised: squared error against the true state (default); unsupervised: squared error "
+                        "of the predicted measurement (needs no true state)")
+    p.add_argument("--epochs", type=_int_at_least(1), default=30, help="passes over the training set (default 30)")
+    p.add_argument("--snapshots", type=_epochs, default=None,
+                   help="epochs at which to keep the filter, e.g. 3,8,25, one --out each (a snapshot is bit for "
+                        "bit the filter of a training that stopped there; default: the trained filter only)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0,
+                   help="weights, minibatch order and the trajectories (default 0)")
+    p.add_argument("--truth", type=_truth, default=None,
+                   help="train on trajectories of a truth that differs from the model, e.g. q=4 (process noise Q "
+                        "x 4) or q=1,r=0.25; the filter keeps the nominal model (default: the model itself)")
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--train-runs", type=_int_at_least(1), default=d["train_runs"].default,
+                   help=f"training trajectories (default {d['train_runs'].default})")
+    p.add_argument("--val-runs", type=_int_at_least(1), default=d["val_runs"].default,
+                   help=f"validation trajectories, the best filter on them kept (default {d['val_runs'].default})")
+    p.add_argument("--batch-size", type=_int_at_least(1), default=d["batch_size"].default,
+                   help=f"trajectories per optimiser step (default {d['batch_size'].default})")
+    p.add_argument("--lr", type=_positive, default=d["lr"].default, help=f"Adam's learning rate (default {d['lr'].default:g})")
+    p.add_argument("--weight-decay", type=_nonnegative, default=d["weight_decay"].default,
+                   help=f"Adam's weight decay (default {d['weight_decay'].default:g})")
+    p.add_argument("--clip", type=_positive, default=None, help="clip the gradient's norm at this (default: no clip)")
+    p.add_argument("--tbptt", type=_int_at_least(1), default=None,
+                   help="truncated back-propagation through time: windows of this many steps (default: whole runs)")
+    p.add_argument("--feature-norm", choices=GAIN_FEATURE_NORMS, default=d["feature_norm"].default,
+                   help=f"scaling of the network's inputs (default {d['feature_norm'].default})")
+    p.add_argument("--on-diverged", choices=("raise", "restore", "stop"), default=d["on_diverged"].default,
+                   help="a non-finite loss: raise (default), restore the best weights at half the learning rate, "
+                        "or that and stop after 5 such restores, keeping the best weights")
+    p.add_argument("--model-grad", choices=MODEL_GRADS, default=d["model_grad"].default,
+                   help="how the loss's gradient passes through f and h: jacobian (the model's torch forms, "
+                        f"default {d['model_grad'].default}), finite-difference (the numpy path with "
+                        "finite-difference Jacobians: the files the gain study stored before the torch forms), "
+                        "or detach")
+    p.add_argument("--out", required=True, action="append", type=_out_file,
+                   help="file to write (.npz); one per snapshot, in their order, with --snapshots")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_train_gain)
+
+
+def _add_floor(sub) -> None:
+    p = sub.add_parser("floor", help="the Bayes floor on UNGM: the point-mass filter on the evaluation's runs "
+                                     "(the reproduction's floor stage)")
+    p.add_argument("--runs", type=_int_at_least(2), default=2000, help="the first M runs of the evaluation (default 2000)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="the evaluation's seed (default 0)")
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--eval-runs", type=_int_at_least(2), default=10_000,
+                   help="runs of the evaluation whose first --runs are filtered (default 10^4)")
+    p.add_argument("--out", required=True, type=_out_file, help="JSON file to write")
+    p.set_defaults(func=_reference)
+
+
+def _add_reconcile(sub) -> None:
+    p = sub.add_parser("reconcile", help="the CTM variants against Table I's SIF RMSE (the reproduction's "
+                                         "reconcile stage)")
+    p.add_argument("--runs", type=_int_at_least(2), default=2000, help="runs per variant (default 2000)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0)
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--out", required=True, type=_out_file, help="JSON file to write")
+    p.set_defaults(func=_reference)
+
+
+def _add_reproduce(sub) -> None:
     p = sub.add_parser("reproduce", help="train + evaluate + figures + tables of the paper")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory")
     p.add_argument("--scale", choices=("quick", "medium", "full"), default=None,
@@ -468,29 +612,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None,
                    help="the stored artefacts to reuse (a copy of the repository's data/; default: $ADAPTFILT_DATA, "
                         "then the checkout's data/)")
+    p.add_argument("--report-only", action="store_true",
+                   help="recompute the verdicts and the report's tables from what OUT holds (its evaluations, or a "
+                        "stored check's intervals), keeping its recorded times; nothing is trained or evaluated")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_reproduce)
 
-    p = sub.add_parser("beyond", help="the studies beyond the paper (candidate-aware states, SIF divergence, "
-                                      "out of distribution), at the seed level, into OUT/beyond")
+
+def _add_beyond(sub) -> None:
+    from adaptfilt.experiments.beyond import STUDIES, STUDY_TITLES
+
+    p = sub.add_parser("beyond", help=f"the studies beyond the paper ({', '.join(STUDIES)}), at the seed level, "
+                                      "into OUT/beyond",
+                       description="The studies beyond the paper, at the seed level, into OUT/beyond: "
+                                   + "; ".join(f"{k}, {v}" for k, v in STUDY_TITLES.items()) + ".")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory (OUT/beyond)")
     p.add_argument("--quick", action="store_true", help="toy scale")
-    from adaptfilt.experiments.beyond import STUDIES
-
     p.add_argument("--studies", type=_studies, default=",".join(STUDIES),
-                   help=f"which: {','.join(STUDIES)} (default all)")
+                   help="which, comma-separated (default all): "
+                        + "; ".join(f"{k} ({v})" for k, v in STUDY_TITLES.items()))
     p.add_argument("--workers", type=_int_at_least(1), default=None, help="local processes (default: every core)")
     p.add_argument("--cluster", default=None, help="run the jobs on a Dask cluster (scheduler address or 'local')")
     p.add_argument("--data", default=None,
                    help="where the reproduction's policies are (a copy of the repository's data/; default: "
                         "$ADAPTFILT_DATA, then the checkout's data/)")
+    p.add_argument("--report-only", action="store_true",
+                   help="judge the stored studies' verdicts again (summary.json, summary.md) from what OUT/beyond "
+                        "holds; nothing is trained or evaluated")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_beyond)
 
+
+def _add_book(sub) -> None:
     p = sub.add_parser("book", help="build the static course book (mdBook) from the executed notebooks")
     p.add_argument("--out", required=True, type=_out_dir, help="output directory (DIR/index.html)")
     p.set_defaults(func=_book)
-    return parser
 
 
 #: Library errors that are the user's (a bad name, value or file; a missing optional package): one line at

@@ -2,12 +2,13 @@ r"""One-step costs ``L(s_t, z_t, theta_t)`` of the parameter MDPs, and the trans
 
 A cost is anything that meets :class:`StepCost`: a ``name`` (what results and policy files record),
 a ``compute_weight`` (the price of one unit of the parameter's compute, what an evaluation charges a
-policy's extra computation at) and ``cost(update, theta, nz) -> (M,)``, where ``update`` is what the
-environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
+policy's extra computation at), ``needs_truth`` (whether it reads the true state, which only a simulation
+has: the environment then hands it over, and refuses candidate features that would leak it) and
+``cost(update, theta, nz) -> (M,)``, where ``update`` is what the environment's step made (``info["update"]``). A new cost is a class here, or a :class:`FunctionCost`
 around a function; an environment takes any of them.
 
-The costs of Section VI-D, as NIS-type estimates written once (:func:`nis_cost`, :func:`logmaxnis_cost`)
-and read by both families:
+The costs of Section VI-D, as functions (:func:`nis_cost`, :func:`logmaxnis_cost`, :func:`stateinnov_cost`); the
+NIS-type ones are read by both families:
 
 * :class:`Cost`, for a Gaussian-assumed filter's update (:class:`~adaptfilt.mdp.FilterEnv`):
   ``"nis"`` ``(NIS - nz)^2``, ``"logmaxnis"`` ``log(1 + max(0, NIS - nz))``, ``"stateinnov"``
@@ -34,8 +35,8 @@ from typing import Any, Callable, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "NIS_COSTS",
-           "transform_cost"]
+__all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "stateinnov_cost",
+           "NIS_COSTS", "transform_cost"]
 
 
 @runtime_checkable
@@ -48,6 +49,9 @@ class StepCost(Protocol):
     @property
     def compute_weight(self) -> float: ...
 
+    @property
+    def needs_truth(self) -> bool: ...
+
     def __call__(self, update: Any, theta: np.ndarray, nz: int) -> np.ndarray: ...
 
 
@@ -59,6 +63,13 @@ def nis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
 def logmaxnis_cost(nis: np.ndarray, nz: int) -> np.ndarray:
     """``L_logmaxNIS = log(1 + max(0, NIS - nz))``: overconfidence only, compressed."""
     return np.log1p(np.maximum(0.0, nis - nz))
+
+
+def stateinnov_cost(K: np.ndarray, innovation: np.ndarray) -> np.ndarray:
+    """``L_stateInnov = ||K z~||``: the size of the correction the update applies to the mean, per run
+    (run-last: ``K (nx, nz, M)``, ``innovation (nz, M)``)."""
+    dx = np.einsum("ijM,jM->iM", K, innovation)
+    return np.sqrt((dx * dx).sum(axis=0))
 
 
 #: The NIS-type estimation costs by kind: both cost families read them from here.
@@ -82,9 +93,9 @@ class Cost:
     ``kind``: ``"nis"`` (``(NIS - nz)^2``), ``"logmaxnis"``
     (``log(1 + max(0, NIS - nz))``), ``"stateinnov"`` (``||K z~||``) or ``"sqerr"``
     (``||x_{t|t} - x_t||^2``, the squared error of the update's mean against the true state ``x_t``:
-    beyond the paper, for the learned-gain study of issue 38, where the kappa policy is trained on the
-    objective supervised KalmanNet is trained on); ``compute_weight`` adds ``weight * theta`` (the
-    iteration count of the SIF).
+    beyond the paper, for the learned-gain study (``adaptfilt beyond --studies gain``), where the kappa
+    policy is trained on the objective supervised KalmanNet is trained on); ``compute_weight`` adds
+    ``weight * theta`` (the iteration count of the SIF).
 
     Only ``"sqerr"`` reads the truth (:attr:`needs_truth`): :class:`~adaptfilt.mdp.FilterEnv` then passes
     ``truth (nx, M)``, the true state of the step, run-last as the update; the other kinds are called
@@ -136,8 +147,7 @@ class Cost:
                                  "got non-finite ones")
             e = u.x_filt - truth
             return (e * e).sum(axis=0)
-        dx = np.einsum("ijM,jM->iM", u.K, u.innovation)
-        return np.sqrt((dx * dx).sum(axis=0))
+        return stateinnov_cost(u.K, u.innovation)
 
     def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
         """Cost per run of update ``u`` made with parameter(s) ``theta`` (``truth``: see :meth:`estimation_cost`)."""
@@ -180,6 +190,11 @@ class ParticleCost:
     def name(self) -> str:
         return self.kind if self.price == 0 else f"{self.kind}+{self.price:.0e}*N"
 
+    @property
+    def needs_truth(self) -> bool:
+        """Whether the cost reads the true state (``"sqerr"``: the particle update carries the error itself)."""
+        return self.kind == "sqerr"
+
     def estimation_cost(self, u, nz: int) -> np.ndarray:
         if self.kind in NIS_COSTS:
             return NIS_COSTS[self.kind](u.nis, nz)
@@ -189,7 +204,9 @@ class ParticleCost:
             raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x)")
         return (u.err * u.err).sum(axis=1)
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        """Cost per run of update ``u`` with ``theta`` particles; ``truth`` is not read: the particle update
+        carries the estimate's error itself (``u.err``), which ``"sqerr"`` reads."""
         c = self.estimation_cost(u, nz)
         return c + self.price * np.asarray(theta, dtype=float) if self.price else c
 
@@ -198,11 +215,13 @@ class ParticleCost:
 class FunctionCost:
     """A cost of one's own from a function ``fn(update, nz) -> (M,)`` of the step's update (what the
     environment's ``info["update"]`` holds), plus ``compute_weight * theta``. ``name`` is what results
-    and policy files record, so give each function its own."""
+    and policy files record, so give each function its own. ``needs_truth``: ``fn(update, nz, truth)``
+    reads the true state too (a :class:`~adaptfilt.mdp.FilterEnv` passes it run-last, ``(nx, M)``)."""
 
     name: str
-    fn: Callable[[Any, int], np.ndarray]
+    fn: Callable[..., np.ndarray]
     compute_weight: float = 0.0
+    needs_truth: bool = False
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -211,8 +230,10 @@ class FunctionCost:
             raise TypeError(f"fn must be callable (update, nz) -> cost per run, got {type(self.fn).__name__}")
         _check_weight("compute_weight", self.compute_weight)
 
-    def __call__(self, u, theta: np.ndarray, nz: int) -> np.ndarray:
-        c = np.asarray(self.fn(u, nz), dtype=float)
+    def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:
+        if self.needs_truth and truth is None:
+            raise ValueError(f"the cost {self.name!r} needs the true state: call it with truth= (a FilterEnv does)")
+        c = np.asarray(self.fn(u, nz, truth) if self.needs_truth else self.fn(u, nz), dtype=float)
         return c + self.compute_weight * np.asarray(theta, dtype=float) if self.compute_weight else c
 
 

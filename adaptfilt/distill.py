@@ -90,7 +90,8 @@ def distill_rollout(experiment, seed: int = 0, *, runs: int = 500, features: str
 
     from adaptfilt._version import __version__
     from adaptfilt.features import FeatureSet, fit_scaler
-    from adaptfilt.learned import Actor, LearnedPolicy, one_torch_thread
+    from adaptfilt.learned import Actor, LearnedPolicy
+    from adaptfilt.nets import one_torch_thread
 
     spec = Anchor("greedy", strength, kl)
     for k, v, lo in (("runs", runs, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1)):

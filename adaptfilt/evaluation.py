@@ -1,4 +1,4 @@
-r"""Monte-Carlo evaluation of parameter policies (Section VI-E of the paper).
+r"""Monte-Carlo evaluation of parameter policies and filters (Section VI-E of the paper).
 
 :func:`evaluate` simulates ``M`` trajectories **once** and runs every policy
 on the same trajectories, through the same :class:`~adaptfilt.mdp.FilterEnv`
@@ -11,6 +11,13 @@ policies gets its own confidence interval
 intervals suggest. :func:`evaluate_costs` does the same for several
 experiments that differ only in their cost (the three SIF experiments of
 Table I): each policy is rolled out once and charged every cost.
+
+Filters that no policy tunes, a reference (the bootstrap particle filter) or a learned filter
+(KalmanNet), are evaluated on the same runs beside the policies and reduced by the same summary
+(``evaluate(..., filters={name: filter})``, any :class:`~adaptfilt.filters.Filter`): their differences to
+every policy are paired too, and a filter without a covariance has its ANEES reported as n/a (NaN) here,
+once. The runs themselves, trajectories and bootstrap counts from the evaluation's seed, are an
+:class:`~adaptfilt.runs.EvalRuns` (their seed is derived there and nowhere else).
 
 What is reported, per policy (``e = x_k - x_{k|k}``, ``l`` = run, ``k`` = step):
 
@@ -51,7 +58,8 @@ Memory: a policy's full filtering covariances are reduced to per-run,
 per-step squared errors and NEES right after its rollout and dropped; only
 ``(T,)``, ``(M,)`` and bootstrap ``(n_boot,)`` summaries are kept.
 
-**Streaming** (``chunk_size``, default :data:`CHUNK_SIZE` = 10^4 runs). Up to
+**Streaming** (``chunk_size``, default :data:`~adaptfilt.runs.CHUNK_SIZE` = 10^4 runs; the runs on
+disk: :class:`~adaptfilt.runs.RunStore`). Up to
 ``chunk_size`` runs, the evaluation is the one-pass evaluation: its files are
 byte for byte those it always wrote (every result in ``data/`` has at most 10^4
 runs). Beyond, memory is bounded in ``M``: each policy is rolled out one chunk
@@ -90,101 +98,85 @@ What ``adaptfilt evaluate`` runs (files, tables, figures) is
 from __future__ import annotations
 
 import contextlib
-import functools
 import numbers
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Literal, Sequence
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
 from adaptfilt import metrics
+from adaptfilt.filters import Filter, FilterRun, has_covariance, has_nis
 from adaptfilt.mdp import rollout
 from adaptfilt.models import Trajectory
 from adaptfilt.paramenv import ParamEnv
 from adaptfilt.results import PolicyResult, Results
+from adaptfilt.runs import CHUNK_SIZE, EvalRuns, RunStore
 
-__all__ = ["evaluate", "evaluate_costs", "setup_evaluation", "summarise_rollout", "learned_name", "learned_names",
-           "TRAJ_SEED_KEY"]
+__all__ = ["evaluate", "evaluate_costs"]
 
-#: Trajectories of an evaluation with seed ``s`` come from ``default_rng([TRAJ_SEED_KEY, s])``, so
-#: that they are not the trajectories a training run with the same seed simulates.
-TRAJ_SEED_KEY = 0xE7A1
 #: Quantiles of the one-step cost that are reported besides its mean.
 COST_QUANTILES = (0.5, 0.99, 0.999)
-
-#: Runs filtered at a time by default: an evaluation of at most this many runs (every result in ``data/``)
-#: is the one-pass evaluation, byte for byte; one of more runs is streamed (module docstring, "Streaming").
-CHUNK_SIZE = 10_000
 #: Chunk ``c`` of a streamed evaluation keys a stochastic rule's random numbers with the stream
 #: ``_CHUNK_STREAM + c`` (a training episode's stream is its index, far below).
 _CHUNK_STREAM = 2**30
 
 
-@functools.lru_cache(maxsize=1)
-def _bootstrap_counts(M: int, n_boot: int, seed: int) -> np.ndarray:
-    """The evaluation's bootstrap counts, ``metrics.bootstrap_counts(M, n_boot, default_rng([TRAJ_SEED_KEY,
-    seed, 1]))``, read-only and kept for the next evaluation of the same runs in this process: a worker
-    that evaluates one policy after another (``adaptfilt reproduce``'s jobs) draws them once instead of
-    once a policy (0.6 s at 10^4 runs). Only for at most ``CHUNK_SIZE`` runs: at most 80 MB kept."""
-    counts = metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, seed, 1]))
-    counts.flags.writeable = False
-    return counts
-
-
-def summarise_rollout(name: str, x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray,
-                      counts: np.ndarray, n_repairs: int, level: float, compute_weight: float = 0.0) -> dict:
-    """Reduce one rollout to the :class:`~adaptfilt.results.PolicyResult` fields (wall time excluded): what
-    :func:`evaluate` stores for a policy, for a filter run made outside an environment (a reference filter on
-    the evaluation's runs, :func:`setup_evaluation`'s trajectories and bootstrap ``counts``)."""
+def _summarise(x: np.ndarray, run, cost: np.ndarray | None, grid: np.ndarray, counts: np.ndarray, level: float,
+               compute_weight: float = 0.0) -> dict:
+    """Reduce one rollout (a policy's) or one filter run on the evaluation's runs ``x`` to the
+    :class:`~adaptfilt.results.PolicyResult` fields (wall time excluded), with the bootstrap ``counts``.
+    A run without a covariance (:func:`~adaptfilt.filters.has_covariance`) has no NEES: its ANEES fields and
+    its NEES-based ``divergent_frac`` are NaN (n/a); a run without a cost, its cost fields."""
     M, T = run.nis.shape
+    B = counts.shape[0]
+    nan = float("nan")
     se = metrics.squared_error(x, run.mean)  # (M, T)
-    # a clipped filter stores the rare indefinite P_filt before repairing it: see metrics.nees
-    # filters return positive definite P_filt (gaf.update_rl); a particle cloud collapsed onto one
-    # point has none, and its run says so (info["on_indefinite"] = "inf": it counts as diverged)
-    ne = metrics.nees(x, run.mean, run.cov, on_indefinite=(getattr(run, "info", None) or {}).get("on_indefinite", "raise"))
     a = (1.0 - level) / 2.0
     # RMSE: bootstrap the per-step mean squared error, then sqrt and time-average
     # (RMSE is not a mean over runs, so it is resampled through se, not per run).
     boot_mse_t = metrics.resampled_sums(counts, se) / M  # (B, T); a run with an infinite error: see there
     boot_rmse_t = np.sqrt(boot_mse_t)
     rmse_t = np.sqrt(se.mean(axis=0))
-    run_anees = ne.mean(axis=1)
-    anees_t = ne.mean(axis=0)
-    # ANEES_k is a mean over runs: its pointwise band is the normal one from the
-    # standard error (a second (B, M) x (M, T) bootstrap product would double the cost).
-    from scipy import stats  # on first use: scipy.stats is most of the import time of the library
+    out = dict(rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0), nis_t=run.nis.mean(axis=0),
+               boot_rmse=boot_rmse_t.mean(axis=1), run_rmse=np.sqrt(se.mean(axis=1)))
+    if has_covariance(run):
+        # a clipped filter stores the rare indefinite P_filt before repairing it: see metrics.nees
+        # filters return positive definite P_filt (gaf.update_rl); a particle cloud collapsed onto one
+        # point has none, and its run says so (info["on_indefinite"] = "inf": it counts as diverged)
+        ne = metrics.nees(x, run.mean, run.cov, on_indefinite=(getattr(run, "info", None) or {}).get("on_indefinite", "raise"))
+        run_anees = ne.mean(axis=1)
+        anees_t = ne.mean(axis=0)
+        # ANEES_k is a mean over runs: its pointwise band is the normal one from the
+        # standard error (a second (B, M) x (M, T) bootstrap product would double the cost).
+        from scipy import stats  # on first use: scipy.stats is most of the import time of the library
 
-    half = stats.norm.ppf(1 - a) * ne.std(axis=0, ddof=1) / np.sqrt(M)
-    out = dict(
-        rmse_t=rmse_t, rmse_t_band=np.quantile(boot_rmse_t, [a, 1 - a], axis=0),
-        anees_t=anees_t, anees_t_band=np.stack([anees_t - half, anees_t + half]),
-        nis_t=run.nis.mean(axis=0),
-        boot_rmse=boot_rmse_t.mean(axis=1), boot_anees=metrics.bootstrap_mean(run_anees, counts),
-        run_rmse=np.sqrt(se.mean(axis=1)), run_anees=run_anees,
-    )
+        half = stats.norm.ppf(1 - a) * ne.std(axis=0, ddof=1) / np.sqrt(M)
+        out.update(anees_t=anees_t, anees_t_band=np.stack([anees_t - half, anees_t + half]),
+                   boot_anees=metrics.bootstrap_mean(run_anees, counts), run_anees=run_anees)
+        out["anees"] = float(anees_t.mean())
+        out["anees_ci"] = metrics.percentile_ci(out["boot_anees"], level)
+        out["anees_run_median"] = float(np.median(run_anees))
+        out["divergent_frac"] = float(metrics.divergent(ne, x.shape[-1], run.mean).mean())
+    else:  # the declared "no covariance" (filters.py): n/a, never averaged
+        out.update(anees_t=np.full(T, nan), anees_t_band=np.full((2, T), nan), boot_anees=np.full(B, nan),
+                   run_anees=np.full(M, nan), anees=nan, anees_ci=(nan, nan), anees_run_median=nan,
+                   divergent_frac=nan)
     out["rmse"] = float(rmse_t.mean())
-    out["anees"] = float(out["anees_t"].mean())
     out["nis"] = float(out["nis_t"].mean())
     out["rmse_ci"] = metrics.percentile_ci(out["boot_rmse"], level)
-    out["anees_ci"] = metrics.percentile_ci(out["boot_anees"], level)
     out["rmse_run_median"] = float(np.median(out["run_rmse"]))
-    out["anees_run_median"] = float(np.median(run_anees))
-    nx = x.shape[-1]
-    bad = metrics.divergent(ne, nx, run.mean)
-    out["divergent_frac"] = float(bad.mean())
     info = getattr(run, "info", None) or {}
     extra = np.broadcast_to(np.asarray(info.get("extra_spent", 0.0), dtype=float), (M,))
     out["extra_spent"] = float(extra.mean())
-    out["spent"] = float(np.mean(info["spent"])) if "spent" in info else float("nan")
-    nan = float("nan")
+    out["spent"] = float(np.mean(info["spent"])) if "spent" in info else nan
     if cost is None:
         out.update(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
-                   boot_cost=np.full(counts.shape[0], nan), run_cost=np.full(M, nan), objective=nan,
-                   objective_ci=(nan, nan), boot_objective=np.full(counts.shape[0], nan), cost_charged=nan,
-                   cost_charged_ci=(nan, nan), boot_cost_charged=np.full(counts.shape[0], nan),
-                   cost_t=np.full(T, nan))
+                   boot_cost=np.full(B, nan), run_cost=np.full(M, nan), objective=nan,
+                   objective_ci=(nan, nan), boot_objective=np.full(B, nan), cost_charged=nan,
+                   cost_charged_ci=(nan, nan), boot_cost_charged=np.full(B, nan), cost_t=np.full(T, nan))
     else:
         run_cost = cost.mean(axis=1)
         q = np.quantile(cost, COST_QUANTILES)
@@ -205,7 +197,7 @@ def summarise_rollout(name: str, x: np.ndarray, run, cost: np.ndarray | None, gr
     choices = np.stack([(run.params == g).mean(axis=0) for g in grid], axis=1)  # (T, G)
     out["choices"] = choices
     out["usage"] = np.stack([(run.params == g).sum() for g in grid]).astype(np.int64)
-    out["n_repairs"] = int(n_repairs)
+    out["n_repairs"] = int(run.n_repairs)
     return out
 
 
@@ -222,6 +214,16 @@ def _check_policy(policy, grid: np.ndarray) -> None:
                          f"the environment's grid is {grid.tolist()}")
 
 
+def _check_filter(name: str, filt, env) -> None:
+    if not isinstance(filt, Filter):
+        raise TypeError(f"filter {name!r}: a filter needs .model and .run(z) -> FilterRun (adaptfilt.filters.Filter); "
+                        f"got {type(filt).__name__}")
+    for dim in ("nx", "nz"):
+        if getattr(filt.model, dim, None) != getattr(env, dim):
+            raise ValueError(f"filter {name!r} filters a model with {dim} = {getattr(filt.model, dim, None)}, the "
+                             f"evaluation's has {getattr(env, dim)}")
+
+
 def evaluate(
     experiment_or_env,
     policies: Sequence | None = None,
@@ -235,8 +237,11 @@ def evaluate(
     *,
     n_steps: int | None = None,
     chunk_size: int = CHUNK_SIZE,
+    filters: Mapping[str, Filter] | None = None,
+    runs: EvalRuns | None = None,
+    on_filter_error: Literal["raise", "skip"] = "raise",
 ) -> Results:
-    """Evaluate ``policies`` on the same ``n_runs`` simulated trajectories.
+    """Evaluate ``policies`` and ``filters`` on the same ``n_runs`` simulated trajectories.
 
     Parameters
     ----------
@@ -247,10 +252,10 @@ def evaluate(
         :func:`~adaptfilt.experiment_registry.resolve`.
     policies : sequence of policies, optional
         Objects with ``.name`` and ``.act(decision)``; default: the
-        experiment's baselines (``Experiment.baselines()``).
+        experiment's baselines (``Experiment.baselines()``); ``[]``: filters only.
     n_runs, seed : int
         Monte-Carlo runs; the seed fixes the trajectories
-        (``default_rng([TRAJ_SEED_KEY, seed])``), a stochastic rule's random
+        (:func:`adaptfilt.runs.trajectory_rng`), a stochastic rule's random
         numbers (the filter's seed) and the bootstrap resamples.
     progress : bool or "steps"
         A tqdm bar over policies; ``"steps"`` adds a nested bar over time steps.
@@ -262,18 +267,37 @@ def evaluate(
         A horizon other than the experiment's (``Experiment.make_env``); not
         with an environment, whose horizon is its own.
     chunk_size : int
-        Runs filtered at a time (default :data:`CHUNK_SIZE`). Up to this many
+        Runs filtered at a time (default :data:`~adaptfilt.runs.CHUNK_SIZE`). Up to this many
         runs the evaluation is the one-pass evaluation, bit for bit; beyond, it
         streams the runs in chunks in bounded memory (see "Streaming" in the
         module docstring for what is the same and what is not).
+    filters : {name: Filter}, optional
+        Filters that no policy tunes (:class:`adaptfilt.filters.Filter`: a reference such as the
+        bootstrap particle filter, a learned filter such as KalmanNet), each run once on the same
+        trajectories and reduced by the same summary as the policies (paired with them; one pass
+        only, not streamed). A non-finite estimate counts as an infinite error from that step on (the
+        run is kept, diverged); a covariance that is not positive definite as an infinite NEES. Without a
+        covariance (:func:`~adaptfilt.filters.has_covariance`) the ANEES fields are NaN (n/a). The
+        parameter a filter declares (``param_name``) counts as the environment's choices and compute
+        when it is the environment's parameter. The environment's cost is charged where the filter
+        gives what it reads: the NIS-type costs on the filter's NIS, ``sqerr`` on its estimate (plus the
+        compute weight times its parameter); otherwise the cost fields are NaN.
+        ``results.config["filters"]`` records each filter's ``repr``.
+    runs : EvalRuns, optional
+        The evaluation's runs, made by the caller (to use them again: a Bayes floor on the first runs,
+        :func:`adaptfilt.exact.bayes_floor`); then ``n_runs``, ``seed``, ``n_boot`` and ``traj`` are theirs.
+    on_filter_error : "raise" or "skip"
+        What a filter's ``ValueError`` or ``FloatingPointError`` (numerical trouble it names, e.g. a
+        particle filter whose particles explain no measurement) does: raise, or leave the filter out,
+        its message in ``results.config["failed_filters"][name]``.
 
     Returns
     -------
     Results
     """
-    with _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
-               chunk_size) as (env, policies, traj, counts, config):
-        return _evaluate([(env.cost, config)], env, policies, traj, counts, level, progress)[0]
+    with _setup(experiment_or_env, policies, filters, n_runs, seed, n_boot, traj, level, command, n_steps,
+                chunk_size, runs) as s:
+        return _evaluate([(s.env.cost, s.config)], s, level, progress, on_filter_error)[0]
 
 
 def evaluate_costs(
@@ -288,6 +312,8 @@ def evaluate_costs(
     *,
     n_steps: int | None = None,
     chunk_size: int = CHUNK_SIZE,
+    filters: Mapping[str, Filter] | None = None,
+    on_filter_error: Literal["raise", "skip"] = "raise",
 ) -> dict[str, Results]:
     """:func:`evaluate` on several experiments that differ in their cost only, each policy rolled out once.
 
@@ -303,8 +329,8 @@ def evaluate_costs(
     experiments differ in anything but their cost (model, filter, grid,
     horizon), naming it, or when a policy may choose by the cost (greedy,
     or a learned policy with candidate-cost features): those differ
-    between the experiments and are evaluated per experiment. ``chunk_size``
-    as in :func:`evaluate`.
+    between the experiments and are evaluated per experiment. ``chunk_size``,
+    ``filters`` (run once, charged every cost) and ``on_filter_error`` as in :func:`evaluate`.
 
     Example
     -------
@@ -321,186 +347,110 @@ def evaluate_costs(
     with contextlib.ExitStack() as stack:
         # the first experiment's runs are simulated (and, streamed, written to disk); the others' are the same
         # runs by construction (same truth, seed and horizon: checked below), so only their configs are needed
-        setups = [stack.enter_context(_runs(experiments[0], policies, n_runs, seed, n_boot, None, level, command,
-                                            n_steps, chunk_size))]
-        setups += [setup_evaluation(e, policies, n_runs, seed, n_boot, None, level, command, n_steps, chunk_size, simulate=False)
-                   for e in experiments[1:]]
-        return _evaluate_costs(setups, level, progress)
+        setups = [stack.enter_context(_setup(e, policies, filters, n_runs, seed, n_boot, None, level, command, n_steps,
+                                             chunk_size, None, simulate=not k)) for k, e in enumerate(experiments)]
+        return _evaluate_costs(setups, level, progress, on_filter_error)
 
 
-def _evaluate_costs(setups: list, level: float, progress) -> dict[str, Results]:
-    env, pols, traj, counts, first = setups[0]
-    names = [c["experiment"] for *_, c in setups]
+def _evaluate_costs(setups: list, level: float, progress, on_filter_error: str) -> dict[str, Results]:
+    first, env = setups[0].config, setups[0].env
+    names = [s.config["experiment"] for s in setups]
     if len(set(names)) < len(names):
         raise ValueError(f"experiments must be distinct, got {names}")
     shared = ("model", "nx", "nz", "n_steps", "filter", "param_name", "default", "grid", "n_runs", "seed", "policies")
-    for e2, _, _, _, c in setups[1:]:
+    for s in setups[1:]:
+        c = s.config
         for k in shared:
             if c[k] != first[k]:
                 raise ValueError(f"experiments {first['experiment']!r} and {c['experiment']!r} differ in {k} "
                                  f"({first[k]!r} vs {c[k]!r}): only experiments that differ in their cost share rollouts")
-        if e2.truth.name != env.truth.name:
+        if s.env.truth.name != env.truth.name:
             raise ValueError(f"experiments {first['experiment']!r} and {c['experiment']!r} simulate different truths")
-    for p in pols:
+    for p in setups[0].policies:
         if not getattr(p, "cost_blind", False):
             raise ValueError(f"policy {p.name!r} may choose by the cost (greedy, candidate features, or a policy that "
                              "does not declare cost_blind = True): evaluate it per experiment")
-    out = _evaluate([(e.cost, c) for e, _, _, _, c in setups], env, pols, traj, counts, level, progress)
+    out = _evaluate([(s.env.cost, s.config) for s in setups], setups[0], level, progress, on_filter_error)
     return dict(zip(names, out))
 
 
-def setup_evaluation(experiment_or_env, policies: Sequence | None, n_runs: int, seed: int, n_boot: int,
-                     traj: Trajectory | None, level: float, command: str | None, n_steps: int | None = None,
-                     chunk_size: int | None = None, simulate: bool = True,
-                     store_dir: Path | None = None) -> tuple[ParamEnv, list, "Trajectory | _RunStore | None",
-                                                             np.ndarray | None, dict]:
-    """The environment, checked policies, trajectories, bootstrap counts and config of one evaluation, as
-    :func:`evaluate` makes them (for a study that adds rows of its own to an evaluation's results).
+@dataclass
+class _Setup:
+    """What one evaluation runs: the environment, checked policies and filters, the runs (of another
+    experiment that differs in its cost only: the same, never drawn, :func:`evaluate_costs`) and the results'
+    config."""
 
-    ``chunk_size`` None or at least the number of runs: the trajectories and the counts ``(n_boot, M)``
-    in memory, as always. More runs than ``chunk_size``: a :class:`_RunStore` in ``store_dir`` in place of
-    the trajectories, and None for the counts (the store holds them). ``simulate=False``: neither (for an
-    experiment whose runs are another's, :func:`evaluate_costs`)."""
+    env: ParamEnv
+    policies: list
+    filters: dict
+    runs: EvalRuns
+    config: dict
+
+
+@contextlib.contextmanager
+def _setup(experiment_or_env, policies, filters, n_runs, seed, n_boot, traj, level, command, n_steps, chunk_size,
+           runs: EvalRuns | None, simulate: bool = True):
+    """The :class:`_Setup` of one evaluation, as :func:`evaluate` makes it; a streamed evaluation's runs are
+    stored in a temporary folder, removed at the end."""
     from adaptfilt._version import __version__
     from adaptfilt.experiment_registry import resolve
 
-    target = resolve(experiment_or_env, seed=seed, n_steps=n_steps)
+    if isinstance(chunk_size, (bool, np.bool_)) or not isinstance(chunk_size, numbers.Integral) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer (runs filtered at a time), got {chunk_size!r}")
+    target = resolve(experiment_or_env, seed=seed if runs is None else runs.seed, n_steps=n_steps)
     env, exp = target.env, target.experiment
     if policies is None:
         if exp is None:
             raise ValueError("give the policies to evaluate (an environment has no baselines; an Experiment has)")
         policies = exp.baselines()
-    policies = list(policies)
-    if not policies:
-        raise ValueError("no policies to evaluate")
-    names = [p.name for p in policies]
+    policies, filters = list(policies), dict(filters or {})
+    if not policies and not filters:
+        raise ValueError("nothing to evaluate: give policies or filters")
+    names = [p.name for p in policies] + list(filters)
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise ValueError(f"policy names must be unique; repeated: {', '.join(dup)}")
+        raise ValueError(f"policy names must be unique; repeated: {', '.join(dup)}")  # a filter's name too
     for p in policies:
         _check_policy(p, env.grid)
-    given = traj is not None
-    if not given and int(n_runs) < 2:
-        raise ValueError(f"n_runs must be at least 2 (bootstrap), got {n_runs}")
-    M = traj.n_runs if given else int(n_runs)
-    counts = None
-    if not simulate:
-        traj = None
-    elif chunk_size is not None and M > chunk_size:
-        traj = _RunStore(env, M, int(seed), int(n_boot), traj, int(chunk_size), store_dir)
-    else:
-        if not given:
-            traj = env.truth.simulate(M, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
-        counts = (_bootstrap_counts(M, int(n_boot), int(seed)) if M <= CHUNK_SIZE else
-                  metrics.bootstrap_counts(M, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 1])))
-    desc = env.describe()
-    config = {
-        "experiment": None if exp is None else exp.name,
-        "description": "" if exp is None else exp.description,
-        "model": desc["model"], "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
-        "filter": desc["filter"], "param_name": env.param_name, "default": env.default,
-        "compute_unit": env.compute_unit,
-        "grid": env.grid.tolist(), "cost": desc["cost"],
-        "n_runs": M, "seed": int(seed), "n_boot": int(n_boot), "level": float(level),
-        "trajectories": "given" if given else f"default_rng([{TRAJ_SEED_KEY}, seed])",
-        "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
-    }
-    if chunk_size is not None and M > chunk_size:
-        # only streamed results say so: a one-pass evaluation's file is byte for byte what it always was
-        config["chunk_size"] = int(chunk_size)
-    return env, policies, traj, counts, config
-
-
-
-@contextlib.contextmanager
-def _runs(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps, chunk_size):
-    """:func:`setup_evaluation` with a checked ``chunk_size``, the streamed runs' folder removed at the end."""
-    if isinstance(chunk_size, (bool, np.bool_)) or not isinstance(chunk_size, numbers.Integral) or chunk_size < 1:
-        raise ValueError(f"chunk_size must be a positive integer (runs filtered at a time), got {chunk_size!r}")
+    for name, f in filters.items():
+        _check_filter(name, f, env)
     with tempfile.TemporaryDirectory(prefix="adaptfilt-evaluate-") as tmp:
-        yield setup_evaluation(experiment_or_env, policies, n_runs, seed, n_boot, traj, level, command, n_steps,
-                     int(chunk_size), store_dir=Path(tmp))
+        if runs is not None:
+            _check_runs(runs, env, traj)
+        else:  # simulate=False: another experiment's runs (nothing is drawn unless used)
+            runs = EvalRuns(env.truth, n_runs, seed, env.n_steps, n_boot=n_boot, traj=traj,
+                            chunk_size=int(chunk_size) if simulate else None, folder=tmp)
+        if filters and runs.streamed:
+            raise ValueError(f"filters are evaluated in one pass: give at most chunk_size = {chunk_size} runs "
+                             f"(got {runs.n_runs})")
+        M = runs.n_runs
+        desc = env.describe()
+        config = {
+            "experiment": None if exp is None else exp.name,
+            "description": "" if exp is None else exp.description,
+            "model": desc["model"], "nx": env.nx, "nz": env.nz, "n_steps": env.n_steps,
+            "filter": desc["filter"], "param_name": env.param_name, "default": env.default,
+            "compute_unit": env.compute_unit,
+            "grid": env.grid.tolist(), "cost": desc["cost"],
+            "n_runs": M, "seed": runs.seed, "n_boot": runs.n_boot, "level": float(level),
+            "trajectories": runs.trajectories,
+            "policies": names, "version": __version__, "numpy": np.__version__, "command": command,
+        }
+        if filters:  # only then: an evaluation of policies alone writes the file it always wrote
+            config["filters"] = {name: repr(f) for name, f in filters.items()}
+        if M > chunk_size:
+            # only streamed results say so: a one-pass evaluation's file is byte for byte what it always was
+            config["chunk_size"] = int(chunk_size)
+        yield _Setup(env, policies, filters, runs, config)
 
 
-class _RunStore:
-    """The runs of a streamed evaluation: trajectories and bootstrap counts on disk, read one chunk at a time.
-
-    The trajectories are those of ``truth.simulate(M, T, rng=default_rng([TRAJ_SEED_KEY, seed]))``, drawn in
-    the same order (step by step, all runs: :func:`_simulate_to_files`) and written time-major, so that each
-    step is one sequential write; a chunk reads its rows back, step by step. The counts are those of
-    :func:`metrics.bootstrap_counts` (``multinomial(M, 1/M)`` per resample, drawn one resample at a time:
-    the same numbers), as bytes (a count above 255 among ``M`` draws of ``1/M`` has probability ~1e-500).
-    Given trajectories stay where they are (in the caller's memory) and are sliced."""
-
-    def __init__(self, env, n_runs: int, seed: int, n_boot: int, traj: Trajectory | None, chunk_size: int,
-                 folder: Path):
-        self.n_runs, self.n_boot, self.chunk_size, self.n_steps = n_runs, n_boot, chunk_size, env.n_steps
-        self.traj, self.folder = traj, Path(folder)
-        self.widths = (env.nx, env.nz)
-        if traj is None:
-            _simulate_to_files(env.truth, n_runs, env.n_steps, np.random.default_rng([TRAJ_SEED_KEY, seed]),
-                               self.folder / "x.f8", self.folder / "z.f8")
-        rng = np.random.default_rng([TRAJ_SEED_KEY, seed, 1])
-        p = np.full(n_runs, 1.0 / n_runs)
-        with open(self.folder / "counts.u1", "wb") as f:
-            for _ in range(n_boot):
-                row = rng.multinomial(n_runs, p)
-                if row.max() > 255:
-                    raise RuntimeError(f"a bootstrap count of {row.max()} does not fit the byte it is stored in")
-                f.write(row.astype(np.uint8).tobytes())
-
-    def chunks(self) -> list[tuple[int, int]]:
-        """``(first, stop)`` run of each chunk."""
-        return [(a, min(a + self.chunk_size, self.n_runs)) for a in range(0, self.n_runs, self.chunk_size)]
-
-    def trajectory(self, a: int, b: int) -> Trajectory:
-        """Runs ``a`` to ``b - 1``, exactly the rows of the one-pass trajectories."""
-        if self.traj is not None:
-            return Trajectory(x=self.traj.x[a:b], z=self.traj.z[a:b])
-        return Trajectory(*(_read_rows(self.folder / n, self.n_steps, self.n_runs, w, a, b)
-                            for n, w in zip(("x.f8", "z.f8"), self.widths)))
-
-    def counts(self, a: int, b: int) -> np.ndarray:
-        """Columns ``a`` to ``b - 1`` of the counts ``(n_boot, M)``, as floats (what the products take)."""
-        out = np.empty((self.n_boot, b - a), dtype=np.uint8)
-        with open(self.folder / "counts.u1", "rb") as f:
-            for i in range(self.n_boot):
-                f.seek(i * self.n_runs + a)
-                out[i] = np.fromfile(f, dtype=np.uint8, count=b - a)
-        return out.astype(float)
-
-
-def _simulate_to_files(model, M: int, T: int, rng: np.random.Generator, x_path: Path, z_path: Path) -> None:
-    """:meth:`StateSpaceModel.simulate` ``(M, T, rng)``, the same draws in the same order, written step by
-    step (``(T, M, n)`` float64) instead of kept: memory ``O(M)``, not ``O(M T)``."""
-    from adaptfilt.models import StateSpaceModel
-
-    if type(model).simulate is not StateSpaceModel.simulate:  # a model that simulates otherwise: its own runs
-        traj = model.simulate(M, T, rng=rng)
-        for path, a in ((x_path, traj.x), (z_path, traj.z)):
-            np.ascontiguousarray(np.swapaxes(a, 0, 1)).tofile(path)
-        return
-    # the lines of StateSpaceModel.simulate, one step at a time (tests check that the runs are the same)
-    Lq, Lr, L0 = (np.linalg.cholesky(A) for A in (model.Q, model.R, model.P0))
-    with open(x_path, "wb") as fx, open(z_path, "wb") as fz:
-        x = model.m0 + rng.standard_normal((M, model.nx)) @ L0.T
-        for t in range(T):
-            if t:
-                x = model.f(x, t) + rng.standard_normal((M, model.nx)) @ Lq.T
-            z = model.h(x, t + 1) + rng.standard_normal((M, model.nz)) @ Lr.T
-            fx.write(np.ascontiguousarray(x, dtype=float).tobytes())
-            fz.write(np.ascontiguousarray(z, dtype=float).tobytes())
-
-
-def _read_rows(path: Path, T: int, M: int, width: int, a: int, b: int) -> np.ndarray:
-    """Runs ``a:b`` of a ``(T, M, width)`` float64 file, as a C-ordered ``(b - a, T, width)`` array."""
-    out = np.empty((T, b - a, width))
-    with open(path, "rb") as f:
-        for t in range(T):
-            f.seek((t * M + a) * width * 8)
-            out[t] = np.fromfile(f, dtype=float, count=(b - a) * width).reshape(b - a, width)
-    return np.ascontiguousarray(np.swapaxes(out, 0, 1))
-
+def _check_runs(runs: EvalRuns, env, traj) -> None:
+    if traj is not None:
+        raise ValueError("give the runs or the trajectories, not both")
+    if runs.n_steps < env.n_steps or (runs.truth.nx, runs.truth.nz) != (env.nx, env.nz) or \
+            getattr(runs.truth, "name", None) != getattr(env.truth, "name", None):
+        raise ValueError(f"the runs {runs!r} are not the evaluation's: it simulates {env.truth.name!r} for "
+                         f"{env.n_steps} steps")
 
 
 def _constant(pol) -> tuple | None:
@@ -510,47 +460,135 @@ def _constant(pol) -> tuple | None:
     return (pol.value, pol.predict_param) if type(pol) is FixedPolicy else None
 
 
-def _evaluate(targets: list[tuple], env: ParamEnv, policies: list, traj, counts: np.ndarray | None,
-              level: float, progress) -> list[Results]:
-    """Roll each policy out once in ``env`` and summarise it for every ``(cost, config)`` of ``targets``
-    (the first cost is the environment's own); ``traj`` a :class:`_RunStore` (``counts`` None): chunk by
+def _evaluate(targets: list[tuple], s: _Setup, level: float, progress, on_filter_error: str = "raise") -> list[Results]:
+    """Roll each policy out once in ``s.env`` and run each filter once on the runs, and summarise each for
+    every ``(cost, config)`` of ``targets`` (the first cost is the environment's own); streamed runs chunk by
     chunk."""
-    bar = policies
+    if on_filter_error not in ("raise", "skip"):
+        raise ValueError(f"on_filter_error must be 'raise' or 'skip', got {on_filter_error!r}")
+    env, runs = s.env, s.runs
+    items = [(p.name, p) for p in s.policies] + list(s.filters.items())
+    bar = items
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(policies, desc=f"evaluate {targets[0][1]['experiment'] or targets[0][1]['model']}", unit="policy")
+        bar = tqdm(items, desc=f"evaluate {targets[0][1]['experiment'] or targets[0][1]['model']}", unit="policy")
     results = [Results(config=config) for _, config in targets]
-    extra = [c for c, _ in targets[1:]]
-    weights = [0.0 if c is None else c.compute_weight for c, _ in targets]
+    costs = [c for c, _ in targets]
+    weights = [0.0 if c is None else c.compute_weight for c in costs]
     done: dict[tuple, str] = {}
-    for pol in bar:
+    for name, item in bar:
         if progress:
-            bar.set_postfix_str(pol.name)
+            bar.set_postfix_str(name)
         t0 = time.perf_counter()
-        key = _constant(pol)
-        if key is not None and key in done:  # the same episode again: copy its summaries under this name
-            for res in results:
-                twin = res.policies[done[key]]
-                res.policies[pol.name] = PolicyResult(**{**twin.__dict__, "name": pol.name, "wall_time_s": 0.0})
-            continue
-        if isinstance(traj, _RunStore):
-            summs = _streamed(env, pol, traj, extra, weights, level, progress)
+        if name in s.filters:
+            summs = _filter_summaries(name, item, env, runs, costs, weights, level, on_filter_error, results)
+            if summs is None:
+                continue
         else:
-            run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
-            costs = [cost] + run.info["extra_costs"]
-            summs = [summarise_rollout(pol.name, traj.x[:, : env.n_steps], run, cost_k, env.grid, counts, run.n_repairs,
-                                level, compute_weight=w) for cost_k, w in zip(costs, weights)]
-            del run, cost, costs  # the (M, T, nx, nx) covariances go here
+            key = _constant(item)
+            if key is not None and key in done:  # the same episode again: copy its summaries under this name
+                for res in results:
+                    twin = res.policies[done[key]]
+                    res.policies[name] = PolicyResult(**{**twin.__dict__, "name": name, "wall_time_s": 0.0})
+                continue
+            summs = _policy_summaries(item, env, runs, costs[1:], weights, level, progress)
+            if key is not None:
+                done[key] = name
         for res, summ in zip(results, summs):
-            res.policies[pol.name] = PolicyResult(name=pol.name, wall_time_s=time.perf_counter() - t0, **summ)
-        if key is not None:
-            done[key] = pol.name
+            res.policies[name] = PolicyResult(name=name, wall_time_s=time.perf_counter() - t0, **summ)
     return results
 
 
-def _streamed(env, pol, store: _RunStore, extra: list, weights: list[float], level: float, progress) -> list[dict]:
-    """:func:`summarise_rollout` of ``pol``'s rollout over all the store's runs, for each cost (the environment's,
+def _policy_summaries(pol, env, runs: EvalRuns, extra: list, weights: list[float], level: float,
+                      progress) -> list[dict]:
+    """:func:`_summarise` of ``pol``'s rollout for each cost (the environment's, then ``extra``)."""
+    if runs.streamed:
+        return _streamed(env, pol, runs.store, extra, weights, level, progress)
+    traj = runs.traj
+    run, cost = rollout(env, pol, traj=traj, progress=progress == "steps", extra_costs=extra)
+    out = [_summarise(traj.x[:, : env.n_steps], run, cost_k, env.grid, runs.counts, level, compute_weight=w)
+           for cost_k, w in zip([cost] + run.info["extra_costs"], weights)]
+    del run, cost  # the (M, T, nx, nx) covariances go here
+    return out
+
+
+def _filter_summaries(name: str, filt, env, runs: EvalRuns, costs: list, weights: list[float], level: float,
+                      on_filter_error: str, results: list[Results]) -> list[dict] | None:
+    """:func:`_summarise` of filter ``filt``'s run on the evaluation's runs for each cost; None (and its
+    message in every result's ``config["failed_filters"]``) when it fails and ``on_filter_error`` is "skip"."""
+    traj = runs.traj
+    x = traj.x[:, : env.n_steps]
+    try:
+        run = _filter_run(filt, env, traj)
+    except (ValueError, FloatingPointError) as err:
+        if on_filter_error != "skip":
+            raise
+        for res in results:
+            res.config.setdefault("failed_filters", {})[name] = str(err)
+            res.config["policies"].remove(name)
+            del res.config["filters"][name]
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverged run's infinite error, kept as such
+        return [_summarise(x, run, _filter_cost(c, env, run, x), env.grid, runs.counts, level, compute_weight=w)
+                for c, w in zip(costs, weights)]
+
+
+def _filter_run(filt, env, traj: Trajectory) -> FilterRun:
+    """``filt.run`` on the runs, in the evaluation's terms: a non-finite estimate is an infinite error from that
+    step on (the recursion has no way back: the run is kept, diverged), a non-finite covariance an infinite
+    one, a covariance that is not positive definite an infinite NEES (``on_indefinite="inf"``); the
+    parameter the filter declares is the environment's choice and compute only when it is the
+    environment's parameter (else none, NaN)."""
+    T = env.n_steps
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = filt.run(traj.z[:, :T])
+    M = r.mean.shape[0]
+    mean = np.where(np.isfinite(r.mean).all(axis=-1, keepdims=True), r.mean, np.inf)
+    bad = np.maximum.accumulate(~np.isfinite(mean).all(axis=-1), axis=1)
+    mean = np.where(bad[..., None], np.inf, mean)
+    cov = np.where(np.isfinite(r.cov), r.cov, np.inf) if has_covariance(r) else r.cov
+    info: dict = {"on_indefinite": "inf"}
+    if getattr(filt, "param_name", None) == env.param_name:
+        params, spent = r.params, np.zeros(M)
+        for t in range(T):  # as a rollout counts a policy's compute
+            spent += env.spent(params[:, t])
+        info["spent"] = spent / T
+    else:
+        params = np.full((M, T), np.nan)
+    return FilterRun(mean=mean, cov=cov, nis=r.nis, loglik=r.loglik, params=params, n_repairs=r.n_repairs, info=info)
+
+
+def _filter_cost(cost, env, run: FilterRun, x: np.ndarray) -> np.ndarray | None:
+    """The environment's one-step cost ``(M, T)`` of a filter's run, where the filter gives what the cost reads:
+    the NIS-type costs (``kind`` "nis", "logmaxnis") its NIS, ``"sqerr"`` its estimate against the truth ``x``
+    (an infinite error where the estimate is not finite), plus the compute weight times the parameter it
+    declares when that is the environment's. None (n/a) otherwise: ``stateinnov``, a cost of one's own,
+    a filter without a NIS, a priced parameter the filter does not have."""
+    from types import SimpleNamespace
+
+    from adaptfilt.costs import NIS_COSTS
+
+    kind = getattr(cost, "kind", None)
+    if not ((kind in NIS_COSTS and has_nis(run)) or kind == "sqerr"):
+        return None
+    own = "spent" in run.info
+    if cost.compute_weight and not own:
+        return None
+    M, T, nx = run.mean.shape
+    ok = np.isfinite(run.mean).all(axis=-1).reshape(M * T)
+    est = np.where(ok[:, None], run.mean.reshape(M * T, nx), x.reshape(M * T, nx))  # a diverged step: see below
+    err = est - x.reshape(M * T, nx)
+    # both families' layouts of an update (costs.py): the GAF's run-last x_filt and truth, the particle filter's err
+    u = SimpleNamespace(nis=run.nis.reshape(M * T), err=err, dx=np.full_like(err, np.nan), x_filt=est.T)
+    kw = {"truth": np.ascontiguousarray(x.reshape(M * T, nx).T)} if getattr(cost, "needs_truth", False) else {}
+    theta = run.params.reshape(M * T) if own else np.zeros(M * T)
+    c = np.asarray(cost(u, theta, env.nz, **kw), dtype=float)
+    return np.where(ok, c, np.inf).reshape(M, T) if kind == "sqerr" else c.reshape(M, T)
+
+
+def _streamed(env, pol, store: RunStore, extra: list, weights: list[float], level: float, progress) -> list[dict]:
+    """:func:`_summarise` of ``pol``'s rollout over all the store's runs, for each cost (the environment's,
     then ``extra``), one chunk of runs at a time: per run and per step only sums (and the per-run values
     the results keep) stay, and each cost's one-step values go to a file for their quantiles."""
     M, T, B, G = store.n_runs, env.n_steps, store.n_boot, env.grid.size
@@ -572,9 +610,8 @@ def _streamed(env, pol, store: _RunStore, extra: list, weights: list[float], lev
     base = acc.finish(level, env.nx)
     return [{**base, **cs.finish(level, acc.extra_sum / M)} for cs in per_cost]
 
-
 class _ChunkSums:
-    """The cost-free summaries of :func:`summarise_rollout`, summed over chunks of runs.
+    """The cost-free summaries of :func:`_summarise`, summed over chunks of runs.
 
     Per run (the values a one-pass evaluation computes, bit for bit where the rollout's are), integer
     counts (usage, choices, repairs, divergent runs: exact) and maxima are exact; what is a mean over runs
@@ -650,7 +687,7 @@ class _ChunkSums:
 
 
 class _CostSums:
-    """The cost summaries of :func:`summarise_rollout`, summed over chunks of runs (see :class:`_ChunkSums`); the
+    """The cost summaries of :func:`_summarise`, summed over chunks of runs (see :class:`_ChunkSums`); the
     one-step costs themselves go to ``path`` for their exact quantiles (:func:`_file_quantiles`)."""
 
     def __init__(self, M: int, T: int, B: int, weight: float, path: Path):
@@ -679,7 +716,7 @@ class _CostSums:
     def finish(self, level: float, extra_mean: float) -> dict:
         M, T, B = self.M, self.T, self.boot_cost.size
         nan = float("nan")
-        if not self.used:  # no cost: what summarise_rollout reports then
+        if not self.used:  # no cost: what _summarise reports then
             return dict(cost=nan, cost_ci=(nan, nan), cost_median=nan, cost_q99=nan, cost_q999=nan, cost_max=nan,
                         boot_cost=np.full(B, nan), run_cost=np.full(M, nan), objective=nan, objective_ci=(nan, nan),
                         boot_objective=np.full(B, nan), cost_charged=nan, cost_charged_ci=(nan, nan),
@@ -753,41 +790,3 @@ def _file_quantiles(path: Path, N: int, qs: Sequence[float], block: int = 1 << 2
     out = lo + diff * gamma
     np.subtract(hi, diff * (1 - gamma), out=out, where=gamma >= 0.5)
     return [float(x) for x in out]
-
-
-def learned_name(path: str | Path, experiment: str) -> str:
-    """Result name of a learned policy file: its stem, without the experiment
-    prefix when it has one (``data/policies/ungm-ukf-adaptive-faithful.npz`` ->
-    ``adaptive-faithful``, ``runs/try3.npz`` -> ``try3``)."""
-    stem = Path(path).stem
-    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else stem
-
-
-def learned_names(paths: Iterable[str | Path], experiment: str) -> list[str]:
-    """:func:`learned_name` of each file, made unique: files that would share a
-    name (the same stem in different folders) are named ``<folder>/<name>``
-    with as many trailing folders of their resolved path as it takes to tell
-    them apart (``a/x/adaptive.npz``, ``b/x/adaptive.npz`` -> ``a/x/adaptive``,
-    ``b/x/adaptive``). The same file given twice is a ``ValueError``.
-
-    >>> learned_names(["data/policies/ungm-ukf-adaptive.npz", "runs/ungm-ukf-adaptive.npz", "runs/b.npz"], "ungm-ukf")
-    ['policies/adaptive', 'runs/adaptive', 'b']
-    """
-    paths = [Path(p) for p in paths]
-    resolved = [p.resolve() for p in paths]
-    for i, r in enumerate(resolved):
-        if r in resolved[:i]:
-            raise ValueError(f"policy file {paths[i]} is given twice")
-    names = [learned_name(p, experiment) for p in paths]
-    for n in sorted({n for n in names if names.count(n) > 1}):
-        group = [i for i, m in enumerate(names) if m == n]
-        depth = max(len(resolved[i].parent.parts) for i in group)
-        for d in range(1, depth + 1):
-            cand = {i: "/".join([*resolved[i].parent.parts[-d:], n]) for i in group}
-            if len(set(cand.values())) == len(group):
-                break
-        else:  # same folder, stems that strip to the same name (ungm-ukf-a.npz, a.npz): the file names
-            cand = {i: str(resolved[i].parent / resolved[i].name) for i in group}
-        for i in group:
-            names[i] = cand[i]
-    return names

@@ -2,7 +2,7 @@ r"""Exact references: the Kalman filter, the point-mass (grid) filter and the bo
 
 They are written independently of the Gaussian-assumed filter (plain
 ``(M, n, n)`` numpy; the only shared code is the result container
-:class:`~adaptfilt.gaf.FilterRun`), so that agreement with them is evidence.
+:class:`~adaptfilt.filters.FilterRun`), so that agreement with them is evidence.
 
 * :class:`KalmanFilter`: linear-Gaussian models; every moment rule must agree with it.
 * :class:`PointMassFilter`: scalar models with additive Gaussian noise; the
@@ -10,15 +10,28 @@ They are written independently of the Gaussian-assumed filter (plain
 * :class:`BootstrapParticleFilter`: any model with additive Gaussian noise; the
   Bayes-optimal filter up to Monte-Carlo error in the number of particles, e.g.
   the reference posterior of the bearing-only coordinated turn.
+* :func:`bayes_floor`: the point-mass filter on the first runs of an evaluation, the floor under
+  any RMSE claim on a scalar model (the one floor of the reproduction, the studies and the course).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Sequence
+
 import numpy as np
 
-from adaptfilt.gaf import FilterRun
+from adaptfilt import metrics
+from adaptfilt.filters import FilterRun
 from adaptfilt.models import StateSpaceModel
 
-__all__ = ["KalmanFilter", "PointMassFilter", "BootstrapParticleFilter"]
+__all__ = ["KalmanFilter", "PointMassFilter", "BootstrapParticleFilter", "BayesFloor", "bayes_floor",
+           "UNGM_FLOOR_GRID", "UNGM_STUDY_FLOOR_GRID"]
+
+#: The UNGM floors' grids on -45..45 (the point-mass filter raises when probability mass reaches an edge):
+#: 901 points for the reproduction's floor (``data/results/ungm-floor.json``) and the course, 1801 for the
+#: studies' (the learned gain, the particle count). Each stored floor was computed on its grid and records it.
+UNGM_FLOOR_GRID = np.linspace(-45.0, 45.0, 901)
+UNGM_STUDY_FLOOR_GRID = np.linspace(-45.0, 45.0, 1801)
 
 
 class KalmanFilter:
@@ -48,6 +61,9 @@ class KalmanFilter:
         if F is None or H is None:
             raise ValueError(f"the Kalman filter needs a linear model: model {model.name!r} has no F/H and none were given")
         self.model, self.F, self.H = model, F, H
+
+    def __repr__(self) -> str:
+        return f"KalmanFilter(model={self.model.name!r})"
 
     def run(self, z) -> FilterRun:
         """Filter ``z (M, T, nz)``."""
@@ -130,6 +146,10 @@ class PointMassFilter:
         self.model, self.grid, self.dx, self.edge_tol = model, grid, float(d[0]), edge_tol
         self.negligible = float(negligible)
 
+    def __repr__(self) -> str:
+        g = self.grid
+        return f"PointMassFilter(model={self.model.name!r}, grid=np.linspace({g[0]:g}, {g[-1]:g}, {g.size}))"
+
     def _gauss(self, r, var):
         g = np.exp(-0.5 * r * r / var) / np.sqrt(2 * np.pi * var)
         if self.negligible:
@@ -209,7 +229,10 @@ class BootstrapParticleFilter:
     too large (``nx > 1``). ``loglik`` is the log of the estimated likelihood
     :math:`p(\mathbf z_k|\mathbf z^{k-1})`; ``nis`` is not defined and is NaN.
 
-    ``seed`` (an int or a ``numpy.random.Generator``): the same seed, the same run.
+    ``seed``: an int or a sequence of ints (the entropy of a ``numpy.random.SeedSequence``): every run
+    draws from a fresh generator of it, so the same seed gives the same run. A ``numpy.random.Generator``
+    is drawn from as it is and moves on: a second run then gives other numbers. ``params`` of the result
+    holds the particle count (``param_name``), ``info["n_resampled"]`` the resampling steps per run.
 
     Example
     -------
@@ -221,13 +244,20 @@ class BootstrapParticleFilter:
     ((5, 20, 4), (5, 20, 4, 4))
     """
 
-    def __init__(self, model: StateSpaceModel, n_particles: int = 1000, seed: int | np.random.Generator = 0,
-                 ess_threshold: float = 0.5):
+    #: what ``run(z).params`` holds (:class:`~adaptfilt.filters.Filter`)
+    param_name = "n_particles"
+
+    def __init__(self, model: StateSpaceModel, n_particles: int = 1000,
+                 seed: int | Sequence[int] | np.random.Generator = 0, ess_threshold: float = 0.5):
         if int(n_particles) < 2:
             raise ValueError(f"n_particles must be at least 2, got {n_particles}")
         if not 0.0 <= ess_threshold <= 1.0:
             raise ValueError(f"ess_threshold must be in [0, 1], got {ess_threshold}")
         self.model, self.n_particles, self.seed, self.ess_threshold = model, int(n_particles), seed, float(ess_threshold)
+
+    def __repr__(self) -> str:
+        return (f"BootstrapParticleFilter(model={self.model.name!r}, n_particles={self.n_particles}, "
+                f"ess_threshold={self.ess_threshold:g})")
 
     def run(self, z) -> FilterRun:
         """Filter ``z (M, T, nz)``; ``info["n_resampled"]`` counts the resampling steps per run."""
@@ -277,4 +307,63 @@ class BootstrapParticleFilter:
                 logw[res] = -np.log(N)
                 n_res[res] += 1
         return FilterRun(mean=mean, cov=cov, nis=np.full((M, T), np.nan), loglik=ll,
-                         params=np.full((M, T), np.nan), info={"n_resampled": n_res})
+                         params=np.full((M, T), float(N)), info={"n_resampled": n_res})
+
+
+@dataclass
+class BayesFloor:
+    """The point-mass filter's squared errors ``se (n, T)`` on the first ``n`` runs of an evaluation, and its
+    ``grid`` (as results record it): :attr:`rmse` is the floor of the evaluation's time-averaged RMSE."""
+
+    se: np.ndarray
+    grid: str
+
+    @property
+    def runs(self) -> int:
+        return int(self.se.shape[0])
+
+    @property
+    def rmse_t(self) -> np.ndarray:
+        """``RMSE_k (T,)``."""
+        return np.sqrt(self.se.mean(axis=0))
+
+    @property
+    def rmse(self) -> float:
+        """The time average of :attr:`rmse_t`, as an evaluation's ``rmse``."""
+        return float(self.rmse_t.mean())
+
+    @property
+    def run_rmse(self) -> np.ndarray:
+        """Each run's own RMS error ``(n,)``."""
+        return np.sqrt(self.se.mean(axis=1))
+
+    def summary(self) -> dict:
+        """``{"rmse", "runs", "grid"}``: what a study's results hold of its floor."""
+        return {"rmse": self.rmse, "runs": self.runs, "grid": self.grid}
+
+
+def bayes_floor(model: StateSpaceModel, runs, n: int, grid, chunk: int | None = None) -> BayesFloor:
+    r"""The Bayes floor on the first ``n`` runs of an evaluation: the :class:`PointMassFilter` with ``model``
+    on ``grid``, the MMSE estimate up to the grid's resolution, so that no filter's RMSE on these runs can
+    be below it but by chance.
+
+    ``runs``: the evaluation's :class:`~adaptfilt.runs.EvalRuns` (its :meth:`~adaptfilt.runs.EvalRuns.first`
+    ``n`` runs: the runs the policies are scored on) or a :class:`~adaptfilt.models.Trajectory`; ``model``:
+    the truth's model (the filter that knows the truth); ``grid``: an increasing, equally spaced array
+    (:data:`UNGM_FLOOR_GRID`, :data:`UNGM_STUDY_FLOOR_GRID`); ``chunk``: runs filtered at a time
+    (:meth:`PointMassFilter.run`, the same numbers as separate calls). Scalar models only (ValueError).
+
+    Example
+    -------
+    >>> import adaptfilt as af
+    >>> from adaptfilt.runs import EvalRuns
+    >>> runs = EvalRuns(af.models.ungm(), n_runs=30, seed=0, n_steps=8)
+    >>> floor = bayes_floor(af.models.ungm(), runs, 12, UNGM_FLOOR_GRID)
+    >>> floor.runs, floor.rmse_t.shape, floor.grid
+    (12, (8,), 'np.linspace(-45, 45, 901)')
+    """
+    traj = runs.first(n) if hasattr(runs, "first") else runs[: int(n)]
+    pmf = PointMassFilter(model, grid=grid)
+    mean = pmf.run(traj.z, chunk=chunk).mean
+    g = pmf.grid
+    return BayesFloor(se=metrics.squared_error(traj.x, mean), grid=f"np.linspace({g[0]:g}, {g[-1]:g}, {g.size})")

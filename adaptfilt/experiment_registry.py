@@ -69,7 +69,7 @@ from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy, d
 __all__ = ["Experiment", "EnvFactory", "RuleParameter", "ParticleCount", "Target", "resolve", "EXPERIMENTS",
            "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment", "describe_experiments",
            "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES", "ESS_TARGETS", "KLD_BIN_SCALES",
-           "SIF_EXPERIMENTS"]
+           "SIF_EXPERIMENTS", "scaled_truth", "parse_truth", "truth_words"]
 
 UNGM_KAPPA_GRID = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 3000.0, 10000.0)
 CTM_KAPPA_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
@@ -79,12 +79,18 @@ SIF_ITER_GRID = (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0)
 class EnvFactory(Protocol):
     """A kind of parameter as an experiment uses it: it builds the experiment's environment (a
     :class:`~adaptfilt.paramenv.ParamEnv`), knows the parameter's name and default, and the baselines
-    that choose it. A new kind of parameter is a new environment and one of these."""
+    that choose it. A new kind of parameter is a new environment and one of these.
+
+    ``make_env`` builds the variants too: ``truth``, the model trajectories are simulated from when the world
+    differs from the filter's model (out of distribution); ``grid``, a subset of the experiment's grid (a
+    safe action set), already checked by :meth:`Experiment.make_env`; both are passed (as keywords) only for
+    a variant, so a factory that builds none takes the first four arguments alone. A variant carries the
+    experiment's name (``env.experiment``): a policy trained on it is still "for" the experiment."""
 
     param_name: str
 
-    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None,
-                 model: StateSpaceModel | None) -> ParamEnv: ...
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None,
+                 truth: StateSpaceModel | None = None, grid: np.ndarray | None = None) -> ParamEnv: ...
 
     def default_value(self, exp: "Experiment") -> float: ...
 
@@ -106,8 +112,11 @@ class RuleParameter:
         seeds = {"seed": seed} if self.seeded else {}
         return self.filter_class(model, **seeds, on_indefinite="clip", **exp.filter_options)
 
-    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None) -> FilterEnv:
-        return FilterEnv(self.make_filter(exp, seed, model), exp.grid, cost=exp.cost, n_steps=n_steps)
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None,
+                 truth: StateSpaceModel | None = None, grid: np.ndarray | None = None) -> FilterEnv:
+        variant = truth is not None or grid is not None
+        return FilterEnv(self.make_filter(exp, seed, model), exp.grid if grid is None else grid, cost=exp.cost,
+                         n_steps=n_steps, truth=truth, experiment=exp.name if variant else None)
 
     def default_value(self, exp: "Experiment") -> float:
         return self.make_filter(exp).param
@@ -134,12 +143,15 @@ class ParticleCount:
     noise_std: tuple[float, ...]
     param_name: str = "n_particles"
 
-    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None) -> ParamEnv:
+    def make_env(self, exp: "Experiment", seed: int, n_steps: int | None, model: StateSpaceModel | None,
+                 truth: StateSpaceModel | None = None, grid: np.ndarray | None = None) -> ParamEnv:
         # here, not at the top: `import adaptfilt` loads no particle filter
         from adaptfilt.particle_env import ParticleCountEnv
 
-        return ParticleCountEnv(exp.make_model() if model is None else model, exp.cost, exp.grid,
-                                default=self.default, seed=seed, n_steps=n_steps)
+        variant = truth is not None or grid is not None
+        return ParticleCountEnv(exp.make_model() if model is None else model, exp.cost,
+                                exp.grid if grid is None else grid, default=self.default, seed=seed, n_steps=n_steps,
+                                truth=truth, experiment=exp.name if variant else None)
 
     def default_value(self, exp: "Experiment") -> float:
         return self.default
@@ -195,23 +207,45 @@ class Experiment:
                             "owns its filter (make_env)")
         return self.envs.make_filter(self, seed, model)
 
-    def make_env(self, seed: int = 0, n_steps: int | None = None, model: StateSpaceModel | None = None) -> ParamEnv:
-        return self.envs.make_env(self, seed, n_steps, model)
+    def make_env(self, seed: int = 0, n_steps: int | None = None, model: StateSpaceModel | None = None,
+                 truth: StateSpaceModel | None = None, grid=None) -> ParamEnv:
+        """The experiment's environment (:class:`EnvFactory`): its filter on ``model`` (default: the
+        experiment's), horizon ``n_steps`` (default: the model's); a variant where ``truth`` (a model of the same
+        dimensions, e.g. :func:`scaled_truth`) simulates the trajectories, or where the policy chooses among
+        ``grid``, values of the experiment's grid (ValueError naming those that are not)."""
+        if truth is None and grid is None:
+            return self.envs.make_env(self, seed, n_steps, model)
+        return self.envs.make_env(self, seed, n_steps, model, truth=truth,
+                                  grid=None if grid is None else self.subgrid(grid))
+
+    def subgrid(self, values) -> np.ndarray:
+        """``values`` as a grid: sorted, each a value of the experiment's grid (ValueError naming those that
+        are not)."""
+        a = np.asarray(values, dtype=float).ravel()
+        full = np.asarray(self.grid, dtype=float)
+        off = [v for v in a if not np.isclose(v, full).any()]
+        if a.size == 0 or off:
+            raise ValueError(f"actions must be values of the {self.name} grid {full.tolist()}; not on it: "
+                             f"{[float(v) for v in off] or 'none given'}")
+        return np.unique(a)
 
     @property
     def default_value(self) -> float:
         return self.envs.default_value(self)
 
-    def baselines(self, fixed: bool = True) -> list:
+    def baselines(self, fixed: bool = True, kinds: tuple[str, ...] | None = None) -> list:
         """``default``, every fixed grid value, ``ml`` (UKF only: for the SIF
-        the likelihood-optimal choice is always the most iterations) and ``greedy``.
+        the likelihood-optimal choice is always the most iterations) and ``greedy``;
+        ``kinds``: only those of these kinds (each baseline's ``kind``: ``"default"``, ``"fixed"``,
+        ``"fixed-both"``, ``"ml"``, ``"greedy"``; the particle count's ``"kld"``, ``"ess"``).
 
         Where the dynamics are nonlinear (UNGM; the CTM's are linear, so its
         predict step does not use the parameter) every fixed value comes twice:
         in the update only (``fixed-kappa=v``, the paper's convention for
         adaptation) and in both steps (``fixed-both-kappa=v``, a UKF with one
         constant kappa). The particle count's: :meth:`ParticleCount.baselines`."""
-        return self.envs.baselines(self, np.asarray(self.grid), fixed)
+        pols = self.envs.baselines(self, np.asarray(self.grid), fixed)
+        return pols if kinds is None else [p for p in pols if p.kind in kinds]
 
 
 _UKF, _SIF = RuleParameter(UKF, "kappa"), RuleParameter(SIF, "n_iter", seeded=True)
@@ -258,8 +292,8 @@ VARIANTS: dict[str, Experiment] = {
     for e in EXPERIMENTS.values() if e.envs == _SIF
 }
 
-#: The kappa experiments on the squared error ``||x_{t|t} - x_t||^2`` (beyond the paper; the learned-gain study
-#: of issue 38, :mod:`adaptfilt.experiments.studies.gain`): grid, features and filter of ``ungm-ukf`` and
+#: The kappa experiments on the squared error ``||x_{t|t} - x_t||^2`` (beyond the paper; the learned-gain
+#: study, :mod:`adaptfilt.experiments.studies.gain`): grid, features and filter of ``ungm-ukf`` and
 #: ``ctm-ukf``, the cost of supervised KalmanNet. A simulation-only cost (training knows the truth; the
 #: policy sees its information state only); their greedy baseline reads the truth (an oracle).
 SQERR_VARIANTS: dict[str, Experiment] = {
@@ -296,6 +330,42 @@ PARTICLE_EXPERIMENTS: dict[str, Experiment] = {
     for m, label, factory in (("ungm", "UNGM (100 steps)", _ungm_short), ("ctm", "the bearing-only CTM", coordinated_turn))
     for p in PARTICLE_PRICES[m]
 }
+
+
+def scaled_truth(model: StateSpaceModel, q: float = 1.0, r: float = 1.0) -> StateSpaceModel:
+    """``model`` with its process noise ``Q`` scaled by ``q`` and its measurement noise ``R`` by ``r`` (the same
+    functions, prior and horizon): a truth that differs from the model a filter keeps.
+
+    >>> scaled_truth(ungm(), q=4).Q.tolist(), scaled_truth(ungm(), q=4).description
+    ([[4.0]], 'ungm, Q x4, R x1')
+    """
+    return replace(model, Q=model.Q * q, R=model.R * r, description=f"{model.name}, Q x{q:g}, R x{r:g}")
+
+
+def parse_truth(text: str) -> dict[str, float]:
+    """The keyword arguments of :func:`scaled_truth` written as ``q=4`` or ``q=1,r=0.25`` (what
+    ``adaptfilt train-gain --truth`` takes); ValueError naming what is wrong.
+
+    >>> parse_truth("q=4"), truth_words(**parse_truth("r=0.5,q=2"))
+    ({'q': 4.0, 'r': 1.0}, 'q=2,r=0.5')
+    """
+    out = {"q": 1.0, "r": 1.0}
+    for part in str(text).split(","):
+        key, eq, value = part.partition("=")
+        try:
+            v = float(value)
+        except ValueError:
+            v = float("nan")
+        if not eq or key.strip() not in out or not (0 < v < float("inf")):
+            raise ValueError(f"a truth is written q=FACTOR,r=FACTOR (scales of the noise covariances Q and R, "
+                             f"finite and > 0), e.g. q=4; got {text!r}")
+        out[key.strip()] = v
+    return out
+
+
+def truth_words(q: float = 1.0, r: float = 1.0) -> str:
+    """The one written form of a truth (:func:`parse_truth` reads it back): ``q=4,r=1``."""
+    return f"q={q:g},r={r:g}"
 
 
 def get_experiment(name: str) -> Experiment:

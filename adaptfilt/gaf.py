@@ -40,21 +40,22 @@ Numerics: covariances are symmetrised; a covariance that is not positive
 definite (negative centre weights can do that) raises :class:`FilterError`
 naming the quantity, the step and the runs, unless the filter was built with
 ``on_indefinite="clip"``, the documented opt-in repair that clips the offending
-runs' eigenvalues and counts the repairs in ``FilterRun.n_repairs``.
+runs' eigenvalues and counts the repairs in ``FilterRun.n_repairs`` (:class:`~adaptfilt.filters.FilterRun`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Literal
 
 import numpy as np
 
+from adaptfilt.filters import FilterRun
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, mm, mv, solve_spd, sym, sym_fresh
 from adaptfilt.models import StateSpaceModel
 from adaptfilt.rules import MomentRule, Moments, StochasticIntegrationRule, UnscentedRule
 from adaptfilt.rules import scalar_kernels
 
-__all__ = ["FilterError", "Prediction", "Update", "FilterRun", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
+__all__ = ["FilterError", "Prediction", "Update", "GaussianAssumedFilter", "UKF", "SIF", "CKF"]
 
 _PREDICT, _UPDATE = 0, 1
 _LOG2PI = np.log(2.0 * np.pi)
@@ -144,40 +145,6 @@ class _UpdateRL:
     L_filt = None
 
 
-@dataclass
-class FilterRun:
-    """A filter run over ``M`` runs and ``T`` steps (public layout).
-
-    ``mean (M, T, nx)`` and ``cov (M, T, nx, nx)`` are the filtering moments,
-    ``nis``/``loglik`` ``(M, T)`` the per-step normalised innovation squared and
-    measurement log-likelihood, ``params (M, T)`` the update-step parameter used
-    (read-only when it is one value for all runs and steps).
-    ``x_pred``/``P_pred`` are kept when the run was asked to (``keep_pred``).
-    With a stochastic rule, ``info["n_iter_spent"]`` and
-    ``info["n_iter_spent_predict"]`` ``(M, T)`` hold the iterations each run
-    spent in each update and predict step (0 where nothing was drawn: the
-    first step's predict, exact linear steps).
-    """
-
-    mean: np.ndarray
-    cov: np.ndarray
-    nis: np.ndarray
-    loglik: np.ndarray
-    params: np.ndarray
-    x_pred: np.ndarray | None = None
-    P_pred: np.ndarray | None = None
-    n_repairs: int = 0
-    info: dict = field(default_factory=dict)
-
-    @property
-    def n_runs(self) -> int:
-        return self.mean.shape[0]
-
-    @property
-    def n_steps(self) -> int:
-        return self.mean.shape[1]
-
-
 class GaussianAssumedFilter:
     """Algorithm 1 with a pluggable moment rule, batched over runs.
 
@@ -252,6 +219,11 @@ class GaussianAssumedFilter:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(model={self.model.name!r}, {self.rule.param_name}={self.param:g})"
 
+    @property
+    def param_name(self) -> str:
+        """The rule's parameter, what ``run(z).params`` holds (:class:`~adaptfilt.filters.Filter`)."""
+        return self.rule.param_name
+
     def rng(self, stage: int, t: int, stream: int | None = None) -> np.random.Generator | None:
         """The random numbers of a stochastic rule at ``(stage, t)`` (stage 0 =
         predict, 1 = update); ``stream`` separates e.g. training episodes."""
@@ -274,8 +246,11 @@ class GaussianAssumedFilter:
             return None
         return lambda a, b: _first_last(r(_last_first(a), _last_first(b)))
 
-    def _chol(self, P: np.ndarray, quantity: str, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """Cholesky factor, or FilterError / documented repair."""
+    def factor(self, P: np.ndarray, quantity: str, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(L, P)``: the Cholesky factor of ``P`` (run-last ``(n, n, M)``, named ``quantity`` in errors) as
+        this filter's step ``t`` takes it: ``FilterError`` naming the step and runs where it is not positive
+        definite, or (``on_indefinite="clip"``) the documented repair of those runs, counted in ``n_repairs``
+        and logged in ``repair_log``, with the repaired ``P``."""
         try:
             return chol(P, quantity), P
         except NotPositiveDefinite as e:
@@ -313,7 +288,7 @@ class GaussianAssumedFilter:
             P_pred = mm(mm(F, P), F.swapaxes(0, 1)) + self._Q
         else:
             if L is None:
-                L, P = self._chol(sym(P), "P_filt", t)
+                L, P = self.factor(sym(P), "P_filt", t)
             mo = self.predict_rule.moments(self._wrap(model.f, t + 1), m, P, self.param if param is None else param,
                                            rng=self.rng(_PREDICT, t) if rng is None else rng, L=L, cross=False,
                                            tile=tile)
@@ -346,7 +321,7 @@ class GaussianAssumedFilter:
         the same draws in every copy, the draws an untiled call of the ``M / G``
         runs with the same ``rng`` gets. ``tile = 1``: independent draws per run.
         """
-        L, P = self._chol(sym(P), "P_pred", t)
+        L, P = self.factor(sym(P), "P_pred", t)
         return self._update_factored(m, P, L, z, t, self.param if param is None else param, rng, tile)
 
     def _update_factored(self, m, P, L, z, t: int, param, rng, tile: int) -> _UpdateRL:
@@ -432,7 +407,7 @@ class GaussianAssumedFilter:
         zt = z if callable(z) else copies(z)
         if model.H is not None or not (self.candidate_prefixes and rule.supports_prefixes):
             return self.update_rl(copies(m), copies(P), zt, t, np.repeat(grid, M), rng=rng, tile=G * tile)
-        L, P = self._chol(sym(P), "P_pred", t)
+        L, P = self.factor(sym(P), "P_pred", t)
         if rng is None:
             rng = self.rng(_UPDATE, t)
         mos = rule.moments_prefixes(self._wrap(model.h, t + 1), m, P, grid, residual=self._residual_rl(), rng=rng, L=L,
@@ -456,7 +431,7 @@ class GaussianAssumedFilter:
                 u.L_filt = L_filt
                 return u
         Pzz = sym_fresh(S + self._R)
-        Lz, Pzz = self._chol(Pzz, "Pzz", t)
+        Lz, Pzz = self.factor(Pzz, "Pzz", t)
         if callable(z):
             z = z(z_pred, Lz)
         innov = z - z_pred if model.residual is None else self._residual_rl()(z, z_pred)
@@ -477,7 +452,7 @@ class GaussianAssumedFilter:
         # What the filter returns is a covariance: an indefinite P_filt (a negative centre weight, a
         # stochastic rule's bad draw) is an error naming the step, or repaired here and counted, so that
         # no stored covariance gives a negative NEES.
-        L_filt, P_checked = self._chol(P_filt, "P_filt", t)
+        L_filt, P_checked = self.factor(P_filt, "P_filt", t)
         u = _UpdateRL(z_pred, Pzz, Pxz, K, innov, nis, loglik, x_filt, P_checked, n_iter)
         if P_checked is P_filt:  # not repaired: L_filt is the factor of sym(P_filt) = P_filt
             u.L_filt = L_filt
@@ -576,7 +551,7 @@ class GaussianAssumedFilter:
                 xp[t], Pp[t] = m, P
             param = sched[0, t] if const else sched[:, t]
             if t:  # predict_rl's P_pred is symmetric: sym(P_pred) = P_pred, bit for bit
-                L, P = self._chol(P, "P_pred", t)
+                L, P = self.factor(P, "P_pred", t)
                 u = self._update_factored(m, P, L, zt[t], t, param, None, 1)
             else:
                 u = self.update_rl(m, P, zt[t], t, param)

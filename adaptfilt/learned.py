@@ -34,15 +34,9 @@ byte-identical file.
 """
 from __future__ import annotations
 
-import contextlib
-import errno
-import io
-import json
 import os
-import zipfile
-import zlib
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -51,11 +45,12 @@ from torch import nn
 from adaptfilt.anchor import Anchor, allowed_mask, anchor_onehot, anchored_logits
 from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
-from adaptfilt.files import atomic_path
+from adaptfilt.files import read_npz, write_npz
+from adaptfilt.nets import arrays_to_state, one_torch_thread, state_to_arrays
 from adaptfilt.policies import grid_indices, grid_matches
 
-__all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "write_npz", "read_npz",
-           "POLICY_FORMAT", "check_compatible", "describe_target"]
+__all__ = ["Actor", "Critic", "mlp", "LearnedPolicy", "load_policy", "POLICY_FORMAT", "check_compatible",
+           "describe_target", "learned_name", "learned_names"]
 
 POLICY_FORMAT = "adaptfilt-policy/1"
 HIDDEN = (64, 64)
@@ -103,115 +98,7 @@ class Critic(nn.Module):
         return self.net(s).squeeze(-1)
 
 
-# ------------------------------------------------------------------ files
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
-
-
-def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], metadata: Mapping[str, Any] | None = None) -> Path:
-    """Write ``arrays`` (and ``metadata`` as a JSON ``__metadata__`` entry) to a
-    byte-reproducible ``.npz``: sorted entries, fixed zip date, no pickles,
-    atomic replace. ``np.load(path, allow_pickle=False)`` reads it back."""
-    path = Path(path)
-    items = dict(arrays)
-    # always a metadata entry (possibly {}): it is what tells read_npz the file is ours
-    text = json.dumps({} if metadata is None else metadata, sort_keys=True, indent=1, allow_nan=True)
-    items["__metadata__"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for name in sorted(items):
-            arr = np.asarray(items[name])
-            if arr.dtype == object:
-                raise TypeError(f"{name}: object arrays cannot be stored without pickling")
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
-            info = zipfile.ZipInfo(name + ".npy", date_time=_ZIP_DATE)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, buf.getvalue())
-    return path
-
-
-def read_npz(path: str | os.PathLike, what: str = "adaptfilt policy file") -> tuple[dict[str, np.ndarray], dict]:
-    """Arrays and metadata of a file written by :func:`write_npz` (no pickles).
-
-    A file that is not one -- missing (``FileNotFoundError``), empty, not a
-    zip archive, truncated or damaged, holding pickled objects, or an ``.npz``
-    of plain arrays without the ``__metadata__`` JSON entry -- is a
-    ``ValueError`` "``<path>: not an <what> (<why>)``".
-    """
-    path = Path(path)
-
-    def bad(why: str) -> ValueError:
-        return ValueError(f"{path}: not an {what} ({why})")
-
-    if not path.exists():
-        raise FileNotFoundError(errno.ENOENT, f"no such {what}", str(path))
-    if path.is_dir():
-        raise bad("it is a directory")
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if not head:
-        raise bad("the file is empty")
-    if head not in (b"PK\x03\x04", b"PK\x05\x06"):
-        raise bad("not a zip/npz archive" + (": a single .npy array" if head == b"\x93NUM" else ""))
-    arrays: dict[str, np.ndarray] = {}
-    k = None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            for k in z.files:
-                arrays[k] = z[k]
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as e:
-        raise bad(f"damaged or truncated archive: {e}") from None
-    except ValueError as e:  # numpy's refusal to unpickle, or a damaged .npy header
-        why = "holds pickled Python objects, which are never loaded" if "pickle" in str(e) else f"damaged: {e}"
-        raise bad(why if k is None else f"entry {k!r} {why}") from None
-    meta_bytes = arrays.pop("__metadata__", None)
-    if meta_bytes is None:
-        held = sorted(arrays)
-        raise bad("no __metadata__ entry, so not written by adaptfilt; it holds "
-                  + (", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "") if held else "nothing"))
-    if not isinstance(meta_bytes, np.ndarray) or meta_bytes.dtype != np.uint8 or meta_bytes.ndim != 1:
-        raise bad("its __metadata__ entry is not a .npy array of UTF-8 bytes")
-    other = [k for k, v in arrays.items() if not isinstance(v, np.ndarray)]
-    if other:  # np.load hands non-.npy members of a zip over as raw bytes
-        raise bad(f"entry {other[0]!r} is not a .npy array")
-    try:
-        meta = json.loads(meta_bytes.tobytes().decode("utf-8"))
-    except (ValueError, TypeError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        raise bad(f"its __metadata__ is not UTF-8 JSON: {e}") from None
-    if not isinstance(meta, dict):
-        raise bad(f"its __metadata__ is a JSON {type(meta).__name__}, not an object")
-    return arrays, meta
-
-
-def state_to_arrays(prefix: str, module: nn.Module) -> dict[str, np.ndarray]:
-    """``module.state_dict()`` as ``{prefix/name: array}``."""
-    return {f"{prefix}/{k}": v.detach().cpu().numpy().copy() for k, v in module.state_dict().items()}
-
-
-def arrays_to_state(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
-    p = prefix + "/"
-    return {k[len(p):]: torch.from_numpy(np.array(v)) for k, v in arrays.items() if k.startswith(p)}
-
-
 # ----------------------------------------------------------------- policy
-@contextlib.contextmanager
-def one_torch_thread():
-    """Run torch on one thread inside the block and restore the caller's setting.
-
-    The networks are tiny (2 x 64 units): with several intra-op threads on a
-    busy machine one forward pass was measured 40-170x slower than on one
-    thread (the threads wait on each other), so inference always uses one.
-    """
-    n = torch.get_num_threads()
-    if n != 1:
-        torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        if n != 1:
-            torch.set_num_threads(n)
-
-
 class LearnedPolicy:
     """A trained actor used as a policy (Algorithm 3).
 
@@ -447,3 +334,41 @@ def load_policy(path: str | os.PathLike, experiment=None, name: str | None = Non
                  if k not in ("gamma", "grid", "actor", "scaler_clip", "scaler_squash", "format")}
     return LearnedPolicy(actor, scaler, meta["grid"], gamma=meta["gamma"], name=name or meta.get("name"),
                          metadata=meta_rest, curve=curve)
+
+
+def learned_name(path: str | Path, experiment: str) -> str:
+    """Result name of a learned policy file: its stem, without the experiment
+    prefix when it has one (``data/policies/ungm-ukf-adaptive-faithful.npz`` ->
+    ``adaptive-faithful``, ``runs/try3.npz`` -> ``try3``)."""
+    stem = Path(path).stem
+    return stem[len(experiment) + 1:] if stem.startswith(experiment + "-") and len(stem) > len(experiment) + 1 else stem
+
+
+def learned_names(paths: Iterable[str | Path], experiment: str) -> list[str]:
+    """:func:`learned_name` of each file, made unique: files that would share a
+    name (the same stem in different folders) are named ``<folder>/<name>``
+    with as many trailing folders of their resolved path as it takes to tell
+    them apart (``a/x/adaptive.npz``, ``b/x/adaptive.npz`` -> ``a/x/adaptive``,
+    ``b/x/adaptive``). The same file given twice is a ``ValueError``.
+
+    >>> learned_names(["data/policies/ungm-ukf-adaptive.npz", "runs/ungm-ukf-adaptive.npz", "runs/b.npz"], "ungm-ukf")
+    ['policies/adaptive', 'runs/adaptive', 'b']
+    """
+    paths = [Path(p) for p in paths]
+    resolved = [p.resolve() for p in paths]
+    for i, r in enumerate(resolved):
+        if r in resolved[:i]:
+            raise ValueError(f"policy file {paths[i]} is given twice")
+    names = [learned_name(p, experiment) for p in paths]
+    for n in sorted({n for n in names if names.count(n) > 1}):
+        group = [i for i, m in enumerate(names) if m == n]
+        depth = max(len(resolved[i].parent.parts) for i in group)
+        for d in range(1, depth + 1):
+            cand = {i: "/".join([*resolved[i].parent.parts[-d:], n]) for i in group}
+            if len(set(cand.values())) == len(group):
+                break
+        else:  # same folder, stems that strip to the same name (ungm-ukf-a.npz, a.npz): the file names
+            cand = {i: str(resolved[i].parent / resolved[i].name) for i in group}
+        for i in group:
+            names[i] = cand[i]
+    return names

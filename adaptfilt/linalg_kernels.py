@@ -12,18 +12,74 @@ about ``3 n`` numpy calls with temporaries over the runs for a factor (the CTM's
 a millisecond at 10^4 runs; its filters factor several covariances a step). The kernel here computes
 each run's factor in one pass with the same operations in the same order: numpy's einsum adds the
 products ``0 + p_0 + p_1 + ...`` in the order of ``k``, each product rounded first
-(:func:`adaptfilt.rules._sif_kernels._einsum_is_plain`), then the subtraction, the square root and the
+(:func:`einsum_is_plain`), then the subtraction, the square root and the
 division, all correctly rounded: the same numbers on any CPU (``tests/test_linalg_kernels.py``, also
 with numpy's SIMD code off). It applies to float64, C-ordered ``(n, n, M)`` batches with ``2 <= n <= 12``
 and ``M >= 2`` (with one run numpy's einsum sums a contiguous axis otherwise), where
-:func:`adaptfilt.rules.compiled_kernels` says so; it reports whether every pivot
+:func:`compiled_sums` says so; it reports whether every pivot
 was positive, and where one was not the caller takes numpy's form, which names the runs.
+
+**The switch of every compiled kernel** lives here, the lowest module that both the linear algebra and the
+moment rules (:mod:`adaptfilt.rules`: the SIF's draws, sums and point sets, the scalar UKF's passes) read:
+:data:`BACKEND` (``ADAPTFILT_SIF_BACKEND``: ``"auto"``, ``"numba"`` or ``"numpy"``), :data:`SUMS` and
+:func:`compiled_sums` (the kernels that sum: those, numba importable, and numpy's einsum summing as they do).
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
-__all__ = ["available", "chol_positive"]
+__all__ = ["BACKEND", "SUMS", "use_compiled", "einsum_is_plain", "compiled_sums", "available", "chol_positive"]
+
+#: ``"auto"`` (the compiled kernels where numba is installed), ``"numba"`` (required) or ``"numpy"`` (numpy's
+#: forms everywhere, e.g. to time them): every compiled kernel of the filters follows it.
+BACKEND: str = os.environ.get("ADAPTFILT_SIF_BACKEND", "auto")
+#: whether the kernels that sum (the Cholesky factor; the rules' point sets and weighted sums) are compiled
+#: where :data:`BACKEND` allows it; False: numpy's forms, e.g. to time the kernels apart
+SUMS: bool = True
+
+_plain = None  # einsum_is_plain() once probed
+
+
+def use_compiled() -> bool:
+    """Whether :data:`BACKEND` lets compiled kernels run and numba can be imported (``"numba"`` without it is
+    an ImportError; another value a ValueError naming the variable). Imports numba the first time."""
+    if BACKEND == "numpy":
+        return False
+    if BACKEND not in ("auto", "numba"):
+        raise ValueError(f"ADAPTFILT_SIF_BACKEND must be 'auto', 'numba' or 'numpy', got {BACKEND!r}")
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        if BACKEND == "numba":
+            raise ImportError("ADAPTFILT_SIF_BACKEND=numba needs numba (the optional extra 'fast')") from None
+        return False
+    return True
+
+
+def einsum_is_plain() -> bool:
+    """Whether numpy's einsum adds its products as the kernels do: one rounded product, then one
+    rounded sum, per term. A numpy built with fused multiply-adds in its baseline (aarch64's NEON;
+    an x86-64 build with FMA3 in its baseline) rounds once per term instead, and no kernel without
+    FMA can give its bits. Checked (once) on products whose fused and unfused sums differ."""
+    global _plain
+    if _plain is None:
+        e = 2.0 ** -30
+        M = 37  # SIMD blocks and a tail
+        a = np.empty((1, 2, M))
+        a[0, 0], a[0, 1] = 1.0 + e, 1.0 + e
+        b = np.empty((1, 2, M))
+        b[0, 0], b[0, 1] = -1.0, 1.0 - e  # 0 + -(1 + e), then + (1 + e)(1 - e) = 1 - e^2: 1 rounded, -e fused
+        got = np.einsum("isM,jsM->ijM", a, b)  # fused: -e - e^2
+        _plain = bool(np.all(got == -e))
+    return _plain
+
+
+def compiled_sums() -> bool:
+    """The switch of the compiled kernels that sum (module docstring): :data:`SUMS`, :func:`use_compiled`
+    and :func:`einsum_is_plain`."""
+    return SUMS and use_compiled() and einsum_is_plain()
 
 _kernel = None  # the compiled factorisation once built; False where unusable
 
@@ -31,7 +87,7 @@ _kernel = None  # the compiled factorisation once built; False where unusable
 def _build():
     global _kernel
     if _kernel is None:
-        import numba  # the gate has found it
+        import numba  # use_compiled() has found it
 
         @numba.njit(cache=True, nogil=True, error_model="numpy")
         def _chol(P, L, d):  # pragma: no cover - compiled
@@ -69,15 +125,9 @@ def _build():
     return _kernel
 
 
-#: Whether compiled kernels may run: :func:`adaptfilt.rules.compiled_kernels`, the one switch of them all,
-#: which :mod:`adaptfilt.rules` sets here when imported (the rules import :mod:`adaptfilt.linalg`, so this
-#: module does not import them); None: numpy's form.
-gate = None
-
-
 def available() -> bool:
-    """Whether the compiled factorisation is used (:data:`gate`); imports numba the first time."""
-    return gate is not None and gate() and bool(_build())
+    """Whether the compiled factorisation is used (:func:`compiled_sums`); imports numba the first time."""
+    return compiled_sums() and bool(_build())
 
 
 def chol_positive(P: np.ndarray) -> np.ndarray | None | bool:

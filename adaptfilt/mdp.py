@@ -36,33 +36,18 @@ import numpy as np
 
 from adaptfilt.costs import Cost, StepCost
 from adaptfilt.features import PAPER, FeatureScaler, FeatureSet, feature_names, fit_scaler
-from adaptfilt.gaf import FilterError, FilterRun, GaussianAssumedFilter
+from adaptfilt.filters import FilterRun
+from adaptfilt.gaf import FilterError, GaussianAssumedFilter
 from adaptfilt.linalg import NotPositiveDefinite, chol, clip_to_pd, logdet_chol, sym
 from adaptfilt.models import Trajectory
-from adaptfilt.paramenv import ParamEnv
+from adaptfilt.paramenv import ParamEnv, grid_actions
 
 __all__ = ["Cost", "FeatureScaler", "FeatureSet", "Decision", "FilterEnv", "feature_names", "fit_scaler",
-           "grid_actions", "rollout", "run_policy", "PREDICT", "UPDATE"]
+           "rollout", "run_policy", "PREDICT", "UPDATE"]
 
 #: Keys of the two steps' random streams (``filt.rng(PREDICT, t, stream)``): a look-ahead that simulates
 #: the filter's next steps draws what the environment would (:mod:`adaptfilt.lookahead`).
 PREDICT, UPDATE = 0, 1
-
-
-def grid_actions(actions, n_runs: int, grid_size: int) -> np.ndarray:
-    """``actions`` as grid indices, an int array ``(n_runs,)``; ValueError naming what is wrong (shape,
-    a non-integer, an index off the grid). Every environment's ``step`` checks its actions with it."""
-    a = np.asarray(actions)
-    if a.shape != (n_runs,):
-        raise ValueError(f"actions must be one grid index per run, shape ({n_runs},); got shape {a.shape}")
-    if not np.issubdtype(a.dtype, np.integer):
-        if not (np.isfinite(a).all() and (a == np.round(a)).all()):
-            raise ValueError("actions must be integer grid indices")
-        a = a.astype(np.int64)
-    if (a < 0).any() or (a >= grid_size).any():
-        bad = a[(a < 0) | (a >= grid_size)]
-        raise ValueError(f"action index {int(bad[0])} out of range: the grid has {grid_size} values (0..{grid_size - 1})")
-    return a
 
 
 # ------------------------------------------------------------------ decision
@@ -175,6 +160,9 @@ class FilterEnv:
         Horizon; defaults to the model's.
     truth : StateSpaceModel, optional
         The model trajectories are simulated from (default: the filter's own).
+    experiment : str, optional
+        The experiment this environment is a variant of (another truth, a cut grid:
+        :meth:`~adaptfilt.experiment_registry.Experiment.make_env`): policies trained on it record it.
 
     ``reset(n_runs, rng)`` simulates fresh trajectories (or takes ``traj``),
     initialises the filter and returns the first :class:`Decision`;
@@ -198,9 +186,10 @@ class FilterEnv:
     """
 
     def __init__(self, filt: GaussianAssumedFilter, grid: Sequence[float], cost: Cost | None = None,
-                 n_steps: int | None = None, truth=None):
+                 n_steps: int | None = None, truth=None, experiment: str | None = None):
         self.filt = filt
         self.model = filt.model
+        self.experiment = experiment
         #: the model ``reset`` simulates trajectories from: the filter's own (default), or another one with the
         #: same dimensions (a mismatched truth: other noise levels or prior, for out-of-distribution studies)
         self.truth = self.model if truth is None else truth
@@ -260,7 +249,7 @@ class FilterEnv:
             tf = np.asarray(self.model.time_features(d.t + 1), dtype=float)
             blocks.append(np.repeat(tf[:, None], M, axis=1))
         if fs.candidates:
-            if getattr(self.cost, "needs_truth", False):
+            if self.cost is not None and self.cost.needs_truth:
                 # the candidates' costs would hand the policy the true state
                 raise ValueError(f"the 'cand' features would read the true state through the cost {self.cost.name!r}")
             cost = d.candidates()["cost"]
@@ -294,7 +283,7 @@ class FilterEnv:
     def _candidates(self, m: np.ndarray, P: np.ndarray, z: np.ndarray, t: int, stream: int | None) -> dict:
         G, M = self.grid.size, m.shape[1]
         # Repair (and count) an indefinite P_pred once here, not once per grid value.
-        (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt._chol(sym(P), "P_pred", t))
+        (_, P), pred_flags = self._logging_repairs(M, lambda: self.filt.factor(sym(P), "P_pred", t))
         theta = np.repeat(self.grid, M)
         u, flags = self._logging_repairs(
             G * M, lambda: self.filt.update_candidates_rl(m, P, z, t, self.grid, rng=self.filt.rng(UPDATE, t, stream)))
@@ -305,11 +294,12 @@ class FilterEnv:
         return out
 
     def _charge(self, u, theta: np.ndarray, t: int, repeat: int = 1) -> np.ndarray:
-        """The cost of update ``u`` at step ``t``; a cost that reads the truth (``needs_truth``, the
-        ``"sqerr"`` :class:`~adaptfilt.costs.Cost`) gets the true state of step ``t`` from the episode's
-        trajectory, run-last ``(nx, M)``, tiled ``repeat`` times for the grid's candidates (candidate
-        ``g`` of run ``m`` sits at ``g M + m``). Every other cost is called exactly as always."""
-        if not getattr(self.cost, "needs_truth", False):
+        """The cost of update ``u`` at step ``t``; a cost that reads the truth (``needs_truth``: the
+        ``"sqerr"`` :class:`~adaptfilt.costs.Cost`, a :class:`~adaptfilt.costs.FunctionCost` that says so)
+        gets the true state of step ``t`` from the episode's trajectory, run-last ``(nx, M)``, tiled
+        ``repeat`` times for the grid's candidates (candidate ``g`` of run ``m`` sits at ``g M + m``).
+        Every other cost is called exactly as always."""
+        if not self.cost.needs_truth:
             return self.cost(u, theta, self.nz)
         x = self.traj.x
         if x.ndim != 3 or x.shape[1] <= t:

@@ -276,10 +276,45 @@ def bootstrap_mean(per_run: np.ndarray, counts: np.ndarray) -> np.ndarray:
 
 
 def percentile_ci(replicates: np.ndarray, level: float = 0.95) -> tuple[float, float]:
-    """Percentile interval of bootstrap replicates."""
+    r"""Percentile interval of bootstrap replicates: the ``(1 - level) / 2`` and ``(1 + level) / 2``
+    quantiles (``np.quantile``, linear interpolation between order statistics).
+
+    A diverged run makes replicates infinite, and the interval says so: an end that falls on or next to an
+    infinite replicate is that infinity (``np.quantile`` would give NaN between two infinite or between an
+    infinite and a finite neighbour). A replicate that is undefined (NaN: the difference of two infinite
+    replicates, both sides diverged) may be anything, so it counts as :math:`-\infty` for the lower end and
+    :math:`+\infty` for the upper: it can only widen the interval. The ends are never NaN.
+
+    >>> percentile_ci(np.array([1.0, 2.0, 3.0, np.inf, np.inf, np.inf]))
+    (1.125, inf)
+    >>> percentile_ci(np.array([1.0, 2.0, np.nan]))
+    (-inf, inf)
+    """
     a = (1.0 - level) / 2.0
-    lo, hi = np.quantile(replicates, [a, 1.0 - a])
-    return float(lo), float(hi)
+    x = np.asarray(replicates, dtype=float).ravel()
+    if np.isfinite(x).all():
+        lo, hi = np.quantile(x, [a, 1.0 - a])
+        return float(lo), float(hi)
+    undefined = np.isnan(x)
+    return (_quantile_with_infinities(np.where(undefined, -np.inf, x), a, lower=True),
+            _quantile_with_infinities(np.where(undefined, np.inf, x), 1.0 - a, lower=False))
+
+
+def _quantile_with_infinities(x: np.ndarray, q: float, lower: bool) -> float:
+    """``np.quantile(x, q)`` for ``x`` with infinite (never NaN) values: between an infinite order statistic
+    and its neighbour the quantile is the infinity (between -inf and +inf: the one that widens the interval,
+    -inf for a lower end); exactly on an order statistic, that statistic."""
+    with np.errstate(invalid="ignore"):
+        v = float(np.quantile(x, q))
+    if not np.isnan(v):
+        return v
+    below, above = float(np.quantile(x, q, method="lower")), float(np.quantile(x, q, method="higher"))
+    h = (x.size - 1) * q
+    if below == above or h == np.floor(h):
+        return below
+    if below == -np.inf and above == np.inf:
+        return -np.inf if lower else np.inf
+    return below if below == -np.inf else above
 
 
 def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:

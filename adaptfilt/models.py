@@ -8,6 +8,16 @@ and ``h(x, k)`` gives the mean of ``z_k``.
 
 ``f`` and ``h`` are batched: ``x`` has shape ``(..., nx)`` with any leading
 axes, and they return ``(..., nx)`` / ``(..., nz)``.
+
+A model may also declare **torch forms** of ``f``, ``h`` and ``residual``
+(``f_torch``, ``h_torch``, ``residual_torch``): the same functions on float64
+torch tensors, differentiable by autograd. The filters never use them; a
+learned filter trained through the model (:mod:`adaptfilt.kalmannet`) does,
+and falls back to the numpy functions (finite-difference Jacobians) without
+them. The library's UNGM and CTM declare them (``tests/test_model_torch.py``
+holds them equal to the numpy functions to 1e-12). This module does not
+import torch: the forms of UNGM use only arithmetic, the CTM's import it
+when called.
 """
 from __future__ import annotations
 
@@ -18,7 +28,8 @@ import numpy as np
 
 from adaptfilt.linalg import wrap_angle
 
-__all__ = ["StateSpaceModel", "Trajectory", "ungm", "coordinated_turn", "linear_gaussian", "wrap_angle"]
+__all__ = ["StateSpaceModel", "Trajectory", "ungm", "coordinated_turn", "linear_gaussian", "wrap_angle",
+           "wrap_angle_torch"]
 
 ModelFn = Callable[[np.ndarray, int], np.ndarray]
 
@@ -85,6 +96,12 @@ class StateSpaceModel:
     time_features : callable ``k -> sequence of float``, optional
         The phase of a time-varying model (UNGM: ``cos 0.05k, sin 0.05k``),
         named by ``time_feature_names``; an optional policy feature.
+    f_torch, h_torch, residual_torch : callable, optional
+        Torch forms of ``f``, ``h`` and ``residual`` (module docstring):
+        ``(x: Tensor (..., nx), k) -> Tensor``, equal to the numpy functions
+        and differentiable. Checked against them by their user
+        (:class:`~adaptfilt.kalmannet.KalmanNet`), not here (no torch import);
+        ``residual_torch`` is not used where ``residual`` is None.
 
     Every argument is checked at construction: dimensions agree, covariances
     are symmetric positive definite, and ``f``/``h`` return the right shapes on
@@ -116,6 +133,9 @@ class StateSpaceModel:
     circular_z: tuple[int, ...] = ()
     time_features: Callable[[int], Sequence[float]] | None = field(default=None, repr=False)
     time_feature_names: tuple[str, ...] = ()
+    f_torch: Callable | None = field(default=None, repr=False)
+    h_torch: Callable | None = field(default=None, repr=False)
+    residual_torch: Callable | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if not callable(self.f) or not callable(self.h):
@@ -156,6 +176,9 @@ class StateSpaceModel:
                                  f"{self.time_feature_names}; it returned shape {tf.shape}")
         elif self.time_feature_names:
             raise ValueError("time_feature_names given without time_features")
+        for fname in ("f_torch", "h_torch", "residual_torch"):
+            if getattr(self, fname) is not None and not callable(getattr(self, fname)):
+                raise ValueError(f"{fname} must be a callable (the torch form of {fname[:-6]}) or None")
         if self.residual is not None:
             zz = np.zeros((3, 2, nz))
             out = np.asarray(self.residual(zz, zz))
@@ -215,6 +238,9 @@ def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) ->
     def h(x, k):
         return x * x / 20.0
 
+    def f_torch(x, k):  # the same operations on a tensor (the forcing a float): bit for bit f's values
+        return 0.5 * x + 25.0 * x / (1.0 + x * x) + float(8.0 * np.cos(0.05 * k))
+
     def phase(k):
         return (np.cos(0.05 * k), np.sin(0.05 * k))
 
@@ -222,6 +248,7 @@ def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) ->
         f=f, h=h, Q=[[Q]], R=[[R]], m0=[0.0], P0=[[P0]], name="ungm", n_steps=n_steps,
         description="univariate nonstationary growth model (paper Sec. VI-A)",
         time_features=phase, time_feature_names=("cos 0.05k", "sin 0.05k"),
+        f_torch=f_torch, h_torch=h,  # h's arithmetic works on tensors as written
     )
 
 
@@ -264,11 +291,40 @@ def coordinated_turn(
     def residual(a, b):
         return wrap_angle(a - b)
 
+    F_t = {}  # F as a tensor, made at the first call (this module does not import torch)
+
+    def f_torch(x, k):
+        import torch
+
+        if "F" not in F_t:
+            F_t["F"] = torch.from_numpy(F.T.copy())
+        return x @ F_t["F"]
+
+    def h_torch(x, k):
+        import torch
+
+        return torch.atan2(x[..., 2:3], x[..., 0:1])
+
+    def residual_torch(a, b):
+        return wrap_angle_torch(a - b)
+
     return StateSpaceModel(
         f=f, h=h, Q=Q, R=[[R]], m0=[80.0, 0.0, 0.0, 20.0], P0=np.diag([1e3, 1e2, 1e3, 1e2]),
         residual=residual, name="ctm", n_steps=n_steps, F=F,
         description="coordinated turn, bearing-only (paper Sec. VI-B)", circular_z=(0,),
+        f_torch=f_torch, h_torch=h_torch, residual_torch=residual_torch,
     )
+
+
+def wrap_angle_torch(a):
+    """:func:`~adaptfilt.linalg.wrap_angle` for a torch tensor: ``(-pi, pi]``, angles inside unchanged
+    (exactly); the wrap of the others is a constant offset of ``2 pi k``, so the derivative is 1."""
+    import torch
+
+    outside = (a > np.pi) | (a <= -np.pi)
+    w = torch.remainder(a + np.pi, 2.0 * np.pi) - np.pi
+    w = torch.where(w == -np.pi, np.pi, w)  # remainder maps +pi to -pi; the convention is (-pi, pi]
+    return torch.where(outside, w, a)
 
 
 def linear_gaussian(F, H, Q, R, m0, P0, name: str = "linear", n_steps: int | None = None) -> StateSpaceModel:

@@ -46,8 +46,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["ParamEnv", "ParamDecision", "EnvCheckError", "check_env", "missing_members", "DESCRIBE_KEYS",
-           "FILTER_INFO"]
+__all__ = ["ParamEnv", "ParamDecision", "EnvCheckError", "check_env", "missing_members", "grid_actions",
+           "DESCRIBE_KEYS", "FILTER_INFO"]
 
 #: What :meth:`ParamEnv.describe` returns (and a policy file records and is checked against).
 DESCRIBE_KEYS = ("model", "filter", "param_name", "grid", "feature_names", "cost")
@@ -100,6 +100,23 @@ class ParamEnv(Protocol):
     def check_actions(self, actions: Any) -> np.ndarray: ...
 
     def describe(self, features: Any = None) -> dict: ...
+
+
+def grid_actions(actions, n_runs: int, grid_size: int) -> np.ndarray:
+    """``actions`` as grid indices, an int array ``(n_runs,)``; ValueError naming what is wrong (shape,
+    a non-integer, an index off the grid). Every environment's ``step`` checks its actions with it (the contract's own
+    action check, :meth:`ParamEnv.check_actions`)."""
+    a = np.asarray(actions)
+    if a.shape != (n_runs,):
+        raise ValueError(f"actions must be one grid index per run, shape ({n_runs},); got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.integer):
+        if not (np.isfinite(a).all() and (a == np.round(a)).all()):
+            raise ValueError("actions must be integer grid indices")
+        a = a.astype(np.int64)
+    if (a < 0).any() or (a >= grid_size).any():
+        bad = a[(a < 0) | (a >= grid_size)]
+        raise ValueError(f"action index {int(bad[0])} out of range: the grid has {grid_size} values (0..{grid_size - 1})")
+    return a
 
 
 class EnvCheckError(ValueError):
@@ -161,7 +178,7 @@ def check_env(env: Any, n_runs: int = 3, seed: int = 0) -> None:
         if not isinstance(getattr(env, attr), str) or not getattr(env, attr):
             raise fail(f"{attr} must be a non-empty string, got {getattr(env, attr)!r}")
     if env.cost is not None and not isinstance(env.cost, StepCost):
-        raise fail(f"cost must be None or a StepCost (name, compute_weight, __call__(update, theta, nz)), "
+        raise fail(f"cost must be None or a StepCost (name, compute_weight, needs_truth, __call__(update, theta, nz)), "
                    f"got {type(env.cost).__name__}")
     desc = env.describe()
     if not isinstance(desc, dict) or set(desc) != set(DESCRIBE_KEYS):

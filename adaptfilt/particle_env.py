@@ -49,8 +49,8 @@ import numpy as np
 
 from adaptfilt.costs import Cost, ParticleCost, StepCost
 from adaptfilt.features import FeatureSet
-from adaptfilt.mdp import grid_actions
 from adaptfilt.models import StateSpaceModel, Trajectory
+from adaptfilt.paramenv import grid_actions
 
 __all__ = ["PARTICLE_GRID", "ParticleUpdate", "check_counts", "FILTER_DESCRIPTION", "ParticleDecision", "ParticleCountEnv",
            "KLDSamplingPolicy", "ESSTargetPolicy", "particle_feature_names"]
@@ -163,15 +163,17 @@ class ParticleCountEnv:
     (or another :class:`~adaptfilt.costs.StepCost` of a :class:`ParticleUpdate`; None: no cost);
     ``grid``: the counts (default :data:`PARTICLE_GRID`), ``default``: the count of the "default"
     policy (1000); ``seed`` keys the particles' random streams (run ``i`` of episode ``stream``: key
-    ``(seed, stream * 2**32 + i)``). The same interface as :class:`~adaptfilt.mdp.FilterEnv`:
-    ``reset(n_runs, rng, traj, stream)``, ``step(actions)``.
+    ``(seed, stream * 2**32 + i)``); ``truth``: the model trajectories are simulated from (default: ``model``);
+    ``experiment``: the experiment a variant belongs to (as :class:`~adaptfilt.mdp.FilterEnv`'s). The same
+    interface as :class:`~adaptfilt.mdp.FilterEnv`: ``reset(n_runs, rng, traj, stream)``, ``step(actions)``.
     """
 
     param_name = "n_particles"
     compute_unit = "particles"
 
     def __init__(self, model: StateSpaceModel, cost: StepCost | None = None, grid: Sequence[int] = PARTICLE_GRID,
-                 default: int = 1000, seed: int = 0, n_steps: int | None = None):
+                 default: int = 1000, seed: int = 0, n_steps: int | None = None, truth: StateSpaceModel | None = None,
+                 experiment: str | None = None):
         # Here, not at the top: `import adaptfilt` (which imports the registry, and so this module) loads no
         # particle filter, and through it no numba, until a particle environment is built.
         from adaptfilt.particles import ParticleCountFilter
@@ -179,7 +181,11 @@ class ParticleCountEnv:
         if cost is not None and (not isinstance(cost, StepCost) or isinstance(cost, Cost)):
             raise TypeError(f"cost must be a ParticleCost, another StepCost of a particle update (or None), "
                             f"got {type(cost).__name__}")
-        self.model = self.truth = model
+        self.model, self.experiment = model, experiment
+        self.truth = model if truth is None else truth  # the model trajectories are simulated from
+        if (self.truth.nx, self.truth.nz) != (model.nx, model.nz):
+            raise ValueError(f"the truth model has nx = {self.truth.nx}, nz = {self.truth.nz}; the filter's model "
+                             f"nx = {model.nx}, nz = {model.nz}")
         grid = np.asarray(grid, dtype=float)
         if grid.ndim != 1 or grid.size < 1:
             raise ValueError(f"grid must be a non-empty 1-D sequence of counts, got shape {grid.shape}")
@@ -370,6 +376,7 @@ class KLDSamplingPolicy:
     the count it keeps, so it spends only that count."""
 
     cost_blind = True
+    kind = "kld"
 
     def __init__(self, bin_size: float | Sequence[float], epsilon: float = 0.05, delta: float = 0.01,
                  n_min: int = 50, grid=None, name: str = "kld"):
@@ -406,6 +413,7 @@ class ESSTargetPolicy:
     leave ``target`` effective particles), the default count at the first step."""
 
     cost_blind = True
+    kind = "ess"
 
     def __init__(self, target: float = 200.0, grid=None):
         if not (np.isfinite(target) and target >= 1):

@@ -2,7 +2,7 @@ r"""A particle filter whose particle count is a parameter, per run and per step;
 
 The paper names the number of particles as the first example of a filter parameter that could be
 adapted. :class:`ParticleCountFilter` makes it one, in the layout of the other filters here
-(``M`` runs batched, a parameter per run and step, a :class:`~adaptfilt.gaf.FilterRun` out):
+(``M`` runs batched, a parameter per run and step, a :class:`~adaptfilt.filters.FilterRun` out):
 
 .. math::
     \mathbf x^{(j)}_k = \mathbf f\big(\mathbf x^{(a_j)}_{k-1}, k-1\big) + \mathbf w^{(j)}_k,\qquad
@@ -64,7 +64,7 @@ from typing import Sequence
 
 import numpy as np
 
-from adaptfilt.gaf import FilterRun
+from adaptfilt.filters import FilterRun
 from adaptfilt.models import StateSpaceModel
 
 __all__ = ["ParticleCountFilter", "ParticleMemoryError", "kld_bound", "kld_count", "kld_counts", "BACKENDS"]
@@ -262,6 +262,9 @@ class ParticleCountFilter:
     ``block_particles``. Compute grows with the total number of particles, ``params.sum()``.
     """
 
+    #: what ``run(z, n_particles).params`` holds (:class:`~adaptfilt.filters.Filter`, at a given count)
+    param_name = "n_particles"
+
     def __init__(self, model: StateSpaceModel, seed: int = 0, backend: str = "auto", block_particles: int = 1 << 16):
         if int(seed) != seed or seed < 0:
             raise ValueError(f"seed must be a non-negative integer (it keys the random streams), got {seed!r}")
@@ -282,6 +285,9 @@ class ParticleCountFilter:
         self._Lq, self._L0 = np.linalg.cholesky(model.Q), np.linalg.cholesky(model.P0)
         self._Rinv = np.linalg.inv(model.R)
         self._logdetR = float(np.linalg.slogdet(model.R)[1])
+
+    def __repr__(self) -> str:
+        return f"ParticleCountFilter(model={self.model.name!r}, seed={self.seed})"
 
     def _rngs(self, run_id: int, t: int) -> tuple[np.random.Generator, np.random.Generator]:
         # two streams, so that particle j's ancestor uniform and its noise are the j-th draws of

@@ -218,7 +218,7 @@ def plot_anees_bars(results, policies: Sequence[str] | None = None, ax=None, log
     x label names (paper Figs 2 and 5)."""
     nx = results.config["nx"]
     # The dashed line is named in the axis label, not in a legend: inside the axes a legend covered the first
-    # policy's marker whenever its ANEES was large (chapter 11's default), and beside them it narrowed the panels
+    # policy's marker whenever its ANEES was large (chapter 12's default), and beside them it narrowed the panels
     # until side-by-side titles ran into each other. The label costs no room and suits every caller.
     fig, ax = _bars(results, "anees", policies, ax, f"time-averaged ANEES (dashed: ideal, $n_x$ = {nx})",
                     "Time-averaged ANEES", logx)

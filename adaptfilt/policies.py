@@ -53,17 +53,20 @@ class FixedPolicy:
     the natural reading of a "fixed" baseline when the dynamics are nonlinear
     (UNGM). By default only the update step changes, as for every adaptive
     policy (the paper adapts the update only; the predict uses the default).
+    ``kind`` (what :meth:`~adaptfilt.experiment_registry.Experiment.baselines` selects by): ``"fixed"``
+    (update only), ``"fixed-both"``, or the given one (``"default"``, :func:`default_policy`).
 
-    >>> FixedPolicy(2.0, param_name="kappa").name, FixedPolicy(2.0, "kappa", both_steps=True).name
-    ('fixed-kappa=2', 'fixed-both-kappa=2')
+    >>> FixedPolicy(2.0, param_name="kappa").name, FixedPolicy(2.0, "kappa", both_steps=True).kind
+    ('fixed-kappa=2', 'fixed-both')
     """
 
     cost_blind = True
 
     def __init__(self, value: float, param_name: str = "param", name: str | None = None, grid=None,
-                 both_steps: bool = False):
+                 both_steps: bool = False, kind: str | None = None):
         self.value = float(value)
         self.name = name or f"fixed-{'both-' if both_steps else ''}{param_name}={self.value:g}"
+        self.kind = kind or ("fixed-both" if both_steps else "fixed")
         self.grid = None if grid is None else np.asarray(grid, dtype=float)
         #: read by :func:`adaptfilt.mdp.rollout`: the predict step's parameter (None: the filter's default)
         self.predict_param = self.value if both_steps else None
@@ -77,13 +80,13 @@ class FixedPolicy:
 
 def default_policy(default_value: float, grid=None) -> FixedPolicy:
     """The practitioner's default (``kappa = max(0, 3 - n)``, SIF ``n_iter = 10``), named ``default``."""
-    return FixedPolicy(default_value, name="default", grid=grid)
+    return FixedPolicy(default_value, name="default", grid=grid, kind="default")
 
 
 class MaxLikelihoodPolicy:
     """``argmax_theta log N(z; z_pred(theta), Pzz(theta))`` at every step."""
 
-    name = "ml"
+    name = kind = "ml"
     cost_blind = True
 
     def __init__(self, grid=None):
@@ -100,7 +103,7 @@ class GreedyPolicy:
     honest bar for "non-myopic helps".
     """
 
-    name = "greedy"
+    name = kind = "greedy"
     cost_blind = False
 
     def __init__(self, grid=None):

@@ -141,10 +141,15 @@ class Results:
         lo, hi = metrics.percentile_ci(getattr(pa, "boot_" + metric) - getattr(pb, "boot_" + metric), level)
         return diff, lo, hi
 
+    def fixed_names(self, both_steps: bool = False) -> list[str]:
+        """The fixed-value policies (:class:`~adaptfilt.policies.FixedPolicy`, by the names it gives), fixed in
+        the update only (default) or, ``both_steps``, in both steps; in their order here."""
+        return [n for n in self.policies if n.startswith("fixed-") and n.startswith("fixed-both-") == both_steps]
+
     def best_fixed(self, metric: Literal["rmse", "anees", "cost"] = "rmse", both_steps: bool = False) -> str:
         """Name of the fixed-value policy with the lowest ``metric`` (ANEES: closest to ``nx``),
         among those fixed in the update only (default) or, ``both_steps``, in both steps."""
-        fixed = [n for n in self.policies if n.startswith("fixed-") and n.startswith("fixed-both-") == both_steps]
+        fixed = self.fixed_names(both_steps)
         if not fixed:
             raise ValueError("these results have no fixed-value policies")
         if metric == "anees":
@@ -156,14 +161,16 @@ class Results:
         """One evaluation from its parts, jobs that simulated the same runs (same seed, runs, horizon:
         an evaluation's trajectories, filter draws and bootstrap resamples depend on its seed only, so the
         merge is exact), policies in the order of the parts. Their configurations must agree but for
-        ``"policies"`` and the keys in ``ignore`` (RuntimeError otherwise). The first part is the one
-        returned, extended in place: the parts are a job's values, not kept.
+        ``"policies"``, what ran (``"filters"``, ``"failed_filters"``: joined) and the keys in ``ignore``
+        (RuntimeError otherwise). The first part is the one returned, extended in place: the parts are a
+        job's values, not kept.
 
         >>> a = Results({"n_runs": 2, "policies": ["x"]}, {"x": None}); b = Results({"n_runs": 2}, {"y": None})
         >>> Results.merge([a, b]).config["policies"]
         ['x', 'y']
         """
-        skip = {"policies", *ignore}
+        joined = ("filters", "failed_filters")
+        skip = {"policies", *joined, *ignore}
         first = parts[0]
         mine = {k: v for k, v in first.config.items() if k not in skip}
         for other in parts[1:]:
@@ -172,6 +179,9 @@ class Results:
                 diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
                 raise RuntimeError(f"parts of the {mine.get('experiment', '')} evaluation disagree on {', '.join(diff)}")
             first.policies.update(other.policies)
+            for k in joined:
+                if k in other.config:
+                    first.config[k] = {**first.config.get(k, {}), **other.config[k]}
         first.config["policies"] = list(first.policies)
         return first
 

@@ -29,7 +29,9 @@ run-resample for both (they were evaluated on the same runs: paired), so
 that run-to-run noise common to both cancels.
 
 Seed groups are found by name: policies named ``<group>-s<seed>`` (e.g.
-``adaptive-s3``) form group ``adaptive`` (:func:`seed_groups`).
+``adaptive-s3``) form group ``adaptive`` (:func:`seed_groups`). What such an
+interval says about a claim ("lower", "not worse", "equal", with a declared
+margin) is the one rule of :mod:`adaptfilt.verdicts`.
 """
 from __future__ import annotations
 
@@ -38,8 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["iqm", "seed_groups", "SeedAggregate", "aggregate", "difference", "seed_verdict", "collapse_seeds",
-           "METRICS", "MARGINS", "margin_for"]
+from adaptfilt.metrics import percentile_ci
+
+__all__ = ["iqm", "seed_groups", "SeedAggregate", "aggregate", "difference", "collapse_seeds", "METRICS"]
 
 #: Metrics with run-level bootstrap replicates in an evaluation (``PolicyResult.boot_<metric>``).
 METRICS = ("rmse", "anees", "cost", "objective", "cost_charged")
@@ -109,9 +112,8 @@ def _resample_seeds(boot: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def _ci(x: np.ndarray, level: float) -> tuple[float, float]:
-    a = (1.0 - level) / 2.0
-    lo, hi = np.quantile(x, [a, 1.0 - a])
-    return float(lo), float(hi)
+    """The percentile interval of replicates (infinite ones included: :func:`adaptfilt.metrics.percentile_ci`)."""
+    return percentile_ci(x, level)
 
 
 def aggregate(results, names, metric: str = "rmse", level: float = 0.95, seed: int = 0) -> SeedAggregate:
@@ -138,58 +140,11 @@ def difference(results, names_a, names_b, metric: str = "rmse", level: float = 0
         raise ValueError("the two groups have different numbers of run-level bootstrap replicates")
     rng = np.random.default_rng([0xD1F, seed])
     ra, rb = _resample_seeds(ba, rng), _resample_seeds(bb, rng)
-    d_iqm, d_mean = iqm(ra, axis=1) - iqm(rb, axis=1), ra.mean(axis=1) - rb.mean(axis=1)
+    with np.errstate(invalid="ignore"):  # inf - inf: both sides diverged in a replicate, undefined (see _ci)
+        d_iqm, d_mean = iqm(ra, axis=1) - iqm(rb, axis=1), ra.mean(axis=1) - rb.mean(axis=1)
+        point_iqm, point_mean = float(iqm(va) - iqm(vb)), float(va.mean() - vb.mean())
     return {"metric": metric, "a": list(names_a), "b": list(names_b),
-            "iqm": (float(iqm(va) - iqm(vb)), *_ci(d_iqm, level)),
-            "mean": (float(va.mean() - vb.mean()), *_ci(d_mean, level))}
-
-
-#: Margins of "not worse" and "equal" claims, as a fraction of the reference's value (``b``): a
-#: difference inside the margin is too small to matter. Fixed on 2026-11-25 before the verdicts they
-#: judge were re-derived: 5 % of an RMSE or of the objective (a tracking accuracy 5 % apart is the same
-#: accuracy for any use we know of; the objective is a log, 5 % is a large change of ``L``), 10 % of an
-#: ANEES or a cost (heavy-tailed, seed-to-seed spreads of 10-30 % are common). Without a margin, "no
-#: detectable difference" would pass for "not worse" whatever the width of the interval.
-MARGINS = {"rmse": 0.05, "objective": 0.05, "anees": 0.10, "cost": 0.10, "cost_charged": 0.10}
-
-
-def margin_for(metric: str, reference: float) -> float:
-    """The absolute margin of ``metric`` around the reference value ``reference`` (:data:`MARGINS`)."""
-    if metric not in MARGINS:
-        raise ValueError(f"no margin for metric {metric!r}; margins exist for {', '.join(MARGINS)}")
-    return MARGINS[metric] * abs(float(reference))
-
-
-def seed_verdict(diff: tuple[float, float, float], better: str = "lower", margin: float | None = None) -> str:
-    """Verdict on a claim about ``a - b`` from a seed-level ``(diff, lo, hi)``; confirmed only when
-    the interval says so.
-
-    * ``"lower"``: ``a`` is lower than ``b`` (the interval lies below 0);
-    * ``"not worse"`` (non-inferiority): the interval lies below ``+margin``; contradicted when it
-      lies above ``+margin``;
-    * ``"equal"`` (equivalence): the interval lies inside ``(-margin, +margin)``; contradicted
-      (lower/higher) when it excludes 0 and does not lie inside the margins.
-
-    ``margin`` (absolute, :func:`margin_for`) is required for ``"not worse"`` and ``"equal"``;
-    ``margin=0`` gives the test without one (``"equal"``: the interval holds 0).
-    """
-    _, lo, hi = diff
-    if better in ("not worse", "equal"):
-        if margin is None or not margin >= 0:
-            raise ValueError(f"a {better!r} claim needs a margin >= 0 (see seeds.MARGINS), got {margin!r}")
-        if better == "not worse":
-            return "confirmed" if hi < margin or (margin == 0 and lo <= 0) else (
-                "contradicted" if lo > margin else "not confirmed (interval wider than the margin)")
-        if (-margin < lo and hi < margin) or (margin == 0 and lo <= 0 <= hi):
-            return "confirmed"
-        if hi < 0 or lo > 0:
-            return "contradicted (lower)" if hi < 0 else "contradicted (higher)"
-        return "not confirmed (interval wider than the margin)"
-    if hi < 0:
-        return "confirmed"
-    if lo > 0:
-        return "contradicted"
-    return "not confirmed (n.s.)"
+            "iqm": (point_iqm, *_ci(d_iqm, level)), "mean": (point_mean, *_ci(d_mean, level))}
 
 
 def collapse_seeds(results, level: float = 0.95):

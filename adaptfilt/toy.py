@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from adaptfilt.mdp import grid_actions
+from adaptfilt.paramenv import grid_actions
 
 __all__ = ["ToyDecision", "ToyCost", "BanditEnv", "TrapEnv"]
 
@@ -73,6 +73,7 @@ class ToyCost:
 
     name: str
     compute_weight: float = 0.0
+    needs_truth = False  # the environment computes it (not a field)
 
     def __call__(self, update, theta, nz) -> np.ndarray:
         raise TypeError(f"the {self.name} cost is the environment's own: read it from step()")

@@ -3,9 +3,12 @@ r"""Training a parameter policy by name of algorithm: ``adaptfilt train NAME --a
 =============  ==========================================================================
 ``algo``       what trains the policy
 =============  ==========================================================================
-``faithful``   our Algorithm 2 as printed (:func:`adaptfilt.actor_critic.train`,
-               ``parallel=1``): one episode at a time, one Adam step per time step.
-               The reference; about 11 CPU-minutes per UNGM policy.
+``faithful``   Algorithm 2's update loop with the library's recipe
+               (:func:`adaptfilt.actor_critic.train`, ``parallel=1``): one episode at a
+               time, one Adam step per time step; the corrected sign, log(1 + L), the
+               feature set, the asinh scaler and the time-limit bootstrap of the
+               defaults (``docs/DEVIATIONS.md``). The reference; about 11 CPU-minutes
+               per UNGM policy.
 ``batched``    the same code with ``parallel`` episodes per Adam step
                (:func:`adaptfilt.actor_critic.train`): faster, measurably worse.
 ``fast``       the fast mode: Stable-Baselines3's PPO through :mod:`adaptfilt.gym`
@@ -155,20 +158,20 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
 
     from adaptfilt._version import __version__
     from adaptfilt.gym import make_vec, to_learned_policy
-    from adaptfilt.learned import one_torch_thread
+    from adaptfilt.nets import one_torch_thread
 
     classes = {"a2c": A2C, "ppo": PPO}
     if config.algo not in classes:
         raise ValueError(f"unknown SB3 algorithm {config.algo!r}; choose one of {sorted(classes)}")
     _check(gamma, episodes)
+    if actions is not None:  # the experiment's environment with its grid cut to the actions, built once
+        experiment, features, n_steps = _restricted(experiment, actions, seed, n_steps, features)
     target = resolve(experiment, seed, n_steps)  # an environment's horizon is its own
     label, features = target.label, features or target.features or "paper"
     anchor = _anchor(anchor)
     if anchor is not None and config.kwargs.get("ent_coef", 0.0):
         raise ValueError("an anchored policy's KL term takes the place of PPO's entropy term: set the "
                          "anchor's kl instead of ent_coef")
-    if actions is not None:
-        target, n_steps = _restricted(target.experiment, actions, seed, n_steps), None
     venv = make_vec(target, n_envs=config.n_envs, seed=seed, features=features, n_steps=n_steps,
                     repair_penalty=repair_penalty, cost_transform=cost_transform,
                     anchor=anchor)
@@ -224,21 +227,17 @@ def _anchor(anchor):
     raise ValueError(f"anchor must be None, a name ('greedy', 'ml') or an Anchor, got {anchor!r}")
 
 
-def _restricted(target, actions: Sequence[float], seed: int, n_steps: int | None):
-    """The experiment's environment with its grid cut to ``actions`` (ValueError naming what is wrong)."""
-    from adaptfilt.mdp import FilterEnv
+def _restricted(experiment, actions: Sequence[float], seed: int, n_steps: int | None, features: str | None):
+    """``(env, features, None)``: the experiment's environment with its grid cut to ``actions`` (ValueError
+    naming what is wrong), the features the experiment recommends unless given; the horizon is the env's."""
+    from adaptfilt.experiment_registry import Experiment, Target, get_experiment
 
-    if target is None:
+    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
+    exp = exp.experiment if isinstance(exp, Target) else exp
+    if not isinstance(exp, Experiment):
         raise ValueError("actions= restricts a named experiment's grid; for an environment of your own, "
                          "build it with the grid you want")
-    a = np.asarray(actions, dtype=float).ravel()
-    full = np.asarray(target.grid, dtype=float)
-    off = [v for v in a if not np.isclose(v, full).any()]
-    if a.size == 0 or off:
-        raise ValueError(f"actions must be values of the {target.name} grid {full.tolist()}; not on it: {[float(v) for v in off] or 'none given'}")
-    env = FilterEnv(target.make_filter(seed), np.unique(a), cost=target.cost, n_steps=n_steps)
-    env.experiment = target.name  # the policy is still "for" the experiment (it acts on a subset of its grid)
-    return env
+    return exp.make_env(seed=seed, n_steps=n_steps, grid=actions), features or exp.features, None
 
 
 def _frac(c: np.ndarray, last: int) -> float:

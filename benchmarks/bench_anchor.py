@@ -1,4 +1,4 @@
-"""Learned policies anchored on greedy against greedy, seed by seed (issue 23, item 2).
+"""Learned policies anchored on greedy against greedy, seed by seed (study 5, the anchored learner).
 
     python benchmarks/bench_anchor.py --out results/anchor [--experiments ungm-ukf ctm-ukf]
         [--seeds 0-7] [--runs 10000] [--eval-seed 0] [--strength 3] [--kl 0.01] [--shield 1]
@@ -19,7 +19,8 @@ prints, per experiment:
 * over seeds: IQM of the differences to greedy with the two-level bootstrap interval
   (:mod:`adaptfilt.seed_stats`; greedy is one policy, so only the anchored seeds are resampled),
   and the verdicts of the goal: cost lower than greedy on every seed (each seed's own interval below 0),
-  RMSE and ANEES not worse (seed level, the margins of ``seeds.MARGINS``), no divergent run;
+  RMSE and ANEES not worse (seed level, by the one rule with the margins declared for
+  "anchored vs greedy" in ``adaptfilt.verdicts.DECLARED_MARGINS``), no divergent run;
 * with ``--compare TAG=DIR``, another group of policies of the same seeds on the same runs, against
   greedy and against this one.
 
@@ -92,10 +93,13 @@ from pathlib import Path
 CAND = {"ungm-ukf": "paper+time+cand", "ctm-ukf": "paper+circ+cand"}
 
 
+#: The declared comparison (adaptfilt.verdicts.DECLARED_MARGINS) whose margins judge "not worse".
+DECLARED = "anchored vs greedy"
+
 def train_one(experiment: str, seed: int, out: str, kw: dict, command: str, method: str = "ppo") -> dict:
     """One anchored policy (module level: runs in a worker); reused when ``out`` holds this command."""
     from adaptfilt.distill import distill_rollout
-    from adaptfilt.learned import read_npz
+    from adaptfilt.files import read_npz
     from adaptfilt.trainers import train_policy
 
     if Path(out).exists():
@@ -165,7 +169,8 @@ def main(argv: list[str] | None = None) -> dict:
 
     from adaptfilt.evaluation import evaluate
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.seed_stats import MARGINS, difference, margin_for, seed_verdict
+    from adaptfilt.seed_stats import difference
+    from adaptfilt.verdicts import DECLARED_MARGINS, judge, margin, verdict
     from adaptfilt.experiments.sweep import run_jobs
     from adaptfilt.learned import load_policy
 
@@ -247,14 +252,16 @@ def main(argv: list[str] | None = None) -> dict:
                   f"| {args.tag}, {len(names)} seeds | " + " | ".join(f"{cell(agg[m]['iqm'])} (mean {agg[m]['mean'][0]:+.4g})"
                                                                for m in ("cost", "rmse", "anees", "objective")) + " |"]
         lower = sum(s["diff"]["cost"][0] < 0 for s in per_seed)
-        lower_ci = sum(s["diff"]["cost"][2] < 0 for s in per_seed)
+        lower_ci = sum(verdict("lower", s["diff"]["cost"]) == "confirmed" for s in per_seed)
+        m_rmse, m_anees = margin(DECLARED, "rmse", g.rmse), margin(DECLARED, "anees", g.anees)
+        alone = lambda m, mg: sum(verdict("not worse", s["diff"][m], mg) == "confirmed" for s in per_seed)  # noqa: E731
         verdicts = {
             "cost lower than greedy on every seed": f"{lower} of {len(names)} seeds lower, {lower_ci} with their run-level interval below 0",
-            "cost lower, seed level (IQM)": seed_verdict(agg["cost"]["iqm"], "lower"),
-            "RMSE not worse (margin 5 %)": seed_verdict(agg["rmse"]["iqm"], "not worse", margin_for("rmse", g.rmse)),
-            "ANEES not worse (margin 10 %)": seed_verdict(agg["anees"]["iqm"], "not worse", margin_for("anees", g.anees)),
-            "RMSE not worse on every seed": f"{sum(s['diff']['rmse'][2] < margin_for('rmse', g.rmse) for s in per_seed)} of {len(names)}",
-            "ANEES not worse on every seed": f"{sum(s['diff']['anees'][2] < margin_for('anees', g.anees) for s in per_seed)} of {len(names)}",
+            "cost lower, seed level (IQM)": judge("lower", agg["cost"]["iqm"])[0],
+            "RMSE not worse (margin 5 %)": judge("not worse", agg["rmse"]["iqm"], DECLARED, "rmse", g.rmse)[0],
+            "ANEES not worse (margin 10 %)": judge("not worse", agg["anees"]["iqm"], DECLARED, "anees", g.anees)[0],
+            "RMSE not worse on every seed": f"{alone('rmse', m_rmse)} of {len(names)}",
+            "ANEES not worse on every seed": f"{alone('anees', m_anees)} of {len(names)}",
             "no divergent run": f"{sum(s['divergent_frac'] > 0 for s in per_seed)} seeds with a divergent run",
         }
         for tag, other in compare.items():
@@ -266,7 +273,8 @@ def main(argv: list[str] | None = None) -> dict:
                                                           for m in ("cost", "rmse", "anees")) + " |")
         lines += [""] + [f"* {k}: **{v}**" for k, v in verdicts.items()]
         lines += [f"* train {train_wall:.0f} s wall for {len(jobs)} policies ({args.workers} workers), "
-                  f"evaluate {eval_wall:.0f} s; margins {MARGINS['rmse']:.0%} RMSE, {MARGINS['anees']:.0%} ANEES"]
+                  f"evaluate {eval_wall:.0f} s; margins {DECLARED_MARGINS[DECLARED].fractions['rmse']:.0%} RMSE, "
+                  f"{DECLARED_MARGINS[DECLARED].fractions['anees']:.0%} ANEES (declared for {DECLARED!r})"]
         text = "\n".join(lines)
         print(text + "\n", flush=True)
         (out / f"summary-{e}.md").write_text(text + "\n")

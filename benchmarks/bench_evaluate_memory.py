@@ -1,4 +1,4 @@
-"""Peak memory of a Monte-Carlo evaluation against the number of runs (issue 35, item 4).
+"""Peak memory of a Monte-Carlo evaluation against the number of runs (the evaluation's streaming).
 
     python benchmarks/bench_evaluate_memory.py [--runs 10000 100000] [--policies default,fixed-kappa=0,ml]
         [--experiment ungm-ukf] [--horizon T] [--chunk-size C] [--quick]

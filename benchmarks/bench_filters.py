@@ -21,7 +21,7 @@ the best run: on a shared machine wall time exceeds it, and the ``(cpu)``
 speed-up (ratio of CPU times) is the steadier figure. Before timing, the script checks that both filters
 give the same estimates on the filterpy subset (max relative difference shown).
 
-Targets (issue 2): UKF >= 1000x filterpy on UNGM and >= 500x on CTM; SIF-10 on
+Targets (set when the filters were first written): UKF >= 1000x filterpy on UNGM and >= 500x on CTM; SIF-10 on
 CTM with M = 10^4 under 10 s.
 """
 from __future__ import annotations

@@ -21,9 +21,9 @@ import time
 
 import numpy as np
 
-from adaptfilt.evaluation import TRAJ_SEED_KEY
 from adaptfilt.exact import PointMassFilter
 from adaptfilt.experiment_registry import get_experiment
+from adaptfilt.runs import EvalRuns
 
 
 def main(argv=None) -> None:
@@ -34,8 +34,7 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args(argv)
     env = get_experiment("ungm-ukf").make_env(seed=0, n_steps=args.steps)
-    traj = env.model.simulate(10_000, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
-    z = traj.z[: args.runs]
+    z = EvalRuns(env.model, 10_000, 0, env.n_steps).first(args.runs).z
     grid = np.linspace(-45, 45, 901)
     pmf = PointMassFilter(env.model, grid=grid, negligible=0.0)
     cut = PointMassFilter(env.model, grid=grid)  # the default: values below 1e-150 are zero

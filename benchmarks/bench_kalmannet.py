@@ -1,82 +1,136 @@
-"""Cost of KalmanNet (adaptfilt.kalmannet, issue 38) on UNGM: training CPU-s per epoch, filtering speed.
+"""Cost of training KalmanNet against the kappa learner's fast mode, per trajectory-step, in one run.
 
-Run with ``python benchmarks/bench_kalmannet.py`` (``--quick`` for a smoke run). It sizes the
-budgets of the learned-gain study (issue 38, item 2).
+Run with ``python benchmarks/bench_kalmannet.py`` (``--quick``: a smoke run of a few seconds, as
+``tests/test_kalmannet.py`` runs it). Process CPU seconds (``time.process_time``), torch on one
+thread, one training after another in this process:
 
-* Training: one epoch = ``--n-train`` trajectories of UNGM's full horizon (T = 500), minibatches of
-  ``--batch`` whole trajectories, back-propagation through the whole sequence (or ``--tbptt``
-  windows), plus one validation pass over ``--n-val`` trajectories (the trainer validates once per
-  epoch). Reported: process CPU seconds per epoch (torch on one thread, as the trainer runs it),
-  per optimiser step and per trajectory-step (forward + backward).
-* Filtering: ``--runs`` runs x 500 steps with the trained network, no gradients; reported as
-  run-steps per second (one filter step of one Monte-Carlo run), CPU time, and the RMSE over the
-  runs whose estimate stayed finite, with the number of diverged runs (a short training on UNGM
-  leaves an unstable gain on some runs).
+* **KalmanNet** (:func:`adaptfilt.kalmannet.train_kalmannet`, both architectures), a training of
+  ``--knet-steps`` optimiser steps with each architecture's UNGM recipe (:data:`adaptfilt.kalmannet.RECIPES`;
+  the CTM has none: the same recipe on it): minibatches of ``--batch`` fresh trajectories of the model's horizon, batched as one tensor
+  per step, truncated back-propagation over windows of ``--window`` steps (one optimiser step per
+  window), validation on ``--n-val`` trajectories every ``--val-every`` steps, the state clamped. The
+  whole training is timed (set-up, simulation, validation, the forward and backward passes) and
+  divided by the trajectory-steps it back-propagated (``history["trajectory_steps"]``).
+* **The kappa learner**, fast mode (:func:`adaptfilt.trainers.train_policy`, ``algo="fast"``: SB3 PPO
+  over 256 runs of the UKF) on the same model, ``--ppo-episodes`` episodes: the whole training
+  divided by its transitions (one filter step of one run, with its policy step and its share of the
+  updates).
 
-Both for the plain filter and the Bayesian variant (J = ``--samples`` dropout copies, which costs
-about J times more per run-step). UNGM's f and h are numpy: training back-propagates through them
-with forward-difference Jacobians (``model_grad="jacobian"``).
+The ratio KalmanNet / PPO is printed per model and architecture: the cost of a trajectory-step of
+the learned gain's training in units of a PPO transition of the learned kappa's. UNGM's f and h run
+in torch through the model's torch forms (``model_grad="jacobian"``); the row "numpy f, h" takes the
+old path (numpy functions, forward-difference Jacobians) for comparison. The filtering speed of the
+trained networks (no gradients, ``--runs`` runs batched) is printed last.
+
+Measured (2026-12, ``python benchmarks/bench_kalmannet.py``, this 2-core machine shared with other work,
+load about 10; microseconds of process CPU per trajectory-step or transition, ratio to PPO):
+
+======  ============================  =======  ======
+model   training                      us       / PPO
+======  ============================  =======  ======
+UNGM    kappa, PPO fast mode          29.2
+UNGM    gain, architecture 1          19.4     0.67
+UNGM    gain, architecture 2          19.5     0.67
+UNGM    gain, arch. 2, numpy f, h     22.9     0.79
+CTM     kappa, PPO fast mode          27.1
+CTM     gain, architecture 1          125.6    4.64
+CTM     gain, architecture 2          30.0     1.11
+======  ============================  =======  ======
+
+On UNGM a trajectory-step of KalmanNet's training costs two thirds of a PPO transition. On the CTM
+architecture 1 at the paper's sizes (GRUs of ``10 (m^2 + n^2) = 170`` units over an input layer of
+400: about 470,000 weights against architecture 2's 20,293) is bound by its matrix products, not by
+Python's per-step overhead: 4.6 transitions per trajectory-step. Filtering (no gradients, 2000 runs
+batched): 0.37 (architecture 1) and 1.7 (architecture 2) million run-steps per CPU-s on UNGM.
 """
 from __future__ import annotations
 
 import argparse
 import platform
 import time
+import warnings
 
 import numpy as np
 import torch
 
 import adaptfilt as af
-from adaptfilt.kalmannet import train_kalmannet
+from adaptfilt.kalmannet import RECIPES, train_kalmannet
+from adaptfilt.trainers import train_policy
+
+MODELS = {"ungm": ("ungm-ukf", af.models.ungm), "ctm": ("ctm-ukf", af.models.coordinated_turn)}
+
+
+def knet_cost(model, arch: int, a, **extra) -> tuple[float, dict, object]:
+    """Process CPU-s per back-propagated trajectory-step of one KalmanNet training, its history, the filter."""
+    c0 = time.process_time()
+    recipe = dict(RECIPES["ungm"][arch], n_train=a.batch, n_val=a.n_val, batch_size=a.batch, tbptt=a.window,
+                  val_every=a.val_every, **extra)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a short training may fail or restart: the cost is what counts
+        knet = train_kalmannet(model, n_steps=a.steps or model.n_steps, max_steps=a.knet_steps, seed=0, progress=False,
+                               **recipe)
+    cpu = time.process_time() - c0
+    return cpu / knet.history["trajectory_steps"], knet.history, knet
+
+
+def ppo_cost(experiment: str, a) -> tuple[float, int]:
+    """Process CPU-s per transition of one fast-mode training of the kappa learner, and its transitions."""
+    c0 = time.process_time()
+    pol = train_policy(experiment, "fast", episodes=a.ppo_episodes, seed=0, progress=False, n_steps=a.steps)
+    cpu = time.process_time() - c0
+    n = int(pol.metadata["transitions"])
+    return cpu / n, n
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n-train", type=int, default=60)
-    ap.add_argument("--n-val", type=int, default=20)
-    ap.add_argument("--batch", type=int, default=20)
-    ap.add_argument("--epochs", type=int, default=2)
-    ap.add_argument("--tbptt", type=int, default=None)
-    ap.add_argument("--runs", type=int, default=1000)
-    ap.add_argument("--samples", type=int, default=10)
-    ap.add_argument("--steps", type=int, default=500)
-    ap.add_argument("--quick", action="store_true", help="20 trajectories of 50 steps, 100 runs")
+    ap.add_argument("--models", default="ungm,ctm")
+    r = RECIPES["ungm"][1]
+    ap.add_argument("--knet-steps", type=int, default=500, help="KalmanNet optimiser steps per training")
+    ap.add_argument("--batch", type=int, default=r["batch_size"])
+    ap.add_argument("--window", type=int, default=r["tbptt"])
+    ap.add_argument("--n-val", type=int, default=r["n_val"])
+    ap.add_argument("--val-every", type=int, default=r["val_every"])
+    ap.add_argument("--ppo-episodes", type=int, default=400)
+    ap.add_argument("--runs", type=int, default=2000)
+    ap.add_argument("--steps", type=int, default=None, help="horizon (default: each model's)")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes: a smoke run")
     a = ap.parse_args()
     if a.quick:
-        a.n_train, a.n_val, a.batch, a.epochs, a.runs, a.steps = 20, 10, 10, 1, 100, 50
+        a.knet_steps, a.batch, a.window, a.n_val, a.val_every, a.ppo_episodes, a.runs, a.steps = 4, 8, 10, 4, 2, 2, 20, 20
     torch.set_num_threads(1)
-    model = af.models.ungm()
-    print(f"KalmanNet on UNGM, T = {a.steps}; {platform.processor() or platform.machine()}, torch {torch.__version__}, "
-          f"one thread")
-    print(f"training: {a.n_train} trajectories/epoch, batch {a.batch}, validation {a.n_val}, "
-          f"tbptt {a.tbptt or 'off (whole sequences)'}; filtering: {a.runs} runs")
-    test = model.simulate(a.runs, a.steps, rng=123)
-    # warm-up (torch's first calls allocate and dispatch-cache): not timed
-    train_kalmannet(model, n_train=4, n_val=2, n_steps=20, epochs=1, batch_size=4, seed=0, progress=False)
-    rows = []
-    for name, opts in (("KalmanNet", {}), (f"Bayesian J={a.samples}", dict(dropout=0.2, n_samples=a.samples))):
-        c0 = time.process_time()
-        knet = train_kalmannet(model, n_train=a.n_train, n_val=a.n_val, n_steps=a.steps, epochs=a.epochs,
-                               batch_size=a.batch, tbptt=a.tbptt, clip=10.0, seed=0, progress=False,
-                               on_diverged="restore", **opts)
-        train_cpu = time.process_time() - c0
-        h = knet.history
-        per_epoch = train_cpu / a.epochs
-        per_step = train_cpu / h["optimiser_steps"]
-        per_traj_step = train_cpu / (a.epochs * (a.n_train + a.n_val) * a.steps)
-        c0, w0 = time.process_time(), time.perf_counter()
-        with np.errstate(over="ignore", invalid="ignore"):  # diverged runs are counted below
-            run = knet.run(test.z)
-        run_cpu, run_wall = time.process_time() - c0, time.perf_counter() - w0
-        ok = np.isfinite(run.mean).all(axis=(1, 2))
-        rmse = af.metrics.rmse_time_average(af.metrics.squared_error(test.x[ok], run.mean[ok]))
-        rows.append((name, knet.n_parameters(), per_epoch, per_step, per_traj_step * 1e6, a.runs * a.steps / run_cpu,
-                     a.runs * a.steps / run_wall, rmse, h["val_loss"][0], h["best_val_loss"], len(h["restores"]), int((~ok).sum())))
-    print(f"{'filter':<16} {'params':>6} {'CPU-s/epoch':>11} {'CPU-s/opt step':>14} {'us/traj-step':>12} "
-          f"{'run-steps/s cpu':>15} {'(wall)':>9} {'RMSE':>7} {'val MSE 0 -> best':>18} restores  diverged runs")
-    for r in rows:
-        print(f"{r[0]:<16} {r[1]:>6d} {r[2]:>11.2f} {r[3]:>14.3f} {r[4]:>12.1f} {r[5]:>15.0f} {r[6]:>9.0f} {r[7]:>7.2f} "
-              f"{r[8]:>8.3g} -> {r[9]:<8.3g} {r[10]:>8d}  {r[11]}")
+    print(f"{platform.processor() or platform.machine()}, torch {torch.__version__}, one thread; process CPU-s")
+    print(f"KalmanNet: {a.knet_steps} optimiser steps, minibatches of {a.batch} fresh trajectories, windows of "
+          f"{a.window}, validation on {a.n_val} every {a.val_every} steps; PPO fast mode: {a.ppo_episodes} episodes")
+    # warm-up (torch's first calls allocate and dispatch-cache; SB3's imports): not timed
+    train_kalmannet(af.models.ungm(), n_train=4, n_val=2, n_steps=20, epochs=1, batch_size=4, seed=0, progress=False)
+    train_policy("ungm-ukf", "fast", episodes=1, seed=0, progress=False, n_steps=20)
+    rows, ratios = [], {}
+    for key in a.models.split(","):
+        experiment, make = MODELS[key]
+        model = make()
+        ppo, n_tr = ppo_cost(experiment, a)
+        rows.append((key, "kappa, PPO fast mode", ppo, n_tr, "", ""))
+        cases = [(1, {}, "gain, architecture 1"), (2, {}, "gain, architecture 2")]
+        if key == "ungm":
+            cases.append((2, {"model_grad": "finite-difference"}, "gain, arch. 2, numpy f, h"))
+        for arch, extra, label in cases:
+            c, h, knet = knet_cost(model, arch, a, **extra)
+            ratios[key, label] = c / ppo
+            z = model.simulate(a.runs, a.steps or model.n_steps, rng=123).z
+            t0 = time.process_time()
+            with np.errstate(over="ignore", invalid="ignore"):
+                knet.run(z)
+            filt = a.runs * z.shape[1] / (time.process_time() - t0)
+            rows.append((key, label, c, h["trajectory_steps"], f"{c / ppo:.2f}", f"{filt:,.0f}"))
+    print(f"\n{'model':<6} {'training':<28} {'us per traj-step':>16} {'traj-steps':>11} {'/ PPO':>6} "
+          f"{'filtering run-steps/CPU-s':>26}")
+    for key, label, c, n, r, f in rows:
+        print(f"{key:<6} {label:<28} {c * 1e6:>16.1f} {n:>11,d} {r:>6} {f:>26}")
+    for (key, label), r in ratios.items():
+        if label.endswith("architecture 2") or label.endswith("architecture 1"):
+            print(f"{key}: {label}: a trajectory-step of training costs {r:.2f} PPO transitions "
+                  f"({'within' if r <= 2 else 'NOT within'} 2x)")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Wall time per step of the look-ahead references against greedy, to size the look-ahead study (issue 23).
+"""Wall time per step of the look-ahead references against greedy, to size the look-ahead study.
 
     python benchmarks/bench_lookahead.py [--runs 100] [--steps 16] [--experiments ungm-ukf ctm-ukf]
                                          [--configs greedy twostep:4 rollout:1:4 ...]

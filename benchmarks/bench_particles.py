@@ -1,7 +1,7 @@
 """Speed of the particle filter with a per-run, per-step particle count (adaptfilt.particles).
 
 Run with ``python benchmarks/bench_particles.py`` (``--quick`` for M = 100, T = 100). One core
-(``OMP_NUM_THREADS=1`` is set before numpy loads). Issue 24's target: UNGM with M = 1000 runs,
+(``OMP_NUM_THREADS=1`` is set before numpy loads). The particle study's target: UNGM with M = 1000 runs,
 T = 500 steps and N = 1000 particles (5e8 particle-steps) in under 30 s on one core.
 
 Prints, for the compiled backend (numba, the optional extra ``fast``) and the numpy reference: the

@@ -53,9 +53,9 @@ print(time.process_time() - c0)
 
 EVALUATE = r"""
 import sys, time
-from adaptfilt.evaluation import evaluate, learned_name
+from adaptfilt.evaluation import evaluate
 from adaptfilt.experiment_registry import get_experiment
-from adaptfilt.learned import load_policy
+from adaptfilt.learned import learned_name, load_policy
 exp, runs, policy = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 e = get_experiment(exp)
 pols = [p for p in e.baselines() if p.name in ("default", "greedy")]

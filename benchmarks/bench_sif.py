@@ -7,7 +7,7 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    CTM's first update (prior ``N(m0, P0)``) with 10 iterations of the degree-3
    rule (today's default) and of the degree-5 rule, interleaved, best of
    ``--repeat``; wall and process-CPU time per iteration and their ratio
-   (target of issue 14: degree 5 within 2x of degree 3 per iteration).
+   (the target set for the SIF's degree 5: within 2x of degree 3 per iteration).
    Then **per-run counts**: one moment computation where the runs pick their
    own ``n_iter`` as a learned policy does (most few, some many), against every
    run at the largest count and at the mean count: a draw is evaluated only for
@@ -38,7 +38,7 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    baseline (the methods of ``adaptfilt/rules/stochastic.py`` at
    ``--baseline``, a git revision, swapped in: numpy Gram-Schmidt, scattered
    sums), today's rule with the numpy Gram-Schmidt
-   (``adaptfilt.rules._sif_kernels.BACKEND = "numpy"``: the bookkeeping alone)
+   (``adaptfilt.linalg_kernels.BACKEND = "numpy"``: the bookkeeping alone)
    and today's rule with the compiled one (numba). All three must give the
    same numbers: the benchmark checks the policies' parameters and the runs'
    outputs bit for bit and says so. Measured (shared 2-core Intel Xeon, load
@@ -49,7 +49,7 @@ Three parts, all on the paper's CTM (bearing-only coordinated turn):
    costs about 0.25 CPU-s once per process (loading numba's cache).
    A fourth variant adds the compiled point construction and weighted sums
    (``_sif_kernels.points`` / ``weighted_sums``, bit for bit numpy's einsum;
-   ``_sif_kernels.SUMS = False`` turns them off). Measured (same machine, load
+   ``linalg_kernels.SUMS = False`` turns them off). Measured (same machine, load
    about 5, best of 3, the test suite running beside it during (a)): (a) 3.34
    (baseline) -> 2.81 -> 2.07 (compiled Gram-Schmidt) -> 2.17 CPU-s (with the
    sums: 0.95x, within the noise of that load; per call the kernels are 0.99x
@@ -263,19 +263,21 @@ class _Implementation:
         self.methods, self.backend, self.sums = methods, backend, sums
 
     def __enter__(self):
-        from adaptfilt.rules import _sif_kernels
+        from adaptfilt import linalg_kernels
+
         self._saved = {k: vars(StochasticIntegrationRule)[k] for k in (self.methods or {})}
-        self._backend, self._sums = _sif_kernels.BACKEND, _sif_kernels.SUMS
+        self._backend, self._sums = linalg_kernels.BACKEND, linalg_kernels.SUMS
         for k, v in (self.methods or {}).items():
             setattr(StochasticIntegrationRule, k, v)
-        _sif_kernels.BACKEND, _sif_kernels.SUMS = self.backend, self.sums
+        linalg_kernels.BACKEND, linalg_kernels.SUMS = self.backend, self.sums
         return self
 
     def __exit__(self, *exc):
-        from adaptfilt.rules import _sif_kernels
+        from adaptfilt import linalg_kernels
+
         for k, v in self._saved.items():
             setattr(StochasticIntegrationRule, k, v)
-        _sif_kernels.BACKEND, _sif_kernels.SUMS = self._backend, self._sums
+        linalg_kernels.BACKEND, linalg_kernels.SUMS = self._backend, self._sums
 
 
 def speed(repeat: int, episodes: int, M: int, T: int, baseline: str) -> None:

@@ -1,4 +1,4 @@
-"""The README's test command against the clock (issue 35, item 3: at most 15 minutes on 2 cores).
+"""The README's test command against the clock (the target: at most 15 minutes on 2 cores).
 
     python benchmarks/bench_suite.py [--target 900] [--top 15] [-- PYTEST ARGS]
 
@@ -35,7 +35,7 @@ def file_times(junit: Path) -> dict[str, float]:
     per = defaultdict(float)
     for case in ET.parse(junit).getroot().iter("testcase"):
         cls = case.get("classname", "")
-        # tests: "tests.test_rules"; notebooks: "notebooks.08-ukf-ungm.ipynb"
+        # tests: "tests.test_rules"; notebooks: "notebooks.09-ukf-ungm.ipynb"
         name = cls.replace(".", "/") + ".py" if not cls.endswith(".ipynb") else cls.replace(".", "/", 1)
         per[case.get("file") or name] += float(case.get("time", 0.0))
     return dict(per)

@@ -1,4 +1,4 @@
-"""The library's UKF against a minimal hand-fused numpy UKF of the same model (issue 35, item 2).
+"""The library's UKF against a minimal hand-fused numpy UKF of the same model.
 
 Run with ``python benchmarks/bench_ukf_limit.py`` (``--quick`` for a smoke run,
 ``--repeat N`` for the best of N, default 5). It prints the machine (CPU model,
@@ -34,7 +34,7 @@ UNGM's f, h, Q, R hard-coded, every run at once. It returns what the
 library's run returns (mean, variance, NIS, log-likelihood per run and step).
 
 Measured (shared 2-core Intel Xeon, numpy 2.4, load about 5, best of 7, one
-session): ratio 2.21 before the work of issue 35 (library 1294 us per step,
+session): ratio 2.21 before the work on the UKF's speed (library 1294 us per step,
 kernel 584 us), 1.44 after (829 us against 577 us). With the compiled point sums of the moment
 rules (``adaptfilt.rules._sif_kernels``, used for ``n >= 2`` only: for the scalar UNGM their checks
 cost more than numpy's few calls, 1.42 against 1.35 when they were used) the ratio is unchanged:
@@ -87,7 +87,7 @@ the library in numpy's form spent about 250 us per step more than the kernel):
   finiteness checks of ``x_pred`` and ``x_filt``; ``dX`` kept for
   ``Pxz``; the per-run iteration count.
 
-Removed by issue 35 (all bit for bit, checked on 141 outputs of UKF and SIF
+Removed by that work (all bit for bit, checked on 141 outputs of UKF and SIF
 runs; a 1x1 covariance left as it is differs from ``(P + P) / 2`` only where
 ``2 P`` overflows, ``|P| > 8.9e307``): the bad-pivot bookkeeping of the Cholesky factor (a 1x1 factor is a
 square root), the second factorisation of ``P_filt`` in the next predict,
@@ -118,7 +118,8 @@ import time
 import numpy as np
 
 import adaptfilt as af
-from adaptfilt.rules import _sif_kernels, scalar_kernels
+from adaptfilt import linalg_kernels
+from adaptfilt.rules import scalar_kernels
 
 TARGET = 1.5
 
@@ -159,11 +160,11 @@ def library(ukf: af.UKF, z: np.ndarray) -> af.FilterRun:
 
 def library_numpy(ukf: af.UKF, z: np.ndarray) -> af.FilterRun:
     """The library in numpy's form only: its compiled kernels off (as without the ``fast`` extra)."""
-    before, _sif_kernels.BACKEND = _sif_kernels.BACKEND, "numpy"
+    before, linalg_kernels.BACKEND = linalg_kernels.BACKEND, "numpy"
     try:
         return ukf.run(z)
     finally:
-        _sif_kernels.BACKEND = before
+        linalg_kernels.BACKEND = before
 
 
 def cpu_model() -> str:

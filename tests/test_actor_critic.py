@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from adaptfilt.actor_critic import checkpoint_path, soft_update, train, train_experiment
-from adaptfilt.learned import Critic, load_policy, read_npz
+from adaptfilt.files import read_npz
+from adaptfilt.learned import Critic, load_policy
 from adaptfilt.toy import BanditEnv, TrapEnv
 
 # larger learning rates than the paper's so that toys converge in a second

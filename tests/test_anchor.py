@@ -1,4 +1,4 @@
-"""adaptfilt.anchor: learned policies anchored on greedy (issue 23, item 2)."""
+"""adaptfilt.anchor: learned policies anchored on greedy (the anchored learner of study 5)."""
 import numpy as np
 import pytest
 
@@ -158,7 +158,7 @@ def test_bad_options_are_named():
 
 
 def test_a_damaged_anchor_in_a_policy_file_is_named(tmp_path):
-    from adaptfilt.learned import read_npz, write_npz
+    from adaptfilt.files import read_npz, write_npz
 
     out = tmp_path / "p.npz"
     train_policy("ungm-ukf", "fast", episodes=1, n_steps=3, parallel=2, progress=False, anchor="greedy", out=out)

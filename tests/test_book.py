@@ -1,4 +1,6 @@
-"""The static book: the notebook -> mdBook converter, the build, and a real browser.
+"""The static book (adaptfilt.course.book): its pages and order, the build, and a real browser (the
+converter, figure text and bibliography it uses: tests/test_notebook_markdown.py, test_figure_text.py,
+test_bibliography.py).
 
 The fixture notebooks live in tests/fixtures/book-notebooks as ``*.ipynb.json`` so that a
 notebook test run (nbval) never collects them; the tests copy them to
@@ -22,16 +24,16 @@ import re
 import shutil
 import threading
 import time
+import urllib.parse
+import urllib.request
 from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
 
-from adaptfilt.course.book import FRONT_PAGES, BookBuildError, build_book, collect_chapters, notebook_chapters
-from adaptfilt.course.bibliography import bibliography_markdown, notebook_references, split_reference
-from adaptfilt.course.figure_text import figure_titles, plain_text
-from adaptfilt.course.notebook_markdown import (escape_math, notebook_title, notebook_to_markdown, rewrite_links,
-                                                rewrite_math)
+from adaptfilt.course.book import (FRONT_PAGES, NOTEBOOK_DIR, BookBuildError, build_book, collect_chapters,
+                                   notebook_chapters, notebook_link)
+from adaptfilt.course.notebook_markdown import escape_math, notebook_title
 from adaptfilt.cli import main as cli_main
 from browser_cdp import Browser  # tests/browser_cdp.py
 
@@ -39,241 +41,6 @@ ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "tests" / "fixtures" / "book-notebooks"
 ARTEFACTS = ROOT / "build" / "book-test"  # git-ignored; CI keeps it as an artefact
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
-
-
-def fixture_nb(name: str = "01-fixture") -> dict:
-    return json.loads((FIXTURES / f"{name}.ipynb.json").read_text(encoding="utf-8"))
-
-
-# ---------------------------------------------------------------- maths
-
-
-def test_inline_math_is_delimited_and_escaped():
-    assert rewrite_math("mean $x_{k|k-1}$ here") == r"mean \\(x\_\{k\|k\-1\}\\) here"
-
-
-def test_display_math_doubles_tex_newlines():
-    # `\\` (TeX line break) must reach MathJax as `\\`: in Markdown it is `\\\\`.
-    assert rewrite_math("$$a \\\\ b$$") == r"\\[a \\\\ b\\]"
-
-
-def test_thin_space_star_and_underscore_survive_commonmark():
-    assert rewrite_math(r"$a\,b*c_1$") == r"\\(a\\\,b\*c\_1\\)"
-
-
-def test_escape_math_escapes_all_punctuation_only():
-    assert escape_math(r"\alpha + 2") == r"\\alpha \+ 2"
-
-
-def test_escaped_dollar_stays_text():
-    assert rewrite_math(r"costs \$5 or \$6") == r"costs \$5 or \$6"
-
-
-def test_amounts_are_not_maths():
-    assert rewrite_math("between $5 and $10") == "between $5 and $10"
-
-
-def test_unclosed_dollar_stays_text():
-    assert rewrite_math("a $x and more") == "a $x and more"
-
-
-def test_code_spans_are_untouched():
-    text = "run `echo $HOME` or ``a `$x$` b`` then $y$"
-    assert rewrite_math(text) == "run `echo $HOME` or ``a `$x$` b`` then \\\\(y\\\\)"
-
-
-def test_fenced_code_is_untouched():
-    text = "```bash\necho $x$ $$y$$\n```\n~~~~\n$z$\n~~~~\nafter $w$\n"
-    assert rewrite_math(text) == "```bash\necho $x$ $$y$$\n```\n~~~~\n$z$\n~~~~\nafter \\\\(w\\\\)\n"
-
-
-def test_equation_environment_is_emitted_bare():
-    # \[ \begin{align} \] is an error in MathJax 2: the environment must stand alone.
-    assert rewrite_math(r"$$\begin{align}a&=b\end{align}$$") == r"\\begin\{align\}a\&\=b\\end\{align\}"
-
-
-def test_aligned_stays_inside_display_maths():
-    assert rewrite_math(r"$$\begin{aligned}a\end{aligned}$$").startswith(r"\\[\\begin\{aligned\}")
-
-
-def test_bare_environment_is_escaped():
-    assert rewrite_math("\\begin{equation}x_1\\end{equation}") == r"\\begin\{equation\}x\_1\\end\{equation\}"
-
-
-def test_inline_maths_does_not_cross_paragraphs():
-    assert rewrite_math("a $x\n\ny$ b") == "a $x\n\ny$ b"
-
-
-# ---------------------------------------------------------------- notebooks
-
-
-@pytest.fixture(scope="module")
-def converted() -> tuple[str, dict[str, bytes]]:
-    return notebook_to_markdown(fixture_nb(), "figures/fx", {"02-second.ipynb": "02-second.md"})
-
-
-def test_cell_tags_are_honoured(converted):
-    md, _ = converted
-    assert "VISIBLE-OUTPUT-MARKER" in md  # remove-input keeps the output
-    assert "HIDDEN-INPUT-MARKER" not in md
-    assert "VISIBLE-INPUT-MARKER" in md  # remove-output keeps the input
-    assert "HIDDEN-OUTPUT-MARKER" not in md
-    assert "HIDDEN-CELL-MARKER" not in md  # remove-cell drops both
-
-
-def test_nbval_markers_are_dropped(converted):
-    md, _ = converted
-    assert "NBVAL" not in md
-    assert "import matplotlib.pyplot as plt" in md
-
-
-def test_figures_are_extracted_and_referenced(converted):
-    md, files = converted
-    pngs = [n for n in files if n.endswith(".png")]
-    svgs = [n for n in files if n.endswith(".svg")]
-    assert len(pngs) == 1 and len(svgs) == 1
-    assert files[pngs[0]].startswith(b"\x89PNG\r\n\x1a\n")
-    assert files[svgs[0]].lstrip().startswith(b"<svg")
-    for name in files:
-        assert f"]({name})" in md
-    assert "base64" not in md and "iVBOR" not in md
-
-
-def test_widget_dropped_text_fallback_kept(converted):
-    md, _ = converted
-    assert "widget-view" not in md and "model_id" not in md
-    assert "3/3" in md
-
-
-def test_html_output_is_one_html_block(converted):
-    md, _ = converted
-    block = re.search(r'<div class="nb-output nb-html">\n(.*?)\n</div>', md, flags=re.S)
-    assert block and "<table" in block.group(1)
-    assert "\n\n" not in block.group(0)  # a blank line would end the HTML block
-
-
-def test_text_outputs_are_fenced_and_ansi_free(converted):
-    md, _ = converted
-    assert "```text\nhello from stdout\n```" in md
-    assert "ZeroDivisionError: division by zero" in md and "\x1b" not in md
-
-
-def test_links_to_notebooks_point_at_chapters(converted):
-    md, _ = converted
-    assert "](02-second.md)" in md
-    assert rewrite_links("[x](../notebooks/03-a.ipynb#s) [y](https://e.org/03-a.ipynb)",
-                         {"notebooks/03-a.ipynb": "03-a.md"}) == "[x](03-a.md#s) [y](https://e.org/03-a.ipynb)"
-
-
-def test_stream_progress_keeps_last_state():
-    nb = {"cells": [{"cell_type": "code", "source": "x", "metadata": {}, "outputs": [
-        {"output_type": "stream", "name": "stderr", "text": "\r 10%|#\r100%|##########|\n"}]}]}
-    md, _ = notebook_to_markdown(nb, "f")
-    assert "100%|##########|" in md and "10%|#\n" not in md
-
-
-def test_fence_is_longer_than_backticks_inside():
-    nb = {"cells": [{"cell_type": "code", "source": "s = '```'", "metadata": {}, "outputs": []}]}
-    md, _ = notebook_to_markdown(nb, "f")
-    assert md.startswith("````python\n")
-
-
-# ---------------------------------------------------------------- figure alt text
-
-_PNG = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNkYPhfDwAChwGA60e6kgAAAABJRU5ErkJggg=="
-
-
-def _figure_nb(source: str, before: str = "Some text.", n_figures: int = 1, plain: str = "<Figure size 700x360 with 1 Axes>") -> dict:
-    out = {"output_type": "display_data", "metadata": {}, "data": {"image/png": _PNG, "text/plain": plain}}
-    return {"cells": [{"cell_type": "markdown", "metadata": {}, "source": before},
-                      {"cell_type": "code", "metadata": {}, "source": source, "outputs": [out] * n_figures}]}
-
-
-def _alts(md: str) -> list[str]:
-    # the alt text as CommonMark renders it: every backslash escape undone
-    return [re.sub(r"\\(.)", r"\1", a) for a in re.findall(r"!\[((?:\\.|[^\]\\])*)\]\(", md)]
-
-
-def test_figure_alt_text_is_the_figures_titles_not_matplotlibs_repr():
-    source = ("%matplotlib inline\nfig, axes = style.figure(1, 2, title=\"UNGM, M = 1000\")\n"
-              "axes[0].set_title(r\"RMSE$_k$ for $\\kappa = 2$\")\naxes[1].set(xlabel=\"k\", title=f\"{n} runs [x]\")\n"
-              "fig.suptitle('Fig. 1: *time* <averaged>')")
-    md, _ = notebook_to_markdown(_figure_nb(source), "f")
-    assert "Figure size" not in md
-    assert _alts(md) == ["Figure: UNGM, M = 1000; RMSE_k for \u03ba = 2; \u2026 runs [x]; Fig. 1: *time* <averaged>"]
-
-
-def test_figure_titles_are_read_from_the_code_in_source_order():
-    src = "plt.title('a')\nax.set(title='b', ylabel='y')\nhelper(x, title=r'$\\gamma$ c')\nfig.suptitle(label)\nbroken("
-    assert figure_titles(src) == []  # does not parse: no titles
-    assert figure_titles(src[: src.rindex("\n")]) == ["a", "b", "\u03b3 c"]  # a variable's value is not known
-    assert plain_text(r"$\bar L_\mathrm{NIS}$ and $x\sim\mathcal{N}(0, 1)$, `code`") == "L_NIS and x~N(0, 1), code"
-
-
-def test_figure_without_a_title_is_described_by_the_text_before_it():
-    before = "## A section\n\nFirst paragraph.\n\nThe sweep shows RMSE against $\\kappa$, e.g. at 2. More follows."
-    md, _ = notebook_to_markdown(_figure_nb("plot(x)", before), "f")
-    assert _alts(md) == ["Figure after the text: The sweep shows RMSE against \u03ba, e.g. at 2."]
-    md, _ = notebook_to_markdown(_figure_nb("plot(x)", "## Only a heading"), "f")
-    assert _alts(md) == ["figure"]  # nothing to describe it with, and the repr is no description
-    md, _ = notebook_to_markdown(_figure_nb("plot(x)", "## Only a heading", plain="A map of the course"), "f")
-    assert _alts(md) == ["A map of the course"]  # a real text/plain is kept
-
-
-def test_several_figures_of_one_cell_get_one_title_each():
-    md, _ = notebook_to_markdown(_figure_nb("f1.suptitle('one')\nf2.suptitle('two')", n_figures=2), "f")
-    assert _alts(md) == ["Figure: one", "Figure: two"]
-    md, _ = notebook_to_markdown(_figure_nb("f1.suptitle('only')", n_figures=2), "f")
-    assert _alts(md) == ["Figure: only", "Figure: only"]
-
-
-def test_no_figure_of_the_course_has_matplotlibs_repr_as_alt_text():
-    for path in notebook_chapters(ROOT):
-        md, files = notebook_to_markdown(json.loads(path.read_text(encoding="utf-8")), "f")
-        alts = _alts(md)
-        assert len(alts) >= len([n for n in files if n.endswith((".png", ".svg", ".jpg"))]), path.name
-        assert not [a for a in alts if "Figure size" in a or a == "figure"], (path.name, alts)
-
-
-# ---------------------------------------------------------------- bibliography
-
-
-def test_references_are_read_from_the_references_section_only():
-    nb = {"cells": [
-        {"cell_type": "markdown", "source": "# T\n\n* not a reference\n\n## References\n\n* A. Author, \"One\",\n  *J.* 1, 2001.\n"},
-        {"cell_type": "code", "source": "* code", "outputs": []},
-        {"cell_type": "markdown", "source": "- B. Writer, *Two*, 1999 (why).\n\n## Appendix\n\n* not one either"}]}
-    assert notebook_references(nb) == ['A. Author, "One", *J.* 1, 2001.', "B. Writer, *Two*, 1999 (why)."]
-    assert split_reference("B. Writer, *Two*, 1999 (why).") == ("B. Writer, *Two*, 1999", "why")
-    assert split_reference("C. D, *Three*, MIT Press, 1998 (2nd ed. 2018).") == ("C. D, *Three*, MIT Press, 1998 (2nd ed. 2018)", "")
-    assert split_reference('E. F, "Four", 2018: what for.') == ('E. F, "Four", 2018', "what for")
-
-
-def test_bibliography_merges_a_work_cited_twice_and_links_the_chapters():
-    chapters = [
-        ("01-a.md", "chapter 1", ['Z. Zed and Y. Why, "Last", *J.* 1, 2001 (the $\\kappa$ rule).', "A. Ay et al., *First*, 1990."]),
-        ("02-b.md", "chapter 2", ['Z. Zed and Y. Why, "Last", *J.* 1, 2001.', "A. Ay, B. Bee and C. Cee, *First*, 1990 (again)."]),
-        ("03-c.md", "chapter 3", []),
-    ]
-    md = bibliography_markdown(chapters)
-    items = [ln for ln in md.splitlines() if ln.startswith("* ")]
-    assert items == [
-        "* A. Ay, B. Bee and C. Cee, *First*, 1990. Cited in [chapter 1](01-a.md); [chapter 2](02-b.md) (again).",
-        '* Z. Zed and Y. Why, "Last", *J.* 1, 2001. Cited in [chapter 1](01-a.md) (the $\\kappa$ rule); [chapter 2](02-b.md).',
-    ]
-    assert md.startswith("# Bibliography") and "2 in all" in md
-
-
-def test_the_books_bibliography_holds_every_chapters_references_once():
-    chapters = collect_chapters(ROOT)
-    bib = next(c for c in chapters if c.filename == "bibliography.md")
-    items = [ln for ln in bib.markdown.splitlines() if ln.startswith("* ")]
-    cited = {p.stem: notebook_references(json.loads(p.read_text(encoding="utf-8"))) for p in notebook_chapters(ROOT)}
-    assert all(cited.values()), [s for s, r in cited.items() if not r]  # every chapter has references
-    assert 0 < len(items) < sum(len(r) for r in cited.values())  # duplicates merged
-    for stem in cited:  # every chapter is linked from the page
-        assert f"]({stem}.md)" in bib.markdown, stem
-    assert sum("Straka" in i and "Learning Adaptive Parameter Policies" in i for i in items) == 1  # the paper, once
 
 
 # ---------------------------------------------------------------- the front pages and the order
@@ -329,7 +96,13 @@ def test_deviations_page_states_what_the_code_does():
         assert stored == -(-1000 * steps // rollout) * rollout and f"{stored:,}" in page
     faithful = sorted(p.name for p in (artefacts.data_dir() / "policies").glob("*faithful*"))
     assert len(faithful) == 16 and not [n for n in faithful if "sif" in n]
-    assert "16 in all" in page and "There are no paper-faithful SIF policies" in page
+    assert "16 in all" in page and "There are no faithful-trainer SIF policies" in page
+    # the faithful trainer's departures from the printed Algorithm 2, as its policy files record them
+    for name, features in (("ungm-ukf", "paper+time"), ("ctm-ukf", "paper+circ")):
+        hyper = artefacts.stored_policy(name, "adaptive-faithful", 0).metadata["hyper"]
+        assert hyper["features"] == features
+        for key in ("actor_sign", "cost_transform", "scaler_visit", "scaler_squash", "bootstrap_at_limit"):
+            assert f"`{key}: {hyper[key]}`" in page, key
 
 
 # ---------------------------------------------------------------- the build
@@ -446,6 +219,23 @@ def test_links_between_pages_reach_files(repo_book, tmp_path):
                                       ' <a href="#top">here</a>'
                                       ' <a href="reference/adaptfilt/gaff.html">typo</a>')
     assert _broken_links(tmp_path) == ["ch.html: reference/adaptfilt/gaff.html"]
+
+
+def test_every_chapter_page_links_its_notebook_which_the_book_ships(repo_book, served_book):
+    """A reader who wants to run a chapter downloads its notebook from the page: the book holds each
+    notebook as committed (outputs included), each chapter's page links it right under the title, and a
+    web server hands it out byte for byte."""
+    out, notebooks = repo_book
+    for nb in notebooks:
+        shipped = out / NOTEBOOK_DIR / nb.name
+        assert shipped.read_bytes() == nb.read_bytes(), nb.name
+        page = (out / f"{nb.stem}.html").read_text(encoding="utf-8")
+        assert page.count(f'href="{NOTEBOOK_DIR}/{nb.name}"') == 1, nb.name
+        md = (out.with_name(out.name + "-src") / f"{nb.stem}.md").read_text(encoding="utf-8").split("\n")
+        title = next(i for i, line in enumerate(md) if line.startswith("# "))
+        assert md[title + 2] == notebook_link(nb.name), nb.name  # right under the title
+    with urllib.request.urlopen(f"{served_book}/{NOTEBOOK_DIR}/{notebooks[0].name}") as got:
+        assert got.read() == notebooks[0].read_bytes()
 
 
 def test_readme_links_to_the_architecture_page(repo_book):
@@ -669,7 +459,10 @@ _PROBE = r"""
         return {src: i.getAttribute("src"), width: i.naturalWidth};
       }),
       clipped: clipped(main),
-      scrolls: scrollers.map(describe)  // boxes wider than the column that scroll sideways
+      scrolls: scrollers.map(describe),  // boxes wider than the column that scroll sideways
+      notebooks: Array.prototype.map.call(main.querySelectorAll('a[href$=".ipynb"]'), function (a) {
+        return {href: a.getAttribute("href"), url: a.href};  // as written, and as the browser resolved it
+      })
     };
   }
   return new Promise(function (resolve) {
@@ -839,16 +632,26 @@ def test_browser_probe_sees_math_errors(browser, fixture_book):
 
 def test_browser_every_page_of_the_book(browser, repo_book, served_book):
     """Every page: no console error, MathJax done without an error or an undefined macro, every image
-    loaded, no text cut off."""
+    loaded, no text cut off; and every chapter's page links its own notebook, which the browser
+    resolves (from ``file://``, offline) to a file the book ships."""
     out, notebooks = repo_book
     pages = sorted(p.name for p in out.glob("*.html"))
     assert set(p.name for p in _expected_pages(out, notebooks)) <= set(pages)
     problems, timings = [], []
+    chapter_pages = {f"{nb.stem}.html": nb.name for nb in notebooks}
     for name in pages:
         # 404.html is written for a web server (its links start at the site root).
         url = f"{served_book}/{name}" if name == "404.html" else (out / name).as_uri()
         started = time.monotonic()
-        problems += _problems(name, _visit(browser, url))
+        visit = _visit(browser, url)
+        problems += _problems(name, visit)
+        if name in chapter_pages:
+            links = visit["value"]["notebooks"]
+            want = f"{NOTEBOOK_DIR}/{chapter_pages[name]}"
+            if [a["href"] for a in links] != [want]:
+                problems.append(f"{name}: links the notebooks {[a['href'] for a in links]}, not {want}")
+            elif not Path(urllib.request.url2pathname(urllib.parse.urlparse(links[0]["url"]).path)).is_file():
+                problems.append(f"{name}: its notebook link {links[0]['url']} reaches no file")
         timings.append(f"{time.monotonic() - started:6.1f} s  {name}")
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     (ARTEFACTS / "browser-pages.txt").write_text("\n".join(timings) + "\n", encoding="utf-8")

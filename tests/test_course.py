@@ -302,14 +302,28 @@ def test_deviation_costs_and_myopic_comparison(ungm_small):
         myopia.myopic_vs_discounted(c, 0, gamma=1.5)
 
 
-def _reader_unscented(f, m, P, kappa, sqrt=np.linalg.cholesky, w0=None):
+def _reader_unscented(f, m, P, kappa, sqrt=np.linalg.cholesky, w0=None, scale=True, w_other=0.5, about_fm=False,
+                      rows=False):
     n = m.size
     L = sqrt(P)
-    X = [m] + [m + s * np.sqrt(n + kappa) * L[:, j] for s in (1, -1) for j in range(n)]
-    w = np.r_[kappa / (n + kappa) if w0 is None else w0, np.full(2 * n, 0.5 / (n + kappa))]
+    L = L.T if rows else L
+    c = np.sqrt(n + kappa) if scale else 1.0
+    X = [m] + [m + s * c * L[:, j] for s in (1, -1) for j in range(n)]
+    w = np.r_[kappa / (n + kappa) if w0 is None else w0, np.full(2 * n, w_other / (n + kappa))]
     Y = np.array([np.atleast_1d(f(x)) for x in X])
-    D = Y - w @ Y
+    D = Y - (np.atleast_1d(f(m)) if about_fm else w @ Y)
     return w @ Y, (w[:, None] * D).T @ D
+
+
+def _reader_unscented_vectorised(f, m, P, kappa):
+    """A correct alternative: the points as one array, the covariance by einsum."""
+    n = m.size
+    S = np.sqrt(n + kappa) * np.linalg.cholesky(P)
+    X = np.vstack([m, m + S.T, m - S.T])
+    w = np.r_[kappa / (n + kappa), np.full(2 * n, 0.5 / (n + kappa))]
+    Y = np.array([np.atleast_1d(f(x)) for x in X])
+    mean = w @ Y
+    return mean, np.einsum("i,ij,ik->jk", w, Y - mean, Y - mean)
 
 
 def test_check_unscented_says_correct_only_for_a_correct_transform(capsys):
@@ -323,6 +337,14 @@ def test_check_unscented_says_correct_only_for_a_correct_transform(capsys):
     assert out.startswith("not yet") and "n = 2" in out and "n = 1" not in out and "cholesky" in out
     moments.check_unscented(lambda f, m, P, k: _reader_unscented(f, m, P, k, w0=0.0))  # weights that do not sum to 1
     assert "the mean differs" in capsys.readouterr().out
+    moments.check_unscented(_reader_unscented_vectorised)
+    assert capsys.readouterr().out.startswith("correct")
+    for kw in (dict(about_fm=True),          # the readers' slip: the covariance about f(m), not about the mean
+               dict(scale=False),            # points at m +- L[:, j]: sqrt(n + kappa) left out
+               dict(w_other=1.0),            # the other weights 1 / (n + kappa), not halved
+               dict(rows=True)):             # the rows of the Cholesky factor, not its columns
+        moments.check_unscented(lambda f, m, P, k, kw=kw: _reader_unscented(f, m, P, k, **kw))
+        assert capsys.readouterr().out.startswith("not yet"), kw
     moments.check_unscented(lambda f, m, P, k: None)
     assert "returned None" in capsys.readouterr().out
     moments.check_unscented(lambda f, m, P, k: 1 / 0)
@@ -345,6 +367,20 @@ def test_check_update_against_the_filters_update(capsys):
     assert out.startswith("not yet") and "P_filt differs" in out and "two measurements (case 0): x_filt differs" in out
     moments.check_update(lambda *a: (1, 2, 3))
     assert "not a pair" in capsys.readouterr().out
+    # correct alternatives: P - K Pxz^T (= P - K Pzz K^T), and a solve instead of an inverse
+    moments.check_update(lambda x, P, z, zp, Pzz, Pxz: (x + Pxz @ np.linalg.solve(Pzz, z - zp),
+                                                        P - Pxz @ np.linalg.inv(Pzz) @ Pxz.T))
+    moments.check_update(lambda x, P, z, zp, Pzz, Pxz: (x + np.linalg.solve(Pzz, Pxz.T).T @ (z - zp),
+                                                        P - np.linalg.solve(Pzz, Pxz.T).T @ Pxz.T))
+    assert capsys.readouterr().out.count("correct: your update agrees") == 2
+    wrong = [lambda x, P, z, zp, Pzz, Pxz: (update(x, P, z, zp, Pzz, Pxz)[0],                 # covariance grows
+                                            P + Pxz @ np.linalg.inv(Pzz) @ Pxz.T),
+             lambda x, P, z, zp, Pzz, Pxz: update(x, P, zp, z, Pzz, Pxz),                # innovation reversed
+             lambda x, P, z, zp, Pzz, Pxz: (update(x, P, z, zp, Pzz, Pxz)[0], P)]       # covariance not updated
+    for fn in wrong:
+        moments.check_update(fn)
+        out = capsys.readouterr().out
+        assert out.startswith("not yet") and "raised" not in out
 
 
 # ---------------------------------------------------------------- chapter 4
@@ -361,7 +397,7 @@ def test_innovation_spread_is_flat_on_ungm_only():
 
 
 def test_kappa_sweep_is_the_fixed_update_kappa_filter():
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     model = af.models.ungm(n_steps=20)
     res = adaptation.kappa_sweep(model, [2.0, 200.0], n_runs=15, seed=4)
@@ -423,3 +459,27 @@ def test_separated_modes_is_the_smaller_mass_of_two_modes_beyond_the_gap():
     m = separated_modes({0: np.stack([one, two]), 1: np.stack([skew, one])}, grid)
     tail = stats.norm.sf(3)                                               # one mode's own mass beyond +-3
     np.testing.assert_allclose(m, [[tail, 0.2], [0.5, tail]], atol=2e-4)
+
+
+def test_a_split_table_repeats_every_column_that_names_a_row():
+    """tables.fit: a claims table split for width keeps claim, experiment, comparison and metric in each
+    part (the verdict part is readable without counting rows), and no cell is lost or repeated."""
+    from adaptfilt.course.tables import fit
+
+    head = ["claim", "experiment", "comparison", "metric", "a / b", "a - b", "seeds alone", "margin", "verdict"]
+    rows = [["C5", f"e{i}", "adaptive lower than default", m, f"{i}.1", f"-{i}.2", "8/8", "0.1", "confirmed"]
+            for i in range(3) for m in ("rmse", "cost")]
+    wide = "\n".join(["| " + " | ".join(r) + " |" for r in [head]] + ["|" + "---|" * len(head)]
+                     + ["| " + " | ".join(r) + " |" for r in rows])
+    parts = [p.split("\n") for p in fit(wide).split("\n\n")]
+    assert len(parts) == 2
+    values = []
+    for p in parts:
+        cells = [[c.strip() for c in line.strip("|").split("|")] for line in p]
+        assert cells[0][:4] == head[:4] and len(cells[0]) <= 7
+        assert [r[:4] for r in cells[2:]] == [r[:4] for r in rows]
+        values += [c[4:] for c in cells[0:1]][0]
+    assert values == head[4:]
+    narrow = "| experiment | policy | cost | log(1+L) | RMSE | ANEES | compute | a | b |\n" + "|---" * 9 + "|\n" \
+             + "| x | p | 1 | 2 | 3 | 4 | 5 | 6 | 7 |"
+    assert fit(narrow).split("\n\n")[1].startswith("| experiment | policy | a | b |")  # cost is a value

@@ -17,9 +17,10 @@ import pytest
 import adaptfilt as af
 from adaptfilt import metrics
 from adaptfilt.cli import main
-from adaptfilt.evaluation import evaluate, learned_name, learned_names
+from adaptfilt.evaluation import evaluate
 from adaptfilt.experiments.evaluate import evaluate_experiment
-from adaptfilt.learned import load_policy, read_npz, write_npz
+from adaptfilt.files import read_npz, write_npz
+from adaptfilt.learned import learned_name, learned_names, load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICIES = ROOT / "data" / "policies"

@@ -149,7 +149,7 @@ def test_evaluate_costs_equals_one_evaluation_per_experiment_bit_for_bit():
     it, gives each experiment exactly what its own evaluation gives; ``default`` (the constant 10)
     is ``fixed-n_iter=10`` again and is not rolled out twice."""
     from adaptfilt.evaluation import evaluate_costs
-    from adaptfilt.experiments.claims import SIF_EXPERIMENTS
+    from adaptfilt.experiment_registry import SIF_EXPERIMENTS
 
     names = ("default", "fixed-n_iter=1", "fixed-n_iter=10")
     pols = lambda e: [p for p in get_experiment(e).baselines() if p.name in names]  # noqa: E731
@@ -243,11 +243,11 @@ def test_streamed_runs_are_the_one_pass_runs(tmp_path):
     """The trajectories a streamed evaluation writes and reads back chunk by chunk are the rows of
     ``simulate(M, T, default_rng([TRAJ_SEED_KEY, seed]))``, and its bootstrap counts are those of
     ``metrics.bootstrap_counts``, bit for bit."""
-    from adaptfilt.evaluation import TRAJ_SEED_KEY, _RunStore
+    from adaptfilt.runs import TRAJ_SEED_KEY, RunStore
 
     for name in ("ungm-ukf", "ctm-ukf"):
         env = get_experiment(name).make_env(n_steps=12)
-        store = _RunStore(env, 50, 4, 30, None, 16, tmp_path)
+        store = RunStore(env.truth, 50, 12, 4, 30, None, 16, tmp_path)
         want = env.truth.simulate(50, 12, rng=np.random.default_rng([TRAJ_SEED_KEY, 4]))
         counts = metrics.bootstrap_counts(50, 30, rng=np.random.default_rng([TRAJ_SEED_KEY, 4, 1]))
         assert store.chunks() == [(0, 16), (16, 32), (32, 48), (48, 50)]
@@ -344,13 +344,136 @@ def test_cli_chunk_size_is_recorded_and_changes_no_per_run_value_of_a_determinis
 def test_the_bootstrap_counts_are_drawn_once_per_runs_and_seed():
     """A worker that evaluates policy after policy on the same runs draws the counts once: the kept counts
     are the draw of their own runs and seed (another seed, another draw), and nobody can change them."""
-    from adaptfilt import evaluation as ev
+    from adaptfilt import runs
 
-    ev._bootstrap_counts.cache_clear()
-    a = ev._bootstrap_counts(50, 20, 3)
-    assert ev._bootstrap_counts(50, 20, 3) is a and not a.flags.writeable
-    np.testing.assert_array_equal(a, metrics.bootstrap_counts(50, 20, rng=np.random.default_rng([ev.TRAJ_SEED_KEY, 3, 1])))
-    assert not np.array_equal(ev._bootstrap_counts(50, 20, 4), a)
+    runs._bootstrap_counts.cache_clear()
+    a = runs.bootstrap_counts(50, 20, 3)
+    assert runs.bootstrap_counts(50, 20, 3) is a and not a.flags.writeable
+    np.testing.assert_array_equal(a, metrics.bootstrap_counts(50, 20, rng=np.random.default_rng([runs.TRAJ_SEED_KEY, 3, 1])))
+    assert not np.array_equal(runs.bootstrap_counts(50, 20, 4), a)
     one = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
     two = evaluate("ungm-ukf", [FixedPolicy(2.0, name="default")], n_runs=30, n_steps=5, progress=False, n_boot=40)
     assert one["default"].boot_rmse.tobytes() == two["default"].boot_rmse.tobytes()
+
+
+# ------------------------------------------------------------------ filters beside policies (evaluate(filters=))
+class _Blind:
+    """A filter without a covariance (the declared "none": cov and nis all NaN) that estimates zero, and
+    loses run 0 from step 3 on (a NaN estimate) when ``lose``."""
+
+    def __init__(self, model, lose=False):
+        self.model, self.lose = model, lose
+
+    def __repr__(self):
+        return f"Blind(lose={self.lose})"
+
+    def run(self, z):
+        M, T = z.shape[:2]
+        mean = np.zeros((M, T, self.model.nx))
+        if self.lose:
+            mean[0, 3] = np.nan
+        nan = np.full((M, T), np.nan)
+        return af.FilterRun(mean=mean, cov=np.full((M, T, self.model.nx, self.model.nx), np.nan), nis=nan,
+                            loglik=nan, params=nan)
+
+
+def test_the_environments_own_filter_as_a_filter_is_its_fixed_policy():
+    """The default UKF given as a filter and the default policy rolled out in the environment: the same runs,
+    the same numbers (error, NEES, NIS cost, choices, compute), and their paired difference is zero; a
+    filter whose parameter is not the environment's counts no choices and no compute."""
+    exp = get_experiment("ungm-ukf")
+    model = exp.make_model()
+    pf = af.BootstrapParticleFilter(model, n_particles=200, seed=[7, 0])
+    res = evaluate(exp, [FixedPolicy(2.0, name="default")], filters={"ukf": af.UKF(model, kappa=2.0), "pf": pf},
+                   n_runs=30, n_steps=12, progress=False, n_boot=100)
+    a, b = res["default"], res["ukf"]
+    for k in ("rmse_t", "run_rmse", "anees_t", "run_anees", "nis_t", "cost_t", "run_cost", "boot_rmse", "boot_cost"):
+        np.testing.assert_allclose(getattr(b, k), getattr(a, k), rtol=1e-10, err_msg=k)
+    assert b.usage.tolist() == a.usage.tolist() and b.spent == a.spent == 1.0
+    assert res.paired_difference("ukf", "default", "rmse")[0] == pytest.approx(0.0, abs=1e-12)
+    assert res.names == ["default", "ukf", "pf"] and res.config["policies"] == res.names
+    assert res.config["filters"] == {"ukf": "UKF(model='ungm', kappa=2)", "pf": repr(pf)}
+    assert res["pf"].usage.sum() == 0 and np.isnan(res["pf"].spent) and np.isnan(res["pf"].cost)  # no NIS: cost n/a
+    assert np.isfinite(res["pf"].anees)
+
+
+def test_a_filter_without_a_covariance_and_a_lost_run():
+    """No covariance: ANEES, its interval, replicates and per-run values and the NEES divergence are NaN (n/a),
+    not averaged; a NaN estimate is an infinite error from that step on: the run is kept, diverged."""
+    exp = get_experiment("ungm-ukf")
+    env = exp.make_env(n_steps=8)
+    runs = af.runs.EvalRuns(env.truth, 20, 0, 8, n_boot=50)
+    res = evaluate(env, [], filters={"zero": _Blind(env.model), "lost": _Blind(env.model, lose=True)}, runs=runs,
+                   progress=False)
+    x = runs.traj.x
+    zero, lost = res["zero"], res["lost"]
+    np.testing.assert_allclose(zero.run_rmse, np.sqrt((x ** 2).sum(-1).mean(axis=1)), rtol=1e-14)
+    for p in (zero, lost):
+        assert np.isnan([p.anees, *p.anees_ci, p.anees_run_median, p.divergent_frac, p.nis, p.cost]).all()
+        assert np.isnan(p.anees_t).all() and np.isnan(p.boot_anees).all() and np.isnan(p.run_anees).all()
+    assert np.isposinf(lost.run_rmse[0]) and (lost.run_rmse[1:] == zero.run_rmse[1:]).all()
+    assert np.isposinf(lost.rmse_t[3:]).all() and (lost.rmse_t[:3] == zero.rmse_t[:3]).all()
+
+
+def test_the_squared_error_cost_is_charged_to_a_filter():
+    """On the squared-error experiments, a filter is charged ||x_filt - x||^2 (plus the price times its count
+    where the count is the environment's parameter), as a policy is."""
+    for name, filt in (("ungm-ukf-sqerr", lambda m: af.UKF(m, kappa=2.0)),
+                       ("ungm-pf-1e-3", lambda m: af.BootstrapParticleFilter(m, n_particles=100, seed=[3]))):
+        exp = get_experiment(name)
+        env = exp.make_env(n_steps=6)
+        runs = af.runs.EvalRuns(env.truth, 12, 1, 6, n_boot=20)
+        res = evaluate(env, [], filters={"f": filt(env.model)}, runs=runs, progress=False)
+        r = filt(env.model).run(runs.traj.z)
+        se = ((r.mean - runs.traj.x) ** 2).sum(-1)
+        price = 1e-3 * 100 if name.startswith("ungm-pf") else 0.0
+        np.testing.assert_allclose(res["f"].cost_t, se.mean(axis=0) + price, rtol=1e-12)
+
+
+def test_filters_errors_are_named_and_a_failing_filter_can_be_left_out():
+    exp = get_experiment("ungm-ukf")
+    model = exp.make_model()
+
+    class Failing(_Blind):
+        def run(self, z):
+            raise ValueError("no particle explains the measurement at step t=2")
+
+    kw = dict(n_runs=6, n_steps=4, progress=False, n_boot=10)
+    with pytest.raises(ValueError, match="no particle explains"):
+        evaluate(exp, [], filters={"bad": Failing(model)}, **kw)
+    res = evaluate(exp, [FixedPolicy(2.0, name="default")], filters={"bad": Failing(model), "ok": _Blind(model)},
+                   on_filter_error="skip", **kw)
+    assert res.names == ["default", "ok"] == res.config["policies"] and list(res.config["filters"]) == ["ok"]
+    assert res.config["failed_filters"] == {"bad": "no particle explains the measurement at step t=2"}
+    with pytest.raises(TypeError, match="filter 'x': a filter needs .model and .run"):
+        evaluate(exp, [], filters={"x": object()}, **kw)
+    with pytest.raises(ValueError, match="filter 'ctm' filters a model with nx = 4, the evaluation's has 1"):
+        evaluate(exp, [], filters={"ctm": af.UKF(af.models.coordinated_turn())}, **kw)
+    with pytest.raises(ValueError, match="nothing to evaluate"):
+        evaluate(exp, [], **kw)
+    with pytest.raises(ValueError, match="policy names must be unique; repeated: default"):
+        evaluate(exp, [FixedPolicy(2.0, name="default")], filters={"default": _Blind(model)}, **kw)
+    with pytest.raises(ValueError, match="filters are evaluated in one pass"):
+        evaluate(exp, [], filters={"ok": _Blind(model)}, chunk_size=4, **kw)
+    with pytest.raises(ValueError, match="on_filter_error must be"):
+        evaluate(exp, [], filters={"ok": _Blind(model)}, on_filter_error="ignore", **kw)
+
+
+def test_given_runs_are_the_evaluations_runs():
+    """``runs=``: the evaluation's own runs made by the caller give the same numbers bit for bit; runs of another
+    model or horizon, or runs with trajectories, are refused."""
+    exp = get_experiment("ctm-ukf")
+    pols = [p for p in exp.baselines() if p.name in ("default", "fixed-kappa=1")]
+    env = exp.make_env(seed=2, n_steps=7)
+    one = evaluate(exp, pols, n_runs=15, seed=2, n_steps=7, progress=False, n_boot=30)
+    runs = af.runs.EvalRuns(env.truth, 15, 2, 7, n_boot=30)
+    two = evaluate(exp, pols, n_steps=7, progress=False, runs=runs)
+    for n in one.names:
+        assert one[n].boot_rmse.tobytes() == two[n].boot_rmse.tobytes() and one[n].run_anees.tobytes() == two[n].run_anees.tobytes()
+    assert {k: v for k, v in one.config.items() if k != "command"} == {k: v for k, v in two.config.items() if k != "command"}
+    with pytest.raises(ValueError, match="not the evaluation's"):
+        evaluate(exp, pols, n_steps=9, progress=False, runs=runs)
+    with pytest.raises(ValueError, match="not the evaluation's"):
+        evaluate("ungm-ukf", n_steps=7, progress=False, runs=runs)
+    with pytest.raises(ValueError, match="runs or the trajectories"):
+        evaluate(exp, pols, n_steps=7, progress=False, runs=runs, traj=runs.traj)

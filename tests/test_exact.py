@@ -1,10 +1,12 @@
 """Exact references: the Kalman filter against brute-force Gaussian conditioning,
-the point-mass filter against the Kalman filter and against normalisation."""
+the point-mass filter against the Kalman filter and against normalisation; the bootstrap particle filter
+against the Kalman filter."""
 import numpy as np
 import pytest
 from scipy import stats
 
 import adaptfilt as af
+from adaptfilt.exact import BootstrapParticleFilter, KalmanFilter
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
@@ -154,3 +156,36 @@ def test_point_mass_argument_errors():
     z = ungm.simulate(3, 10, rng=0).z
     with pytest.raises(ValueError, match="widen the grid"):
         af.PointMassFilter(ungm, grid=np.linspace(-3, 3, 61)).run(z)
+
+
+# ---------------------------------------------------------------- the bootstrap particle filter
+def test_particle_filter_converges_to_the_kalman_filter_on_a_linear_model():
+    model = af.models.linear_gaussian(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=[[0.5, 0.5], [0.5, 1.0]],
+                                      R=[[4.0]], m0=[0.0, 1.0], P0=np.diag([10.0, 2.0]))
+    traj = model.simulate(n_runs=20, n_steps=15, rng=np.random.default_rng(0))
+    kf = KalmanFilter(model).run(traj.z)
+    pf = BootstrapParticleFilter(model, n_particles=20000, seed=1).run(traj.z)
+    sd = np.sqrt(np.diagonal(kf.cov, axis1=-2, axis2=-1))
+    err = np.abs(pf.mean - kf.mean) / sd  # Monte-Carlo error of the particle mean, in posterior sds
+    assert err.max() < 0.2 and err.mean() < 0.03
+    scale = sd[..., :, None] * sd[..., None, :]
+    rel = np.abs((pf.cov - kf.cov) / scale)  # covariance error in units of the posterior's (MC sd ~ 0.015)
+    assert rel.max() < 0.15 and rel.mean() < 0.03
+    dll = np.abs(pf.loglik - kf.loglik)  # the likelihood estimate too (noisier in the tails)
+    assert dll.max() < 0.15 and dll.mean() < 0.02
+    again = BootstrapParticleFilter(model, n_particles=20000, seed=1).run(traj.z)
+    assert np.array_equal(again.mean, pf.mean)
+
+
+def test_particle_filter_wraps_bearings_and_rejects_bad_input():
+    model = af.models.coordinated_turn(n_steps=10)
+    traj = model.simulate(n_runs=3, rng=np.random.default_rng(2))
+    a = BootstrapParticleFilter(model, n_particles=300, seed=0).run(traj.z)
+    b = BootstrapParticleFilter(model, n_particles=300, seed=0).run(traj.z + 2 * np.pi)  # the same bearings
+    np.testing.assert_allclose(a.mean, b.mean)
+    with pytest.raises(ValueError, match="n_particles"):
+        BootstrapParticleFilter(model, n_particles=1)
+    with pytest.raises(ValueError, match="ess_threshold"):
+        BootstrapParticleFilter(model, ess_threshold=2.0)
+    with pytest.raises(ValueError, match=r"z must have shape \(M, T, 1\)"):
+        BootstrapParticleFilter(model).run(np.zeros((2, 3, 2)))

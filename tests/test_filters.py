@@ -526,3 +526,119 @@ def test_modified_ukf_on_ctm_with_negative_kappa():
     for kappa in (0.0, 1.0):
         np.testing.assert_array_equal(af.UKF(model, kappa=kappa, form="auto").run(traj.z[:20]).cov,
                                       af.UKF(model, kappa=kappa).run(traj.z[:20]).cov)
+
+
+# ------------------------------------------------ the Filter interface (adaptfilt.filters)
+def _linear():
+    return af.models.linear_gaussian(F=[[0.9, 0.1], [0.0, 0.95]], H=[[1.0, 0.0]], Q=np.eye(2) * 0.1, R=[[0.5]],
+                                     m0=[0.0, 1.0], P0=np.eye(2))
+
+
+def _every_filter():
+    """One of every filter class of the library, each on a model it is made for: ``(filter, run kwargs)``."""
+    from adaptfilt.kalmannet import KalmanNet
+    from adaptfilt.particles import ParticleCountFilter
+
+    ungm, ctm, lin = af.models.ungm(), af.models.coordinated_turn(), _linear()
+    return {
+        "GaussianAssumedFilter": (af.GaussianAssumedFilter(ungm, af.rules.UnscentedRule(), param=2.0), {}),
+        "UKF": (af.UKF(ctm, kappa=0.0), {}),
+        "SIF": (af.SIF(ungm, n_iter=4, seed=3), {}),
+        "CKF": (af.CKF(ctm), {}),
+        "KalmanFilter": (af.KalmanFilter(lin), {}),
+        "PointMassFilter": (af.PointMassFilter(ungm, grid=np.linspace(-45, 45, 401)), {}),
+        "BootstrapParticleFilter": (af.BootstrapParticleFilter(ctm, n_particles=300, seed=[24, 0, 300]), {}),
+        "ParticleCountFilter": (ParticleCountFilter(ungm, seed=1, backend="numpy"), {"n_particles": 100}),
+        "KalmanNet": (KalmanNet(lin, seed=0), {}),
+        "KalmanNet (Bayesian)": (KalmanNet(lin, dropout=0.2, n_samples=3, seed=0), {}),
+    }
+
+
+@pytest.mark.parametrize("name", list(_every_filter()))
+def test_every_filter_of_the_library_meets_the_filter_interface(name):
+    filt, kw = _every_filter()[name]
+    assert isinstance(filt, af.Filter)
+    af.check_filter(filt, **kw)
+
+
+def test_every_filter_class_is_checked():
+    """Every class of the library with a ``run(z) -> FilterRun`` and a ``model`` is in the list above."""
+    import inspect
+
+    from adaptfilt import exact, gaf, kalmannet, particles
+
+    classes = {c.__name__ for m in (gaf, exact, particles, kalmannet) for c in vars(m).values()
+               if inspect.isclass(c) and c.__module__ == m.__name__ and callable(getattr(c, "run", None))
+               and "FilterRun" in str(inspect.signature(c.run).return_annotation)}
+    assert classes == {n.split(" ")[0] for n in _every_filter()}
+
+
+def test_what_a_filter_without_a_covariance_returns():
+    """Plain KalmanNet: cov and nis all NaN (the declared "none"); the Bayesian variant has a covariance."""
+    filt, _ = _every_filter()["KalmanNet"]
+    run = filt.run(_linear().simulate(3, 5, rng=0).z)
+    assert not af.filters.has_covariance(run) and not af.filters.has_nis(run) and np.isnan(run.params).all()
+    bayes, _ = _every_filter()["KalmanNet (Bayesian)"]
+    assert af.filters.has_covariance(bayes.run(_linear().simulate(3, 5, rng=0).z))
+
+
+class _Stand(af.KalmanFilter):
+    """A Kalman filter whose run one test breaks at a time."""
+
+    def __init__(self, model, spoil=None):
+        super().__init__(model)
+        self.spoil = spoil
+
+    def __repr__(self):
+        return "Stand()"
+
+    def run(self, z):
+        r = super().run(z)
+        return self.spoil(r, z) if self.spoil else r
+
+
+def _replace(**kw):
+    return lambda r, z: dataclasses.replace(r, **{k: v(r) for k, v in kw.items()})
+
+
+_draws = np.random.default_rng(5)
+BROKEN = {
+    "a tuple": (lambda r, z: (r.mean, r.cov), "must return a FilterRun"),
+    "a wrong mean shape": (_replace(mean=lambda r: r.mean[:, 1:]), r"mean must have shape \(4, 6, 2\)"),
+    "a NaN estimate": (_replace(mean=lambda r: np.where(np.arange(6)[:, None] == 3, np.nan, r.mean)), "mean is not finite"),
+    "a covariance partly NaN": (_replace(cov=lambda r: np.where(np.arange(6)[:, None, None] == 2, np.nan, r.cov)),
+                                "cov must be finite, or all NaN"),
+    "a covariance not symmetric": (_replace(cov=lambda r: r.cov + np.array([[0.0, 1.0], [0.0, 0.0]])), "not symmetric"),
+    "a negative variance": (_replace(cov=lambda r: r.cov - 10 * np.eye(2)), "not positive semi-definite"),
+    "a NIS without a covariance": (_replace(cov=lambda r: np.full_like(r.cov, np.nan)), "nis must be all NaN"),
+    "a negative NIS": (_replace(nis=lambda r: -r.nis), "nis must be finite and non-negative"),
+    "a log-likelihood partly NaN": (_replace(loglik=lambda r: np.where(np.arange(6) == 0, np.nan, r.loglik)),
+                                    "loglik must be finite, or all NaN"),
+    "draws that move on": (_replace(mean=lambda r: r.mean + _draws.standard_normal(r.mean.shape)), "twice gave different mean"),
+    "a written input": (lambda r, z: (z.__setitem__(..., 0.0), r)[1], "changed z"),
+}
+
+
+@pytest.mark.parametrize("what", list(BROKEN))
+def test_check_filter_rejects_a_broken_filter_naming_the_rule(what):
+    spoil, message = BROKEN[what]
+    with pytest.raises(af.filters.FilterCheckError, match=message):
+        af.check_filter(_Stand(_linear(), spoil))
+
+
+def test_check_filter_rejects_missing_members_a_default_repr_another_model_and_a_moving_seed():
+    check = af.filters.FilterCheckError
+    with pytest.raises(check, match="missing member.*run"):
+        af.check_filter(type("NoRun", (), {"model": _linear()})())
+    with pytest.raises(check, match="repr is"):
+        af.check_filter(type("Plain", (_Stand,), {"__repr__": object.__repr__})(_linear()))
+    with pytest.raises(check, match="nx = 2, the model it is checked on 1"):
+        af.check_filter(_Stand(_linear()), model=af.models.ungm())
+    declared = _Stand(_linear())
+    declared.param_name = "kappa"
+    with pytest.raises(check, match="declares param_name = 'kappa', but run.*params is not finite"):
+        af.check_filter(declared)
+    # a particle filter seeded with a Generator draws on from it: the second run differs
+    pf = af.BootstrapParticleFilter(af.models.coordinated_turn(), n_particles=200, seed=np.random.default_rng(0))
+    with pytest.raises(check, match="twice gave different mean"):
+        af.check_filter(pf)

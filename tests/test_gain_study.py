@@ -1,4 +1,4 @@
-"""The learned-gain study (issue 38, item 2): the squared-error cost of the UKF's MDP, its experiments, and the
+"""The learned-gain study (``adaptfilt beyond --studies gain``): the squared-error cost of the UKF's MDP, its experiments, and the
 study ``gain`` of ``adaptfilt beyond`` at quick scale (every arm x budget x model x regime, KalmanNet paired with
 the filters on the same runs, a journaled resume)."""
 import json
@@ -141,7 +141,8 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
     man = json.loads((root / "beyond" / "manifest.json").read_text())
     for f in man["files"]:
         assert sha256(root / "beyond" / f["path"]) == f["sha256"] and f["command"]
-    assert any(f["path"].endswith("ungm-ukf-gain-sup-b3-s1.npz") and "train_kalmannet" in f["command"] for f in man["files"])
+    assert any(f["path"].endswith("ungm-ukf-gain-sup-b3-s1.npz") and f["command"].startswith("adaptfilt train-gain ")
+               for f in man["files"])
     assert (root / "beyond" / "figures" / "gain-budget.png").exists()
     md = summary_md(summary, ("gain",))
     assert "| ungm-ukf | q4 | gain-sup b3" in md and "what is learned" in md
@@ -151,10 +152,10 @@ def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):
     """The stored evaluation's default is a direct UKF run on the trajectories the study's KalmanNet entries
     were computed on, run for run; and the KalmanNet entry is the file's filter on those runs."""
     import adaptfilt as af
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.studies.gain import QUICK, _env, evaluate_part, policy_rel
     from adaptfilt.kalmannet import load_kalmannet
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     root, _ = quick
     e = "ungm-ukf"

@@ -19,7 +19,7 @@ import time
 import pytest
 
 from adaptfilt.experiments.sweep import STOP_SECONDS, STOP_SECONDS_DASK
-from adaptfilt.learned import read_npz
+from adaptfilt.files import read_npz
 from processes import adaptfilt, descendants, digests, lines, one_line, run, start, stop, wait_for  # tests/processes.py
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

@@ -32,11 +32,11 @@ CLI = {"adaptfilt.cli", "adaptfilt.__main__"}
 
 #: The library's sub-layers by module (``adaptfilt.<name>``; a package stands for its modules).
 SUBLAYERS = {
-    "core": ("_version", "linalg", "linalg_kernels", "models", "rules", "gaf", "metrics", "exact", "particles",
+    "core": ("_version", "linalg", "linalg_kernels", "models", "filters", "rules", "gaf", "metrics", "exact", "particles",
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
-    "evaluation": ("evaluation", "results", "seed_stats", "plots"),
-    "learning": ("anchor", "learned", "actor_critic", "gym", "trainers", "distill", "imitation", "kalmannet"),
+    "evaluation": ("runs", "evaluation", "results", "seed_stats", "verdicts", "plots"),
+    "learning": ("nets", "anchor", "learned", "actor_critic", "gym", "trainers", "distill", "imitation", "kalmannet", "gainnets"),
 }
 #: What each sub-layer never imports.
 NEVER = {"core": {"decision", "evaluation", "learning"}, "decision": {"evaluation", "learning"},
@@ -314,3 +314,103 @@ def test_the_check_sees_a_private_import(tmp_path):
     (pkg / "course" / "a.py").write_text("from adaptfilt.course.common import _ax\n")
     (pkg / "b.py").write_text("from adaptfilt.style import colors as _colors\n")
     assert private_imports(pkg) == ["adaptfilt/course/a.py: from adaptfilt.course.common import _ax"]
+
+
+#: What a user reads: the library, its tests and benchmarks, the documents and what the commands wrote into data/.
+READ_BY_USERS = ("adaptfilt", "tests", "benchmarks", "docs", "README.md", "REPRODUCTION.md", "data")
+
+
+def internal_issue_numbers(root: Path = PKG.parent) -> list[str]:
+    """Lines that cite the project's internal issue tracker by number (the word "issue" and a number), which a
+    user cannot look up: a text names the study or the decision instead."""
+    import re
+
+    pattern = re.compile(r"issues? [0-9]+", re.IGNORECASE)
+    found = []
+    for top in READ_BY_USERS:
+        base = root / top
+        files = [base] if base.is_file() else sorted(p for p in base.rglob("*") if p.suffix in (".py", ".md", ".json"))
+        for p in files:
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1):
+                if pattern.search(line):
+                    found.append(f"{p.relative_to(root)}:{i}: {line.strip()[:100]}")
+    return found
+
+
+def test_no_internal_issue_numbers_in_what_a_user_reads():
+    assert not internal_issue_numbers()
+
+
+def test_the_issue_check_sees_one(tmp_path):
+    (tmp_path / "docs").mkdir()
+    cited = "as decided in Issue " + "12, item 3"  # written apart: this file is checked too
+    (tmp_path / "docs" / "a.md").write_text(f"fine\n{cited}\n")
+    assert internal_issue_numbers(tmp_path) == [f"docs/a.md:2: {cited}"]
+
+
+def long_functions(root: Path, limit: int = 80) -> list[str]:
+    """Functions (methods and nested ones too, docstrings included) longer than ``limit`` lines under ``root``."""
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > limit:
+                found.append(f"{p.relative_to(root.parent)}:{node.lineno} {node.name} "
+                             f"({node.end_lineno - node.lineno + 1} lines)")
+    return found
+
+
+def test_no_function_of_the_pipeline_is_over_80_lines():
+    """The pipeline reads top to bottom: a step that grows past 80 lines is split into named parts."""
+    assert not long_functions(PKG / "experiments")
+
+
+# ------------------------------------------------------------------ one place each
+_RNG_CALLS = {"default_rng", "SeedSequence", "Generator", "PCG64", "Philox"}
+
+
+def _call_name(node: ast.Call) -> str:
+    f = node.func
+    return f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+
+
+def one_place_breaches(root: Path = PKG) -> list[str]:
+    """Code outside its one place: the evaluation's runs' seed (``TRAJ_SEED_KEY`` in a generator) outside
+    ``adaptfilt/runs.py``, a point-mass filter built (for a Bayes floor) outside ``exact.bayes_floor``."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root.parent).as_posix()
+        tree = ast.parse(path.read_text())
+        floor = {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "bayes_floor"
+                 and rel == "adaptfilt/exact.py" for n in ast.walk(f)}
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Call):
+                continue
+            name = _call_name(node)
+            if name in _RNG_CALLS and rel != "adaptfilt/runs.py" and any(
+                    isinstance(n, (ast.Name, ast.Attribute)) and "TRAJ_SEED_KEY" in (getattr(n, "id", None), getattr(n, "attr", None))
+                    for a in [*node.args, *(k.value for k in node.keywords)] for n in ast.walk(a)):
+                bad.append(f"{rel}:{node.lineno}: the evaluation's runs re-derived ({name} with TRAJ_SEED_KEY): "
+                           "use adaptfilt.runs (EvalRuns, trajectory_rng, bootstrap_counts)")
+            if name == "PointMassFilter" and id(node) not in floor:
+                bad.append(f"{rel}:{node.lineno}: a point-mass filter built outside exact.bayes_floor: use the one floor")
+    return bad
+
+
+def test_the_runs_seed_and_the_bayes_floor_each_have_one_place():
+    bad = one_place_breaches()
+    assert not bad, "\n".join(bad)
+
+
+def test_the_one_place_check_sees_a_copy(tmp_path):
+    pkg = tmp_path / "adaptfilt"
+    (pkg / "experiments").mkdir(parents=True)
+    (pkg / "exact.py").write_text("def bayes_floor(model):\n    return PointMassFilter(model)\n")
+    (pkg / "runs.py").write_text("import numpy as np\nTRAJ_SEED_KEY = 1\nrng = np.random.default_rng([TRAJ_SEED_KEY, 0])\n")
+    (pkg / "experiments" / "floor.py").write_text(
+        "import numpy as np\nfrom adaptfilt import runs\n\ndef f(model, seed):\n"
+        "    traj = model.simulate(9, rng=np.random.default_rng([runs.TRAJ_SEED_KEY, seed]))\n"
+        "    return PointMassFilter(model).run(traj.z)\n")
+    assert one_place_breaches(pkg) == [
+        "adaptfilt/experiments/floor.py:5: the evaluation's runs re-derived (default_rng with TRAJ_SEED_KEY): use "
+        "adaptfilt.runs (EvalRuns, trajectory_rng, bootstrap_counts)",
+        "adaptfilt/experiments/floor.py:6: a point-mass filter built outside exact.bayes_floor: use the one floor"]

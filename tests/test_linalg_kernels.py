@@ -6,13 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from adaptfilt import linalg, linalg_kernels as _linalg_kernels
-from adaptfilt.rules import _sif_kernels
+from adaptfilt import linalg, linalg_kernels
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
-needs_kernel = pytest.mark.skipif(not _linalg_kernels.available(),
-                                  reason="numba missing, or numpy's einsum fuses multiply-adds (see _einsum_is_plain)")
+needs_kernel = pytest.mark.skipif(not linalg_kernels.available(),
+                                  reason="numba missing, or numpy's einsum fuses multiply-adds (see linalg_kernels.einsum_is_plain)")
 
 
 def _spd(rng, n: int, M: int) -> np.ndarray:
@@ -24,8 +23,8 @@ def _spd(rng, n: int, M: int) -> np.ndarray:
 
 def _numpy_form(monkeypatch, P):
     with monkeypatch.context() as mp:
-        mp.setattr(_sif_kernels, "SUMS", False)
-        assert _linalg_kernels.chol_positive(P) is False
+        mp.setattr(linalg_kernels, "SUMS", False)
+        assert linalg_kernels.chol_positive(P) is False
         return linalg.chol(P)
 
 
@@ -34,7 +33,7 @@ def _numpy_form(monkeypatch, P):
 @pytest.mark.parametrize("M", [2, 3, 37, 257, 1000])
 def test_the_factor_is_numpys_bit_for_bit(monkeypatch, n, M):
     P = _spd(np.random.default_rng(100 * n + M), n, M)
-    got = _linalg_kernels.chol_positive(P)
+    got = linalg_kernels.chol_positive(P)
     assert got is not None and got is not False
     ref = _numpy_form(monkeypatch, P)
     assert got.tobytes() == ref.tobytes()
@@ -48,11 +47,11 @@ def test_a_pivot_that_is_not_positive_names_the_same_runs(monkeypatch, bad):
     P = _spd(np.random.default_rng(7), 4, 50)
     P[2, 2, [3, 17]] = bad  # the third pivot of runs 3 and 17
     P[0, 0, 40] = bad if bad != 0.0 else -0.0  # the first of run 40
-    assert _linalg_kernels.chol_positive(P) is None
+    assert linalg_kernels.chol_positive(P) is None
     with pytest.raises(linalg.NotPositiveDefinite) as got:
         linalg.chol(P)
     with monkeypatch.context() as mp:
-        mp.setattr(_sif_kernels, "SUMS", False)
+        mp.setattr(linalg_kernels, "SUMS", False)
         with pytest.raises(linalg.NotPositiveDefinite) as ref:
             linalg.chol(P)
     assert got.value.runs.tolist() == ref.value.runs.tolist() == [3, 17, 40]
@@ -63,4 +62,4 @@ def test_what_the_kernel_does_not_factor_is_numpys():
     rng = np.random.default_rng(1)
     P = _spd(rng, 3, 10)
     for other in (P[..., :1], P[:1, :1], P.astype(np.float32), np.asfortranarray(P), P[:, :, ::2], _spd(rng, 13, 4)):
-        assert _linalg_kernels.chol_positive(other) is False
+        assert linalg_kernels.chol_positive(other) is False

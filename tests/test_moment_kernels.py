@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
+from adaptfilt import linalg_kernels
 from adaptfilt.rules import _sif_kernels
 from adaptfilt.rules.base import _pair_sums, _pair_sums_made, _PointSet, _weighted_sums
 from adaptfilt.linalg import mm
@@ -19,7 +20,7 @@ from adaptfilt.linalg import mm
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
 needs_kernels = pytest.mark.skipif(not _sif_kernels.sums_available(),
-                                   reason="numba missing, or numpy's einsum fuses multiply-adds (see _einsum_is_plain)")
+                                   reason="numba missing, or numpy's einsum fuses multiply-adds (see linalg_kernels.einsum_is_plain)")
 
 
 def _wide(rng, shape):
@@ -116,7 +117,7 @@ def test_rules_use_the_kernels_and_give_numpys_moments(monkeypatch):
     monkeypatch.setattr(_sif_kernels, "weighted_sums", lambda *a: calls.append(1) or real(*a))
     on = outputs()
     assert calls  # the kernels ran
-    monkeypatch.setattr(_sif_kernels, "SUMS", False)
+    monkeypatch.setattr(linalg_kernels, "SUMS", False)
     off = outputs()
     for a, b in zip(on, off):
         assert _same(a, b)
@@ -129,10 +130,10 @@ def test_one_run_and_other_dtypes_take_numpys_form(monkeypatch):
     assert _sif_kernels.points(np.zeros((3, 1)), L[..., :1], None, 1.0) is None
     assert _sif_kernels.points(np.zeros((3, 4), dtype=np.float32), L, None, 1.0) is None
     assert _sif_kernels.weighted_sums(np.zeros((1, 6, 4), dtype=np.float32), np.zeros((3, 3, 4)), 0.5, True) is None
-    monkeypatch.setattr(_sif_kernels, "SUMS", False)
+    monkeypatch.setattr(linalg_kernels, "SUMS", False)
     assert _sif_kernels.points(np.zeros((3, 4)), L, None, 1.0) is None
-    monkeypatch.setattr(_sif_kernels, "SUMS", True)
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "numpy")
+    monkeypatch.setattr(linalg_kernels, "SUMS", True)
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "numpy")
     assert _sif_kernels.points(np.zeros((3, 4)), L, None, 1.0) is None
     ps = _PointSet(scale=2.0, rotation=None, weight=0.25)
     g = lambda X: X[:1] ** 2  # noqa: E731
@@ -148,7 +149,7 @@ def test_the_einsum_probe_tells_fused_from_plain_sums():
     e = 2.0 ** -30
     plain = -(1.0 + e) + (1.0 + e) * (1.0 - e)
     assert plain == -e  # the product rounds to 1 first
-    assert _sif_kernels._einsum_is_plain() == bool(
+    assert linalg_kernels.einsum_is_plain() == bool(
         np.einsum("isM,jsM->ijM", np.full((1, 2, 37), 1.0 + e), np.stack([np.full(37, -1.0), np.full(37, 1.0 - e)])[None])[0, 0, 0] == -e)
 
 

@@ -174,6 +174,75 @@ def test_an_experiment_holds_an_env_factory_not_a_filter_kind():
     assert resolve(mine).name == "mine"
 
 
+def test_variants_are_built_by_the_factory_not_patched_onto_an_env():
+    """``make_env(truth=...)`` simulates from another model while the filter keeps the experiment's;
+    ``make_env(grid=...)`` cuts the grid (the same environment a hand-built FilterEnv on the cut grid is, step
+    for step); both carry the experiment's name; the plain environment does not; a value off the grid is named."""
+    from adaptfilt.experiment_registry import get_experiment, scaled_truth
+    from adaptfilt.mdp import rollout
+
+    exp = get_experiment("ungm-ukf")
+    plain = exp.make_env(n_steps=6)
+    assert plain.experiment is None and plain.truth is plain.model
+    truth = scaled_truth(exp.make_model(), q=4.0)
+    env = exp.make_env(n_steps=6, truth=truth)
+    check_env(env)
+    assert env.truth is truth and env.model.Q.tolist() == [[1.0]] and env.experiment == "ungm-ukf"
+    assert resolve(env).name == "ungm-ukf" and resolve(env).experiment is None
+    traj = env.truth.simulate(5, 6, rng=np.random.default_rng(1))
+    np.testing.assert_array_equal(traj.x, truth.simulate(5, 6, rng=np.random.default_rng(1)).x)
+
+    sif = get_experiment("ctm-sif-nis")
+    cut = sif.make_env(seed=3, n_steps=5, grid=[10, 5, 10])
+    check_env(cut)
+    by_hand = FilterEnv(sif.make_filter(3), [5.0, 10.0], cost=sif.cost, n_steps=5)
+    assert cut.grid.tolist() == [5.0, 10.0] and cut.experiment == "ctm-sif-nis"
+    assert cut.describe() == by_hand.describe()
+    base = [p for p in sif.baselines() if p.name == "default"]
+    (a, ca), (b, cb) = (rollout(e, base[0], n_runs=4, rng=np.random.default_rng(2)) for e in (cut, by_hand))
+    np.testing.assert_array_equal(a.mean, b.mean)
+    np.testing.assert_array_equal(ca, cb)
+    with pytest.raises(ValueError, match=r"actions must be values of the ctm-sif-nis grid .*not on it: \[4.0\]"):
+        sif.make_env(grid=[4, 10])
+    pf = PARTICLE_EXPERIMENTS["ungm-pf-1e-4"]
+    penv = pf.make_env(n_steps=4, truth=scaled_truth(pf.make_model(), r=2.0), grid=[100, 1000])
+    assert penv.grid.tolist() == [100.0, 1000.0] and penv.truth.R.tolist() == [[0.2]] and penv.experiment == pf.name
+
+
+def test_baselines_are_selected_by_kind():
+    from adaptfilt.experiment_registry import get_experiment
+
+    ungm_ = get_experiment("ungm-ukf")
+    kinds = {p.name: p.kind for p in ungm_.baselines()}
+    assert kinds["default"] == "default" and kinds["ml"] == "ml" and kinds["greedy"] == "greedy"
+    assert kinds["fixed-kappa=2"] == "fixed" and kinds["fixed-both-kappa=2"] == "fixed-both"
+    fixed = ungm_.baselines(kinds=("fixed",))
+    assert [p.name for p in fixed] == [f"fixed-kappa={v:g}" for v in ungm_.grid]
+    assert [p.kind for p in PARTICLE_EXPERIMENTS["ctm-pf-1"].baselines(fixed=False, kinds=("kld", "ess"))] == \
+        ["kld"] * 4 + ["ess"] * 3
+
+
+def test_what_a_cost_reads_is_declared():
+    """``needs_truth`` is part of :class:`StepCost`: the squared-error costs declare it, and a FunctionCost that
+    declares it is handed the truth by a FilterEnv, charging what Cost("sqerr") charges; one that does not
+    is called as always."""
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.mdp import rollout
+
+    assert Cost("sqerr").needs_truth and ParticleCost("sqerr").needs_truth
+    assert not (Cost("nis").needs_truth or ParticleCost("nis").needs_truth or FunctionCost("f", len).needs_truth)
+    sq = FunctionCost("my-sqerr", lambda u, nz, x: ((u.x_filt - x) ** 2).sum(axis=0), needs_truth=True)
+    assert isinstance(sq, StepCost)
+    exp = get_experiment("ungm-ukf-sqerr")
+    mine = FilterEnv(exp.make_filter(), exp.grid, cost=sq, n_steps=8)
+    greedy = [p for p in exp.baselines() if p.name == "greedy"][0]
+    (r1, c1), (r2, c2) = (rollout(e, greedy, n_runs=5, rng=np.random.default_rng(4)) for e in (mine, exp.make_env(n_steps=8)))
+    np.testing.assert_array_equal(c1, c2)
+    np.testing.assert_array_equal(r1.params, r2.params)
+    with pytest.raises(ValueError, match="'my-sqerr' needs the true state"):
+        sq(None, np.zeros(2), 1)
+
+
 def test_the_costs_share_the_nis_estimates_and_meet_the_protocol():
     nis = np.array([0.0, 1.0, 3.0])
     assert nis_cost(nis, 1).tolist() == [1.0, 0.0, 4.0]

@@ -82,9 +82,9 @@ def test_the_tradeoff_figure_draws_every_family_the_learned_group_and_the_floor(
 def test_the_reference_filter_rows_are_the_bootstrap_filter_on_the_same_runs_charged_the_price():
     """``bpf-N``: exact.BootstrapParticleFilter (systematic resampling at ESS < N/2) with N particles on the
     evaluation's own runs, its squared error plus price x N, with the evaluation's bootstrap resamples."""
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
     from adaptfilt.exact import BootstrapParticleFilter
     from adaptfilt.experiments.particles_study import ParticleScale, evaluate_model_job, particle_rows
+    from adaptfilt.runs import TRAJ_SEED_KEY
 
     scale = ParticleScale(episodes=1, n_steps=5, eval_runs=8, floor_runs=2)
     exps = ["ungm-pf-1e-4", "ungm-pf-1e-3"]

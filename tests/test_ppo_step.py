@@ -1,6 +1,6 @@
-"""The PPO step-through of chapter 6 (adaptfilt.course.ppo_step) against Stable-Baselines3's own
+"""The PPO step-through of chapter 7 (adaptfilt.course.ppo_step) against Stable-Baselines3's own
 computation: GAE (RolloutBuffer.compute_returns_and_advantage), the loss PPO.train() logs, and the
-weights after its update. If SB3 or the hand-written update drifts, this fails (issue 37)."""
+weights after its update. If SB3 or the hand-written update drifts, this fails."""
 import copy
 
 import numpy as np

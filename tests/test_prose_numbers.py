@@ -35,12 +35,12 @@ def test_every_number_in_the_prose_is_one_the_chapter_printed(path):
 
 
 #: Chapters whose integers the check does not yet pass: notebooks 01-06 belong to the helper rewriting
-#: them (issue 37, items 3 and 6), who adds the declarations; strict, so the mark goes when they pass.
+#: them, who adds the declarations; strict, so the mark goes when they pass.
 INTEGERS_PENDING: set[str] = set()
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.xfail(
-    strict=True, reason="issue 37: the helper who owns notebooks 01-06 declares or prints their counts"))
+    strict=True, reason="the helper who owns notebooks 01-06 declares or prints their counts"))
     if p.name[:2] in INTEGERS_PENDING else p for p in NOTEBOOKS], ids=lambda p: p.stem)
 def test_every_integer_result_in_the_prose_is_one_the_chapter_set_or_printed(path):
     bad = unmatched(CHAPTERS[path.name[:2]], chapters=CHAPTERS, integers=True)
@@ -49,7 +49,7 @@ def test_every_integer_result_in_the_prose_is_one_the_chapter_set_or_printed(pat
 
 
 def test_the_integer_check_catches_a_count_of_runs_no_output_states():
-    """Issue 37 A1: chapter 14 said "500 runs" where its study stored 250, while 500 was printed as a
+    """A review's finding: chapter 16 said "500 runs" where its study stored 250, while 500 was printed as a
     grid value and a particle count: a count is matched only by a count of the same thing."""
     out = {"cell_type": "code", "source": "print(protocol)", "outputs": [{"output_type": "stream", "text":
            "ungm-pf-1e-4: evaluated on 250 runs; 8 learned seeds\n| bpf-500 | 0.647 | 500 | 3.60% |\n"

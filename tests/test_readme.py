@@ -75,3 +75,28 @@ def test_particle_count_example_runs_and_kld_uses_fewer_particles_than_the_defau
     res = ns["res"]
     assert res["default"].spent == 1000
     assert res["kld-x1"].spent < res["default"].spent  # what the example is there to show: KLD adapts the count
+
+
+def test_the_command_line_block_lists_every_command_and_every_study():
+    """The README's command-line block shows each sub-command of ``adaptfilt`` and the ``beyond`` line every
+    study (``adaptfilt beyond --help`` lists them from the same table)."""
+    from adaptfilt.cli import build_parser
+    from adaptfilt.experiments.beyond import STUDIES
+
+    block = README.split("## The command line", 1)[1].split("```", 2)[1]
+    sub = next(a for a in build_parser()._actions if a.dest == "cmd")
+    for name in sub.choices:
+        assert f"adaptfilt {name} " in block, name
+    assert "adaptfilt --version" in block
+    line = next(ln for ln in block.splitlines() if ln.startswith("adaptfilt beyond"))
+    assert f"--studies {','.join(STUDIES)}]" in line
+
+
+def test_filters_example_runs_and_pairs_the_particle_filter_with_the_policies():
+    block = next(b for b in _python_blocks() if "filters=" in b)
+    ns: dict = {}
+    exec(compile(block.replace("print(", "(lambda *a: None)("), "README-example-filters", "exec"), ns)
+    res = ns["res"]
+    assert res.names == ["default", "greedy", "bpf-500"] and res.config["filters"]["bpf-500"].startswith("Bootstrap")
+    d, lo, hi = res.paired_difference("bpf-500", "default", "rmse")
+    assert hi < 0 and np.isnan(res["bpf-500"].cost) and np.isfinite(res["bpf-500"].anees)

@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
+from adaptfilt import linalg_kernels
 from adaptfilt.gaf import FilterError
-from adaptfilt.rules import _sif_kernels, scalar_kernels as _scalar_kernels
+from adaptfilt.rules import scalar_kernels as _scalar_kernels
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
 
 needs_kernels = pytest.mark.skipif(not _scalar_kernels.available(),
-                                   reason="numba missing, or numpy's einsum fuses multiply-adds (see _einsum_is_plain)")
+                                   reason="numba missing, or numpy's einsum fuses multiply-adds (see linalg_kernels.einsum_is_plain)")
 
 
 def _wide(rng, shape, positive=False):
@@ -39,7 +40,7 @@ def _same(a, b) -> bool:
 
 
 def _kernels_off(monkeypatch):
-    monkeypatch.setattr(_sif_kernels, "SUMS", False)
+    monkeypatch.setattr(linalg_kernels, "SUMS", False)
 
 
 @needs_kernels

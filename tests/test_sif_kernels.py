@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import adaptfilt as af
+from adaptfilt import linalg_kernels
 from adaptfilt.rules import StochasticIntegrationRule, _sif_kernels
 
 pytestmark = pytest.mark.crosscpu  # equalities claimed on any x86-64 CPU (.ci/run reruns them)
@@ -35,7 +36,7 @@ def test_compiled_gram_schmidt_is_numpys_bit_for_bit(monkeypatch, n, M):
     rng = np.random.default_rng(M)
     subsets = [None, rng.permutation(M)[: max(2, M // 3)], np.array([M - 1, M - 1]), np.sort(rng.integers(0, M, 2 * M)),
                np.tile(np.arange(M), 3)]
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "numba")
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "numba")
     for runs in subsets:
         Q = _sif_kernels.gram_schmidt(G, runs)
         ref = _sif_kernels.gram_schmidt_numpy(G if runs is None else np.ascontiguousarray(G[..., runs]))
@@ -48,16 +49,16 @@ def test_one_run_and_the_numpy_backend_take_numpys_form(monkeypatch):
     backend is set to numpy (the form without numba)."""
     G = _gaussians(9, 1, seed=3)
     assert np.array_equal(_sif_kernels.gram_schmidt(G), _sif_kernels.gram_schmidt_numpy(G))
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "numpy")
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "numpy")
     G = _gaussians(5, 40, seed=4)
     assert np.array_equal(_sif_kernels.gram_schmidt(G, np.arange(3, 9)), _sif_kernels.gram_schmidt_numpy(G[..., 3:9].copy()))
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "cuda")
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "cuda")
     with pytest.raises(ValueError, match="ADAPTFILT_SIF_BACKEND"):
         _sif_kernels.gram_schmidt(G)
 
 
 def _sif_outputs(monkeypatch, backend: str) -> dict:
-    monkeypatch.setattr(_sif_kernels, "BACKEND", backend)
+    monkeypatch.setattr(linalg_kernels, "BACKEND", backend)
     model = af.models.coordinated_turn()
     traj = model.simulate(24, 8, rng=5)
     counts = np.random.default_rng(1).integers(1, 7, size=(24, 8)).astype(float)
@@ -105,7 +106,7 @@ def test_compiled_draws_are_numpys_variates_and_leave_the_same_state(monkeypatch
             assert np.array_equal(chi2[k], b.chisquare(n + 2, size=M)), (n, M, k)
         assert repr(a.bit_generator.state) == repr(b.bit_generator.state)  # SFC64, Philox: arrays in the state
     assert _sif_kernels._build_draws()  # the compiled form was used above the threshold
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "numpy")
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "numpy")
     assert not _sif_kernels._build_draws()
     G, chi2 = _sif_kernels.rule3_draws(a, 5, 10_000)
     assert np.array_equal(G[0], b.standard_normal((5, 5, 10_000))) and np.array_equal(chi2[0], b.chisquare(7, 10_000))
@@ -126,6 +127,6 @@ def test_without_numba_the_numpy_form_is_used(monkeypatch):
     G = _gaussians(5, 30, seed=6)
     assert not _sif_kernels.available()
     assert np.array_equal(_sif_kernels.gram_schmidt(G, np.arange(4, 20)), _sif_kernels.gram_schmidt_numpy(G[..., 4:20].copy()))
-    monkeypatch.setattr(_sif_kernels, "BACKEND", "numba")
+    monkeypatch.setattr(linalg_kernels, "BACKEND", "numba")
     with pytest.raises(ImportError, match="numba"):
         _sif_kernels.gram_schmidt(G)

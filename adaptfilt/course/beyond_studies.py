@@ -1,6 +1,7 @@
-r"""What chapter 13 (Beyond the paper) shows of the studies that :mod:`adaptfilt.experiments.beyond`
-runs: a seed group against one policy per metric, when a filter with a fixed grid value diverges,
-every SIF policy's cost against its share of divergent runs, and the gains out of distribution.
+r"""What chapters 14 (Beyond the paper) and 15 (Out of distribution and the raw cost) show of the
+studies that :mod:`adaptfilt.experiments.beyond` runs: a seed group against one policy per metric,
+when a filter with a fixed grid value diverges, every SIF policy's cost against its share of
+divergent runs, and the gains out of distribution.
 
 ========================================  =========================================================
 function                                  what
@@ -14,7 +15,7 @@ plot_ood_gains                            the gains over the default out of dist
                                           maps
 ========================================  =========================================================
 
-Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_rl.py``;
+Seed groups as in :mod:`adaptfilt.course.seed_results`. Tested in ``tests/test_course_beyond_studies.py``;
 figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
@@ -25,15 +26,16 @@ import numpy as np
 
 from adaptfilt.course.common import figure_axes
 from adaptfilt.course.seed_results import seed_verdicts
-from adaptfilt.seed_stats import seed_groups, seed_verdict
+from adaptfilt.seed_stats import seed_groups
+from adaptfilt.verdicts import verdict
 
 __all__ = ["verdict_counts", "plot_seed_differences", "divergence_onsets", "plot_cost_divergence", "plot_ood_gains"]
 
 
 def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("cost", "rmse")) -> str:
     r"""One line per metric: ``group - other`` as IQM over seeds [two-level 95 % CI], the seed-level
-    verdict, and how many seeds alone (their own paired run-level interval) find ``group`` lower,
-    tied or higher."""
+    verdict on "``group`` lower than ``other``" (:func:`adaptfilt.verdicts.verdict`), and what the seeds
+    alone (their own paired run-level interval) say about it."""
     from adaptfilt.seed_stats import difference
 
     names = seed_groups(results.names)[group]
@@ -42,7 +44,7 @@ def verdict_counts(results, group: str, other: str, metrics: Sequence[str] = ("c
         d = difference(results, names, [other], m)["iqm"]
         c = seed_verdicts(results, group, other, m)["counts"]
         alone = ", ".join(f"{n} {v}" for v, n in sorted(c.items(), key=lambda kv: -kv[1]))
-        lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {seed_verdict(d)}"
+        lines.append(f"{group} - {other}  {m:9s} {d[0]:+.4g} [{d[1]:+.4g}, {d[2]:+.4g}]  {verdict('lower', d)}"
                      f"   (seeds alone: {alone})")
     return "\n".join(lines)
 
@@ -190,7 +192,7 @@ def plot_cost_divergence(results, groups: Sequence[str] = (), ax=None, title: st
     lo, hi = xlim
     ax.set_xlim(lo, hi)
     ax.axvline(0.0, color="0.35", lw=1.2, ls=":", label="default ($n_{it}$ = 10): 0 %", zorder=1)
-    fixed = [n for n in results.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = results.fixed_names()
     x = np.array([rel(n) for n in fixed])
     y = np.array([100 * results[n].divergent_frac for n in fixed])
     ax.plot(np.clip(x, lo, hi), y, "o-", color="0.6", ms=4, label="fixed $n_{it}$", zorder=2)

@@ -1,7 +1,7 @@
 """The course book's bibliography: every chapter's ``## References`` section (:func:`notebook_references`),
 each entry split into its citation and the chapter's remark on it (:func:`split_reference`), and one page of
 the works, deduplicated by first author and title, with the chapters that cite each
-(:func:`bibliography_markdown`). Built by :mod:`adaptfilt.course.book`; unit-tested in ``tests/test_book.py``.
+(:func:`bibliography_markdown`). Built by :mod:`adaptfilt.course.book`; unit-tested in ``tests/test_bibliography.py``.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@ r"""What every chapter of the course uses: :func:`show_source` (a chapter shows 
 lesson), the per-step RMSE with a bootstrap band over runs (:class:`Score`, :func:`score`,
 :func:`score_table`, :func:`paired_rmse_difference`, :func:`plot_rmse_k`) and :func:`chi2_median`.
 
-The chapters' helpers: :mod:`adaptfilt.course.bayes` (1), :mod:`adaptfilt.course.moments` (2),
+The chapters' helpers: :mod:`adaptfilt.course.bayes` (1), :mod:`adaptfilt.course.moments` and :mod:`adaptfilt.course.plain_filter` (2),
 :mod:`adaptfilt.course.myopia` (3), :mod:`adaptfilt.course.adaptation` (4). Arrays follow the
 library's public layout: runs first, ``(M, T, ...)``; a grid density is ``(N,)`` for one run and
 ``(M, T, N)`` for all of them. Figures use :mod:`adaptfilt.style`.
@@ -89,7 +89,7 @@ def score(x: np.ndarray, run, counts: np.ndarray, level: float = 0.95) -> Score:
         \mathrm{ANEES}_k = \tfrac1M\textstyle\sum_\ell \tilde x_{k|k}(\ell)^T P_{k|k}(\ell)^{-1}\tilde x_{k|k}(\ell)
 
     ``run`` has ``mean (M, T, nx)`` and ``cov (M, T, nx, nx)`` (a
-    :class:`~adaptfilt.gaf.FilterRun`); ``counts`` are bootstrap resampling
+    :class:`~adaptfilt.filters.FilterRun`); ``counts`` are bootstrap resampling
     counts (:func:`adaptfilt.metrics.bootstrap_counts`): reuse them across
     filters for paired intervals. A covariance that a clipping filter stored
     indefinite is scored through a plain solve (``on_indefinite="solve"``).

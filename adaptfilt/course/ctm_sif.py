@@ -1,4 +1,4 @@
-r"""The analyses of chapter 10 (SIF on CTM, experiments ``ctm-sif-*``): the SIF's integration noise, and
+r"""The analyses of chapter 11 (SIF on CTM, experiments ``ctm-sif-*``): the SIF's integration noise, and
 the iterations a policy chooses against the innovation it sees.
 
 ==============================  ================================================================
@@ -10,7 +10,7 @@ innovation_responses,           by quartile of the one-iteration innovation it s
 innovation_response_md          seed, and summarised over the seeds of each group
 ==============================  ================================================================
 
-What chapters 8-10 share (seed tables, grid usage, a plain log axis):
+What chapters 9-11 share (seed tables, grid usage, a plain log axis):
 :mod:`adaptfilt.course.paper_common`.
 """
 from __future__ import annotations

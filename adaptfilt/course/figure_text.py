@@ -1,7 +1,7 @@
 r"""A figure's alt text for the course book, from what the cell that draws it says: the titles it sets
 (:func:`figure_titles`: ``set_title``, ``suptitle``, ``title=``) made plain (:func:`plain_text`: TeX and
 Markdown to the text an ``alt`` attribute can carry), or the first sentence of the Markdown before it.
-Used by :func:`adaptfilt.course.notebook_markdown.notebook_to_markdown`; unit-tested in ``tests/test_book.py``.
+Used by :func:`adaptfilt.course.notebook_markdown.notebook_to_markdown`; unit-tested in ``tests/test_figure_text.py``.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-r"""What chapter 16 (Learning the gain instead) builds: KalmanNet (:mod:`adaptfilt.kalmannet`) beside the
+r"""What chapter 18 (Learning the gain instead) builds: KalmanNet (:mod:`adaptfilt.kalmannet`) beside the
 Kalman filter on a linear-Gaussian model, over training seeds; the learned gain over time against the
 Kalman gain; the Bayesian variant's consistency; and the gain function the chapter's exercise calls.
 
@@ -122,7 +122,7 @@ def gain_function(knet, n_runs: int) -> Callable[..., np.ndarray]:
     r"""``gain(F1, F2, F3, F4) -> K (n_runs, nx, nz)``: the trained (or untrained) network of ``knet`` as
     a function of the four features of one step, for ``n_runs`` runs filtered together. It normalises
     each feature as ``knet`` does (``feature_norm``) and keeps the recurrent states between calls, so
-    it must be called once per step, in order, from the first step on (as the exercise of chapter 16
+    it must be called once per step, in order, from the first step on (as the exercise of chapter 18
     does)."""
     import torch
     from torch import nn
@@ -213,7 +213,8 @@ def verdict_table(g: Mapping, budget: int | None = None, pairs: Sequence[tuple[s
                     d = v["rmse_diff"]
                     ds = "n/a" if d[0] is None or d[1] is None else \
                         f"{d[0]:+.3g} [{d[1]:+.3g}, {_end(d[2]):+.3g}]"
-                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {v['not_worse']} |")
+                    nw = v["not_worse"] or "n/a (no margin)"
+                    lines.append(f"| {e}, {r} | {v['a']} - {v['b']} | {ds} | {v['lower']} | {nw} |")
     return "\n".join(lines)
 
 

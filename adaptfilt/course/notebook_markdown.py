@@ -3,7 +3,7 @@ maths for MathJax 2.7 inside CommonMark (:func:`escape_math`, :func:`rewrite_mat
 chapters and local images (:func:`rewrite_links`), and a notebook with its committed outputs to mdBook Markdown
 (:func:`notebook_to_markdown`, :func:`notebook_title`), each figure with its alt text
 (:mod:`adaptfilt.course.figure_text`). The bibliography is :mod:`adaptfilt.course.bibliography`.
-Unit-tested in ``tests/test_book.py``; :mod:`adaptfilt.course.book` builds the book with them.
+Unit-tested in ``tests/test_notebook_markdown.py``; :mod:`adaptfilt.course.book` builds the book with them.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-r"""What the chapters on the paper's experiments (8: UKF on UNGM, 9: UKF on CTM, 10: SIF on CTM)
+r"""What the chapters on the paper's experiments (9: UKF on UNGM, 10: UKF on CTM, 11: SIF on CTM)
 share, read from a stored evaluation: seed-level tables, how often each grid value is used (chapters
-12 and 13 too), a plain log axis, and Figures 3 and 6 with labels that keep clear of each other.
+13, 14 and 15 too), a plain log axis, and Figures 3 and 6 with labels that keep clear of each other.
 
 ==============================  ================================================================
 function                        what
@@ -68,16 +68,16 @@ def seed_table_md(res, groups: Sequence[str] = ("adaptive", "myopic"),
 def differences_md(res, pairs: Sequence[tuple[str, str]], metrics: Sequence[str] = ("rmse", "anees")) -> str:
     """Seed-level differences ``a - b`` of every pair on every metric
     (:func:`adaptfilt.experiments.claims.compare`: seeds resampled per group, runs paired), with
-    the interval and whether it excludes zero (``a < b``, ``a > b`` or ``n.s.``)."""
+    the interval and the verdict on "a lower than b" (:func:`adaptfilt.verdicts.verdict`: confirmed when
+    the interval lies below 0, contradicted when it lies at or above it, not confirmed when it holds 0)."""
     rows = []
     for a, b in pairs:
         for m in metrics:
             c = compare(res, a, b, m)
             lo, hi = c["ci"]
-            sign = "a < b" if hi < 0 else "a > b" if lo > 0 else "n.s."
             rows.append([f"{a} - {b}", m, f"{c['a_value']:.4g}", f"{c['b_value']:.4g}",
-                         f"{c['diff']:+.3g} [{lo:+.3g}, {hi:+.3g}]", sign])
-    return markdown_table(["a - b", "metric", "a (IQM)", "b (IQM)", "a - b [95 % CI]", "interval"], rows)
+                         f"{c['diff']:+.3g} [{lo:+.3g}, {hi:+.3g}]", c["verdict"]])
+    return markdown_table(["a - b", "metric", "a (IQM)", "b (IQM)", "a - b [95 % CI]", "a lower than b"], rows)
 
 
 def usage_shares(res, names: Sequence[str]) -> dict[str, np.ndarray]:

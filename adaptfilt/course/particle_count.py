@@ -1,4 +1,4 @@
-"""What chapter 15 (Adaptive particle count) draws: the exact posterior beside a Gaussian, every run's error
+"""What chapter 17 (Adaptive particle count) draws: the exact posterior beside a Gaussian, every run's error
 sorted, and KLD-sampling's count over one run. The study itself is :mod:`adaptfilt.experiments.particles_study`."""
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-r"""Reading what policies choose, as chapter 7 (Reading the stored policies) does: over time, by grid
-value, against a feature, and at one UNGM information state; chapter 6 uses the last as its widget
-and chapter 11 the usage lines.
+r"""Reading what policies choose, as chapter 8 (Reading the stored policies) does: over time, by grid
+value, against a feature, and at one UNGM information state; chapter 7 uses the last as its widget
+and chapter 12 the usage lines.
 
 ========================================  =========================================================
 function                                  what
@@ -8,12 +8,13 @@ function                                  what
 plot_share_over_time                      the share of runs at a parameter ``>=`` a value, per step
                                           (a seed group: averaged over its seeds)
 usage_lines                               per policy: RMSE and the grid values it uses
+equal_count_bins                          medians of x and means of y in bins of equal count of x
 plot_switch_off                           the probability of the large values against a feature
 ungm_state, plot_policy_probs             every policy's ``pi(theta | s)`` at one raw UNGM state
-show_policy_probs                         the widget body (chapters 6 and 7)
+show_policy_probs                         the widget body (chapters 7 and 8)
 ========================================  =========================================================
 
-Tested in ``tests/test_course_rl.py``; figures use :mod:`adaptfilt.style`.
+Tested in ``tests/test_course_policy_reading.py``; figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
 
@@ -24,8 +25,8 @@ import numpy as np
 from adaptfilt.course.common import figure_axes
 from adaptfilt.seed_stats import seed_groups
 
-__all__ = ["plot_share_over_time", "usage_lines", "plot_switch_off", "ungm_state", "plot_policy_probs",
-           "show_policy_probs"]
+__all__ = ["plot_share_over_time", "usage_lines", "equal_count_bins", "plot_switch_off", "ungm_state",
+           "plot_policy_probs", "show_policy_probs"]
 
 
 def plot_share_over_time(results, policies: Sequence[str], at_least: float, ax=None,
@@ -64,7 +65,7 @@ def usage_lines(results, names: Sequence[str], split: float = 50.0, min_share: f
     return "\n".join(out)
 
 
-def _binned(x: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+def equal_count_bins(x: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
     """Medians of ``x`` and means of ``y`` in ``n_bins`` bins of equal count of ``x``."""
     order = np.argsort(x)
     parts = np.array_split(order, n_bins)
@@ -88,7 +89,7 @@ def plot_switch_off(policies: Sequence, states: np.ndarray, columns: Mapping[str
         x = np.abs(states[:, j])
         for pol, c in zip(policies, cols):
             p = pol.probs(states)[:, np.asarray(pol.grid) >= at_least].sum(axis=1)
-            mid, mean = _binned(x, p, n_bins)
+            mid, mean = equal_count_bins(x, p, n_bins)
             ax.plot(mid, mean, "o-", ms=3, color=c, label=pol.name)
         ax.set(xscale="log", xlabel=f"{label} (bins of equal count)", ylim=(-0.02, 1.02))
     axes[0].set_ylabel(f"$\\pi(\\kappa \\geq$ {at_least:g}$\\,|\\,s)$")
@@ -132,7 +133,7 @@ def plot_policy_probs(policies: Sequence, state: np.ndarray, ax=None, title: str
 
 def show_policy_probs(policies: Sequence, P_pred: float = 1.0, innov: float = 0.0, x_pred: float = 5.0,
                       k: int = 100) -> None:
-    """The widget body of chapter 6: :func:`plot_policy_probs` at :func:`ungm_state`."""
+    """The widget body of chapter 7: :func:`plot_policy_probs` at :func:`ungm_state`."""
     import matplotlib.pyplot as plt
 
     plot_policy_probs(policies, ungm_state(P_pred, innov, x_pred, k), colorbar=True,

@@ -1,4 +1,4 @@
-r"""One PPO update by hand, in the notation of Algorithm 2 (chapter 6).
+r"""One PPO update by hand, in the notation of Algorithm 2 (chapter 7).
 
 Every stored policy of the course was trained by PPO (Schulman et al. 2017) as
 Stable-Baselines3 implements it (the fast mode, :data:`adaptfilt.trainers.FAST`).

@@ -44,7 +44,8 @@ import re
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-__all__ = ["Mismatch", "output_numbers", "prose_numbers", "matches", "unmatched", "borrowed", "cell_text", "counted"]
+__all__ = ["Mismatch", "output_numbers", "output_text", "prose_numbers", "matches", "unmatched", "borrowed",
+           "cell_text", "counted"]
 
 # A decimal number: optional sign (ASCII or Unicode minus), digits, a point, digits; or scientific.
 _NUMBER = re.compile(r"(?<![\w.:/])[-−+]?(\d+\.\d+(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.]*\d)(?![A-Za-z])")
@@ -80,6 +81,9 @@ _NAMED_COUNT = re.compile(r"(?<![\w])(--episodes|--runs|n_runs|M|runs|n_seeds|n_
 # "Figure 13.2", "Figures 8.1 and 8.2", "Table 10.1": numbered captions and references are not results
 _NUMBERED = re.compile(r"\b(?:Figures?|Fig\.|Tables?)\s+\d+\.\d+(?:\s*(?:,|and|to|-|–)\s*\d+\.\d+)*")
 _TIME_DECLARED = re.compile(r"<!--\s*times?\b[^>]*-->")
+# A verdict declaration (adaptfilt.course.verdict_words): its numbers are the interval the prose states beside it,
+# checked there, and a reference value that sets the margin.
+_VERDICT = re.compile(r"<!--\s*verdict:.*?-->", re.S)
 
 
 @dataclass(frozen=True)
@@ -99,7 +103,8 @@ def cell_text(cell: Mapping[str, Any]) -> str:
     return "".join(src) if isinstance(src, list) else src
 
 
-def _output_text(cell: Mapping[str, Any]) -> str:
+def output_text(cell: Mapping[str, Any]) -> str:
+    """What a code cell printed: its text, plain, Markdown, HTML (tags stripped) and LaTeX outputs."""
     parts = []
     for out in cell.get("outputs", []):
         if "text" in out:
@@ -131,7 +136,7 @@ def output_numbers(cells: Iterable[Mapping[str, Any]]) -> list[tuple[float, int]
     found = set()
     for cell in cells:
         if cell.get("cell_type") == "code":
-            text = _ranges_apart(_output_text(cell))
+            text = _ranges_apart(output_text(cell))
             for m in _NUMBER.finditer(text):
                 found.add((abs(float(m.group(1))), _decimals(m.group(1))))
             for m in _INTEGER.finditer(text):
@@ -142,11 +147,11 @@ def output_numbers(cells: Iterable[Mapping[str, Any]]) -> list[tuple[float, int]
 def prose_numbers(markdown: str, integers: bool = False) -> list[tuple[str, bool, str]]:
     """The decimal numbers a Markdown cell states: (as written, followed by a percent sign, context).
 
-    Code spans, links and the ``quoted``, ``from`` and ``time`` declarations are left out; maths is prose
+    Code spans, links and the ``quoted``, ``from``, ``time`` and ``verdict`` declarations are left out; maths is prose
     here. With ``integers``, the integers that state a result (a percentage, a count of runs, seeds or
     episodes, a time) too, number words ("seven seeds") as digits.
     """
-    text = _TIME_DECLARED.sub(" ", _FROM.sub(" ", _QUOTED.sub(" ", markdown)))
+    text = _VERDICT.sub(" ", _TIME_DECLARED.sub(" ", _FROM.sub(" ", _QUOTED.sub(" ", markdown))))
     text = _NUMBERED.sub(lambda m: " " * len(m.group()), text)
     text = _CODE_SPAN.sub(lambda m: " " * len(m.group()), text)
     text = _URL.sub(lambda m: " " * len(m.group()), text)
@@ -200,7 +205,7 @@ def counted(cells: Iterable[Mapping[str, Any]]) -> dict[str, set[int]]:
     for cell in cells:
         if cell.get("cell_type") != "code":
             continue
-        for text in (_output_text(cell), cell_text(cell)):
+        for text in (output_text(cell), cell_text(cell)):
             for m in _COUNT.finditer(text):
                 kind = _unit_kind(_UNIT_WORD.match(text[m.end():]).group(1))
                 if kind in found:
@@ -287,7 +292,7 @@ def unmatched(nb: Mapping[str, Any], cells: Iterable[int] | None = None,
             continue
         for m in _TIME_DECLARED.finditer(src):
             allowed.update(re.findall(r"\d+", src[max(0, m.start() - 30):m.start()]))
-        text = _NUMBERED.sub(" ", _TIME_DECLARED.sub(" ", _FROM.sub(" ", _QUOTED.sub(" ", src))))
+        text = _NUMBERED.sub(" ", _VERDICT.sub(" ", _TIME_DECLARED.sub(" ", _FROM.sub(" ", _QUOTED.sub(" ", src)))))
         text = _URL.sub(lambda m: " " * len(m.group()), _CODE_SPAN.sub(lambda m: " " * len(m.group()), text))
         for number, kind, ctx in _prose_integers(text):
             if number in allowed:

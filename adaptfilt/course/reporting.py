@@ -27,17 +27,16 @@ __all__ = ["run_counts", "unpaired", "pooled_runs", "divergence", "plot_bootstra
 
 
 def run_counts(results) -> np.ndarray:
-    """``(n_boot, M)``: the resampling counts :func:`adaptfilt.evaluation.evaluate` drew for ``results``
+    """``(n_boot, M)``, read-only: the resampling counts :func:`adaptfilt.evaluation.evaluate` drew for ``results``
     (replicate ``b`` takes run ``l`` ``counts[b, l]`` times; the same counts for every policy).
 
     ``counts @ run_cost / M`` is the stored ``boot_cost`` of every policy of ``results``."""
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
+    from adaptfilt.runs import bootstrap_counts
 
     c = results.config
     if c.get("trajectories") == "given":
         raise ValueError("these results were evaluated on given trajectories: their counts are not derivable from the seed")
-    rng = np.random.default_rng([TRAJ_SEED_KEY, int(c["seed"]), 1])
-    return metrics.bootstrap_counts(int(c["n_runs"]), int(c["n_boot"]), rng=rng)
+    return bootstrap_counts(int(c["n_runs"]), int(c["n_boot"]), int(c["seed"]))
 
 
 def unpaired(boot_a: np.ndarray, boot_b: np.ndarray, seed: int = 0) -> np.ndarray:

@@ -1,5 +1,5 @@
-r"""Results over training seeds, as text and figures, for chapters 11 (Your own model) and 12 (RL in
-practice), and a CPU-time measurement for chapter 12; chapters 5, 7 and 13 use them too.
+r"""Results over training seeds, as text and figures, for chapters 12 (Your own model) and 13 (RL in
+practice), and a CPU-time measurement for chapter 13; chapters 5, 8, 14 and 15 use them too.
 
 ========================================  =========================================================
 chapter                                   helpers
@@ -12,7 +12,7 @@ chapter                                   helpers
 A *seed group* is a set of policies named ``<group>-s<seed>``
 (:func:`adaptfilt.seed_stats.seed_groups`); its aggregate is the IQM
 over seeds with the two-level (seeds x runs) bootstrap interval of
-:func:`adaptfilt.seed_stats.aggregate`. Tested in ``tests/test_course_rl.py``; figures use
+:func:`adaptfilt.seed_stats.aggregate`. Tested in ``tests/test_course_seed_results.py``; figures use
 :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
@@ -23,12 +23,13 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from adaptfilt.course.common import figure_axes
-from adaptfilt.seed_stats import aggregate, seed_groups, seed_verdict
+from adaptfilt.seed_stats import aggregate, seed_groups
+from adaptfilt.verdicts import verdict
 
 __all__ = ["seed_lines", "plot_differences", "plot_seed_spread", "seed_verdicts", "claims_table", "timed"]
 
 
-# ============================================================== chapter 11
+# ============================================================== chapter 12
 def seed_lines(results, groups: Sequence[str], baselines: Sequence[str] = (),
                metrics: Sequence[str] = ("rmse", "anees", "objective")) -> str:
     r"""Baselines one line each (value [run-level CI]), then each seed group: IQM over its
@@ -77,7 +78,7 @@ def plot_differences(diffs: Mapping[str, Mapping[str, tuple[float, float, float]
     return fig
 
 
-# ============================================================== chapter 12
+# ============================================================== chapter 13
 def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=None):
     r"""Each seed of each group with its own run-level 95 % interval (the noise of one
     evaluation), and beside them the group's IQM and mean with the two-level
@@ -109,15 +110,17 @@ def plot_seed_spread(results, groups: Sequence[str], metric: str = "rmse", ax=No
     return fig
 
 
-def seed_verdicts(results, group: str, other: str, metric: str = "rmse", better: str = "lower") -> dict:
+def seed_verdicts(results, group: str, other: str, metric: str = "rmse", better: str = "lower",
+                  margin: float | None = None) -> dict:
     r"""What each seed of ``group`` alone says about "``group`` is ``better`` than ``other``"
-    (its own paired run-level interval): ``{"per_seed": {name: (diff, lo, hi, verdict)},
+    (its own paired run-level interval, judged by :func:`adaptfilt.verdicts.verdict` with ``margin``,
+    required for "not worse" and "equal"): ``{"per_seed": {name: (diff, lo, hi, verdict)},
     "counts": {verdict: n}}``."""
     names = seed_groups(results.names)[group]
     per = {}
     for n in names:
         d = results.paired_difference(n, other, metric)
-        per[n] = (*d, seed_verdict(d, better))
+        per[n] = (*d, verdict(better, d, margin))
     counts: dict[str, int] = {}
     for v in per.values():
         counts[v[3]] = counts.get(v[3], 0) + 1
@@ -129,9 +132,8 @@ def claims_table(claims: Mapping, experiment: str, keys: Sequence[str] = ("C1", 
     r"""A Markdown table of the stored claims (:func:`adaptfilt.experiments.artefacts.load_claims`) of one
     experiment: the seed-level verdict beside the number of seeds that hold it *alone*
     (each seed's own paired interval; defined where ``b`` is a single policy). A verdict judged
-    with a margin ("equal", "not worse") shows it, and the verdict without it where that differs
-    (:func:`adaptfilt.experiments.report.verdict_text`). ``only_held``: only the rows where that
-    count exists."""
+    with a margin ("equal", "not worse") shows it (:func:`adaptfilt.experiments.report.verdict_text`).
+    ``only_held``: only the rows where that count exists."""
     from adaptfilt.experiments.report import verdict_text
     rows = ["| claim | comparison | metric | a - b, IQM [seed-level 95 % CI] | seed-level verdict | seeds holding alone |",
             "|---|---|---|---|---|---|"]

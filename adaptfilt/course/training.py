@@ -1,11 +1,15 @@
-r"""Training a policy, as chapter 6 (The actor-critic) shows it: the sign demonstration on a toy, a
-learning curve, the scale of the costs and of the features, the reader's actor update checked against
-the library's, and one policy's probabilities at several information states.
+r"""Training a policy, as chapters 6 (Policy gradient and actor-critic) and 7 (PPO and the training
+recipe) show it: the sign demonstration on a toy, a learning curve, the scale of the costs and of the
+features, the reader's actor update checked against the library's, and one policy's probabilities at
+several information states.
 
 ========================================  =========================================================
 function                                  what
 ========================================  =========================================================
 plot_sign_demo                            ``pi(a | s)`` of toy policies and their learning curves
+plain_soft_update                         the target critic's Polyak averaging, one weight tensor at
+                                          a time (what :func:`adaptfilt.actor_critic.soft_update`
+                                          computes in two batched calls)
 plot_training, kappa_bands                a learning curve of :func:`adaptfilt.actor_critic.train`,
                                           the grid values sampled shown by band
 candidate_cost_range                      the range of the one-step costs a critic regresses on
@@ -16,9 +20,9 @@ check_actor_update                        fixed batch: the gradient it gives, an
 plot_state_probs                          one policy's ``pi(theta | s)`` at several states
 ========================================  =========================================================
 
-The chapter's widget is :func:`adaptfilt.course.policy_reading.show_policy_probs` (chapter 7 uses
+The chapter's widget is :func:`adaptfilt.course.policy_reading.show_policy_probs` (chapter 8 uses
 it too). As :mod:`adaptfilt.course.common` and the modules of chapters 1-4 do: what a chapter
-computes in passing and its figures live here, documented and tested (``tests/test_course_rl.py``),
+computes in passing and its figures live here, documented and tested (``tests/test_course_training.py``),
 so that a chapter reads as prose with short calls. Figures use :mod:`adaptfilt.style`.
 """
 from __future__ import annotations
@@ -29,7 +33,7 @@ import numpy as np
 
 from adaptfilt.course.common import figure_axes
 
-__all__ = ["plot_sign_demo", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
+__all__ = ["plot_sign_demo", "plain_soft_update", "kappa_bands", "plot_training", "candidate_cost_range", "scaler_saturation",
            "actor_update_batch", "library_actor_loss", "check_actor_update", "plot_state_probs"]
 
 
@@ -177,7 +181,7 @@ def actor_update_batch(seed: int = 0, batch: int = 32, n_features: int = 3, n_ac
 def library_actor_loss(logits, actions, delta, beta: float = 1e-3, sign: int = 1):
     r"""The actor loss of :func:`adaptfilt.actor_critic.train`, the same statements on the same
     tensors: ``mean(sign * delta.detach() * log pi(a | s) - beta * H(pi(. | s)))``
-    (``sign=+1`` for a cost; ``tests/test_course_rl.py`` checks that one Adam step on it
+    (``sign=+1`` for a cost; ``tests/test_course_training.py`` checks that one Adam step on it
     reproduces ``train``'s actor)."""
     import torch
 
@@ -239,6 +243,17 @@ def check_actor_update(actor_loss: Callable, beta: float = 0.1, seed: int = 0) -
         print("  your loss sends a gradient into the critic: detach the TD error (delta.detach())")
     print("right: your update is the library's" if right else "not yet right")
     return right
+
+
+def plain_soft_update(target, source, tau: float) -> None:
+    """The target critic's soft (Polyak) update psi_bar <- tau psi + (1 - tau) psi_bar, one weight
+    tensor at a time. ``adaptfilt.actor_critic.soft_update`` computes the same numbers for all the
+    tensors in two batched calls (``tests/test_course_training.py`` holds them equal bit for bit)."""
+    import torch
+
+    with torch.no_grad():
+        for psi_bar, psi in zip(target.parameters(), source.parameters()):
+            psi_bar.mul_(1.0 - tau).add_(psi, alpha=tau)    # (1 - tau) psi_bar + tau psi
 
 
 def plot_state_probs(policy, cases: Mapping[str, np.ndarray], ax=None, title: str | None = None):

@@ -1,4 +1,4 @@
-r"""The analyses of chapter 8 (UKF on UNGM, experiment ``ungm-ukf``): a metric against a fixed
+r"""The analyses of chapter 9 (UKF on UNGM, experiment ``ungm-ukf``): a metric against a fixed
 kappa in both conventions, the NIS gate (what kappa a policy chooses against the NIS that the full
 update would give), and RMSE over time beside the Bayes floor per step.
 
@@ -14,7 +14,7 @@ plot_rmse_steps,                RMSE_k in colours that can be told apart, with t
 ungm_floor_steps                per step (the point-mass filter on the evaluation's first runs)
 ==============================  ================================================================
 
-What chapters 8-10 share (seed tables, Figure 3): :mod:`adaptfilt.course.paper_common`. Seed groups
+What chapters 9-11 share (seed tables, Figure 3): :mod:`adaptfilt.course.paper_common`. Seed groups
 are policies named ``<group>-s<seed>``; where a function takes a group name, a single policy name
 works as well (:func:`adaptfilt.experiments.claims.members`).
 """
@@ -149,13 +149,28 @@ class GateAnatomy:
     (:math:`\kappa_\min`, the full update) would give (:func:`ungm_nis`: a function of the
     information state, so a learned policy can see it too); ``wrong_sign``: the prediction is on
     the other branch than the truth (:math:`\operatorname{sign}\hat x_{k|k-1} \ne \operatorname{sign} x_k`);
-    ``sq_err``: the squared filtering error."""
+    ``sq_err``: the squared filtering error; ``x_pred``, ``P_pred``, ``z`` and ``R``: the predicted
+    moments, the measurement and its noise variance at each decision, from which :meth:`nis_at` gives
+    the NIS of any other :math:`\kappa` in the same state."""
 
     name: str
     kappa: np.ndarray
     nis0: np.ndarray
     wrong_sign: np.ndarray
     sq_err: np.ndarray
+    x_pred: np.ndarray | None = None
+    P_pred: np.ndarray | None = None
+    z: np.ndarray | None = None
+    R: float = 1.0
+
+    def nis_at(self, kappa) -> np.ndarray:
+        r"""The NIS that each value of ``kappa`` would give at every recorded decision
+        (:func:`ungm_nis` in the states this policy visited): shape ``kappa.shape + (M, T)``,
+        so ``nis_at(grid)`` holds the whole grid, one row per value. ``nis_at(grid[0])`` is ``nis0``."""
+        if self.x_pred is None:
+            raise ValueError(f"the anatomy of {self.name!r} holds no predicted moments (made without gate_anatomy)")
+        k = np.asarray(kappa, dtype=float)
+        return ungm_nis(k.reshape(k.shape + (1, 1)), self.x_pred, self.P_pred, self.z, R=self.R)
 
     @property
     def rmse(self) -> float:
@@ -188,9 +203,10 @@ def gate_anatomy(env, policy, traj, name: str | None = None) -> GateAnatomy:
     m, P = run.x_pred[..., 0], run.P_pred[..., 0, 0]
     T = m.shape[1]
     x, z = traj.x[:, :T, 0], traj.z[:, :T, 0]
-    nis0 = ungm_nis(float(np.min(env.grid)), m, P, z, R=float(env.filt.model.R[0, 0]))
+    R = float(env.filt.model.R[0, 0])
+    nis0 = ungm_nis(float(np.min(env.grid)), m, P, z, R=R)
     return GateAnatomy(name or getattr(policy, "name", "policy"), run.params, nis0, np.sign(m) != np.sign(x),
-                       (run.mean[..., 0] - x) ** 2)
+                       (run.mean[..., 0] - x) ** 2, m, P, z, R)
 
 
 def gate_table(anatomies: Sequence[GateAnatomy], coast: float = 1000.0) -> str:
@@ -268,20 +284,14 @@ def plot_rmse_steps(res, names: Sequence[str], floor_t: np.ndarray | None = None
 
 def ungm_floor_steps(n_runs: int = 200, seed: int = 0, n_steps: int | None = None,
                      eval_runs: int = 10_000, chunk: int = 100) -> np.ndarray:
-    """The Bayes floor per step on UNGM, ``RMSE_k (T,)`` of the point-mass filter (grid -45..45, 901
-    points, as :func:`adaptfilt.experiments.references.ungm_floor`) on the first ``n_runs``
-    trajectories of the UNGM evaluation with ``seed`` (the runs the stored floor and the policies
-    are scored on; ``data/`` stores only the floor's time average)."""
-    from adaptfilt import metrics
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
-    from adaptfilt.exact import PointMassFilter
+    """The Bayes floor per step on UNGM, ``RMSE_k (T,)`` of :func:`adaptfilt.exact.bayes_floor` (the
+    point-mass filter, grid -45..45, 901 points, as :func:`adaptfilt.experiments.references.ungm_floor`) on
+    the first ``n_runs`` trajectories of the UNGM evaluation with ``seed`` (the runs the stored floor and
+    the policies are scored on; ``data/`` stores only the floor's time average)."""
+    from adaptfilt.exact import UNGM_FLOOR_GRID, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.runs import EvalRuns
 
     env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
-    traj = env.model.simulate(max(int(eval_runs), n_runs), env.n_steps,
-                              rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
-    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
-    x, z = traj.x[:n_runs], traj.z[:n_runs]
-    se = np.concatenate([metrics.squared_error(x[i:i + chunk], pmf.run(z[i:i + chunk]).mean)
-                         for i in range(0, n_runs, chunk)])
-    return np.sqrt(se.mean(axis=0))
+    runs = EvalRuns(env.model, max(int(eval_runs), n_runs), seed, env.n_steps)
+    return bayes_floor(env.model, runs, n_runs, UNGM_FLOOR_GRID, chunk=chunk).rmse_t

@@ -90,7 +90,7 @@ def seeds(experiment: str, kind: str = "adaptive", root: str | Path | None = Non
 def stored_policy(experiment: str, kind: str = "adaptive", seed: int = 0, root: str | Path | None = None):
     """The learned policy ``kind`` of ``experiment`` trained with ``seed``: "adaptive"
     (gamma 0.5) or "myopic" (gamma 0), trained by the fast mode, or "adaptive-faithful"
-    (Algorithm 2 as printed). Its ``name`` is ``{kind}-s{seed}``, as in the stored results. (A policy
+    (Algorithm 2's loop with the library's recipe). Its ``name`` is ``{kind}-s{seed}``, as in the stored results. (A policy
     file by its path: :func:`adaptfilt.learned.load_policy`.)"""
     if kind not in POLICY_KINDS:
         raise ValueError(f"kind must be one of {', '.join(POLICY_KINDS)}; got {kind!r}")

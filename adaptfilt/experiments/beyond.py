@@ -21,25 +21,28 @@ for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: chapter 13 reads beyond.SIF_EXPERIMENTS
-from adaptfilt.experiments.jobs import TrainSpec, train
+from adaptfilt.experiments.jobs import Training, run_training
 from adaptfilt.experiments.journal import Journal
 from adaptfilt.experiments.studies import ALL
 from adaptfilt.experiments.studies.sif import SELECTION_SEED, select_safe_actions, selection_md
-# study_rows: REPRODUCTION.md cites it as beyond.study_rows
-from adaptfilt.experiments.study import (FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations,  # noqa: F401
-                                         same_training, study_rows)
+from adaptfilt.experiments.study import FULL, QUICK, BeyondScale, Run, listed_policies, run_evaluations, same_training
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["BeyondScale", "FULL", "QUICK", "run", "command", "summary_md", "STUDIES", "JOURNAL", "SELECTION_SEED",
-           "select_safe_actions", "SIF_EXPERIMENTS", "study_rows"]
+__all__ = ["BeyondScale", "FULL", "QUICK", "run", "report_only", "command", "summary_md", "STUDIES",
+           "STUDY_TITLES", "JOURNAL", "SELECTION_SEED", "select_safe_actions"]
 
 #: The journal of a run's finished jobs, in ``DIR/beyond`` (removed when the run completes).
 JOURNAL = "journal.jsonl"
-#: The ``--studies`` words, in the order the command line lists them.
-STUDIES = ("cand", "sif", "ood", "raw", "anchor", "look", "particles", "gain", "mlanchor")
+#: The ``--studies`` words, in the order the command line lists them, with what each asks.
+STUDY_TITLES = {"cand": "a candidate-aware information state", "sif": "SIF policies and divergence",
+                "ood": "out of distribution and retuning", "raw": "training on the untransformed cost",
+                "anchor": "policies anchored on greedy", "look": "the look-ahead references",
+                "particles": "the particle count", "gain": "the learned kappa against KalmanNet's learned gain",
+                "mlanchor": "learners anchored on ML, imitation of ML, the CTM's learning curve"}
+STUDIES = tuple(STUDY_TITLES)
 
 
 def command(out_dir: str | Path, quick: bool, studies: tuple[str, ...]) -> str:
@@ -82,17 +85,29 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     return summary
 
 
-def _train(r: Run, policies: list[tuple[str, TrainSpec]]) -> None:
-    """Train what neither the manifest (an earlier run's, same command) nor the journal holds."""
+def _train(r: Run, trainings: list[Training]) -> None:
+    """Run every training that neither the manifest (an earlier run's, same command, every file unchanged)
+    nor the journal holds; say how many of each kind (``adaptfilt train``, ``adaptfilt train-gain``) were
+    reused from where."""
     listed = listed_policies(r.out)
-    todo = [(rel, t) for rel, t in policies if not same_training(listed.get(rel), t.command, r.out / rel)]
-    keys = [t.key for _, t in todo]
-    resumed = r.journal.count(keys)
-    r.say(f"[beyond] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
-          f"{len(policies) - len(todo)} listed in the manifest")
-    times = r.jobs(train, [(t,) for _, t in todo], keys, files=[[r.out / rel] for rel, _ in todo],
-                   progress=r.progress, desc="beyond: train")
-    r.entries.update({rel: t for (rel, _), t in zip(todo, times)})
+
+    def rel(path: str) -> str:
+        return str(Path(path).relative_to(r.out))
+
+    todo = [t for t in trainings
+            if not all(same_training(listed.get(rel(o)), t.command, Path(o)) for o in t.outputs)]
+    keys = [t.key for t in todo]
+    for kind, noun in (("train", "policies to train"), ("train-gain", "learned-gain trainings (KalmanNet)")):
+        mine = [t for t in trainings if t.command.split()[1] == kind]
+        if not mine and kind != "train":
+            continue
+        left = [t.key for t in todo if t.command.split()[1] == kind]
+        resumed = r.journal.count(left)
+        r.say(f"[beyond] {len(left) - resumed} {noun}, {resumed} finished by an earlier run ({JOURNAL}), "
+              f"{len(mine) - len(left)} listed in the manifest")
+    records = r.jobs(run_training, [(t,) for t in todo], keys, files=[list(t.outputs) for t in todo],
+                     progress=r.progress, desc="beyond: train")
+    r.entries.update({rel(o): rec for made in records for o, rec in made.items()})
 
 
 def _write(r: Run, summary: dict, version: str) -> dict:
@@ -114,6 +129,45 @@ def _write(r: Run, summary: dict, version: str) -> dict:
                       "version": version, "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
     atomic_write(out / "manifest.json", json.dumps({"scale": r.scale.name, "files": [files[k] for k in sorted(files)]},
                                                    indent=1) + "\n")
+    return summary
+
+
+def report_only(out_dir: str | Path, progress: bool = True) -> dict:
+    """``adaptfilt beyond --out DIR --report-only``: the studies' verdict words judged again by the one rule
+    (:mod:`adaptfilt.verdicts`) from what ``DIR/beyond`` holds, nothing trained or evaluated: the look-ahead
+    references' "lower cost than greedy" from their stored intervals, the learned-gain study's verdicts from
+    its stored evaluations (``results/gain-<model>-<regime>`` and ``-curve``). ``summary.json`` (its manifest
+    entry: the new sha256 and this command) and ``summary.md`` are rewritten when they change. Returns the
+    summary."""
+    from adaptfilt.experiments.look import rejudge as rejudge_look
+    from adaptfilt.experiments.studies import gain
+    from adaptfilt.results import Results
+
+    out = Path(out_dir).resolve() / "beyond"
+    summary = json.loads((out / "summary.json").read_text())
+    if "look" in summary:
+        summary["look"] = rejudge_look(summary["look"])
+    if "gain" in summary:
+        sc = gain.FULL if summary["gain"]["scale"] == gain.FULL.name else gain.QUICK
+        last = len(summary["gain"]["target_cpu_s"])
+        for e, regimes in summary["gain"]["models"].items():
+            for r, m in regimes.items():
+                final, curve = (Results.load(out / f"results/gain-{e}-{r}{x}") for x in ("", "-curve"))
+                m["verdicts"] = gain.verdict_rows(final, last, sc.seeds) + [
+                    v for b in gain.budgets(sc) if b < last for v in gain.verdict_rows(curve, b, sc.seeds)]
+    text = json.dumps(summary, indent=1) + "\n"
+    if text != (out / "summary.json").read_text():
+        atomic_write(out / "summary.json", text)
+        man = json.loads((out / "manifest.json").read_text())
+        for f in man["files"]:
+            if f["path"] == "summary.json":
+                f.update(sha256=sha256(out / "summary.json"), command=f"adaptfilt beyond --out {out_dir} --report-only")
+        atomic_write(out / "manifest.json", json.dumps(man, indent=1) + "\n")
+    md = summary_md(summary)
+    if not (out / "summary.md").exists() or md != (out / "summary.md").read_text():
+        atomic_write(out / "summary.md", md)
+    if progress:
+        print(f"[beyond report-only] {out}: summary.json and summary.md judged again", file=sys.stderr)
     return summary
 
 

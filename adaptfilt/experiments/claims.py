@@ -32,19 +32,22 @@ So every SIF comparison of cost is judged on ``cost_charged`` (see
 :mod:`adaptfilt.evaluation`), and the uncharged ``cost`` follows it as a second
 row, marked ``"role": "uncharged"`` (for comparison; it is not a verdict).
 
-**Margins.** "Not worse" and "equal" claims are judged with the margins of
-:data:`adaptfilt.seed_stats.MARGINS` (a fraction of ``b``'s value);
-every row also records ``verdict_no_margin``, the verdict the interval alone
-gives, so that a claim that holds only without a margin can be named.
+**Verdicts and margins.** Every verdict is :func:`adaptfilt.verdicts.verdict` (the one rule:
+confirmed when the interval lies inside the claim's region, contradicted when wholly outside,
+not confirmed otherwise). The "equal" claims of C2 and C3b take the margin declared for
+``"adaptive vs best fixed"`` in :data:`adaptfilt.verdicts.DECLARED_MARGINS` (5 % of the constant's
+RMSE); their rows record the margin and the declared comparison (``"declared"``). The "lower"
+claims have no margin: lower at all.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from adaptfilt.experiment_registry import SIF_EXPERIMENTS  # re-exported: the course reads claims.SIF_EXPERIMENTS
-from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_groups, seed_verdict
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS
+from adaptfilt.seed_stats import aggregate, difference, seed_groups
+from adaptfilt.verdicts import judge, verdict
 
-__all__ = ["PAPER_TABLE1", "COST_LABEL", "SIF_EXPERIMENTS", "compare", "claims", "table1", "members"]
+__all__ = ["PAPER_TABLE1", "COST_LABEL", "compare", "claims", "table1", "members", "claim_of", "rejudge", "BEST_FIXED"]
 
 
 #: Table I of the paper: {experiment: {policy: (RMSE, ANEES, cost)}}.
@@ -60,6 +63,10 @@ COST_LABEL = {"ctm-sif-stateinnov": "L_stateInnov + N_it/50", "ctm-sif-logmaxnis
               "ctm-sif-nis": "L_NIS + N_it/50"}
 
 
+#: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) of C2's and C3b's "equal" claims.
+BEST_FIXED = "adaptive vs best fixed"
+
+
 def members(res, name: str) -> list[str]:
     """The policies ``name`` stands for: its seed group, else itself."""
     g = seed_groups(res.names).get(name)
@@ -71,32 +78,60 @@ def members(res, name: str) -> list[str]:
 
 
 def compare(res, a: str, b: str, metric: str, better: str = "lower", experiment: str | None = None,
-            role: str = "verdict") -> dict:
+            role: str = "verdict", declared: str | None = None) -> dict:
     """One comparison "``a`` is ``better`` than ``b``" on ``metric`` (module docstring).
 
-    ``better``: ``"lower"``, ``"not worse"`` or ``"equal"`` (the last two with the margin of
-    :data:`~adaptfilt.seed_stats.MARGINS` around ``b``'s IQM). ``role``: ``"verdict"``,
-    or ``"uncharged"`` for the uncharged-cost row that follows a charged one."""
+    ``better``: a claim of :data:`adaptfilt.verdicts.CLAIMS` (``"lower"``, ``"not worse"``, ``"equal"``);
+    the last two take the margin that ``declared`` (a comparison of
+    :data:`~adaptfilt.verdicts.DECLARED_MARGINS`) declares on ``metric``, around ``b``'s IQM. ``role``:
+    ``"verdict"``, or ``"uncharged"`` for the uncharged-cost row that follows a charged one."""
     A, B = members(res, a), members(res, b)
     d = difference(res, A, B, metric)
     b_value = float(aggregate(res, B, metric).iqm)
-    m = margin_for(metric, b_value) if better in ("not worse", "equal") else None
+    word, m = judge(better, d["iqm"], declared, metric, b_value)
     holding = 0
     for n in A:
         diff, lo, hi = res.paired_difference(n, B[0], metric) if len(B) == 1 else (None, None, None)
-        if diff is not None and seed_verdict((diff, lo, hi), better, m) == "confirmed":
+        if diff is not None and verdict(better, (lo, hi), m) == "confirmed":
             holding += 1
     row = {"experiment": experiment or res.config.get("experiment"), "a": a, "b": b, "metric": metric,
            "claim": f"{a} {better} than {b}", "n_seeds": len(A),
            "a_value": float(aggregate(res, A, metric).iqm), "b_value": b_value,
            "diff": d["iqm"][0], "ci": [d["iqm"][1], d["iqm"][2]],
            "mean_diff": d["mean"][0], "mean_ci": [d["mean"][1], d["mean"][2]],
-           "verdict": seed_verdict(d["iqm"], better, m),
-           "seeds_holding": holding if len(B) == 1 else None, "role": role}
-    if m is not None:
-        row["margin"] = m
-        row["verdict_no_margin"] = seed_verdict(d["iqm"], better, 0.0)
+           "verdict": word, "seeds_holding": holding if len(B) == 1 else None, "role": role}
+    if declared is not None:
+        row["margin"], row["declared"] = m, declared
     return row
+
+
+def claim_of(row: dict) -> str:
+    """The claim a stored row makes (``"lower"``, ``"not worse"``, ``"equal"``): its ``claim`` reads
+    "``a`` <claim> than ``b``"."""
+    return row["claim"][len(row["a"]) + 1: len(row["claim"]) - len(row["b"]) - len(" than ")]
+
+
+def rejudge(cl: dict) -> dict:
+    """Stored claims (or Table I's ``differences``) judged again by the one rule from what each row stores:
+    its interval ``ci`` and, for an "equal" claim, its margin (the declared comparison :data:`BEST_FIXED`).
+    For the summaries of a reproduction whose evaluations are not kept (``data/medium``, ``data/retrain``):
+    only the verdict words change (``seeds_holding`` stays, each seed's own interval judged by the same
+    inequalities before and after); rows lose the old ``verdict_no_margin``."""
+    def row(r: dict) -> dict:
+        r = {k: v for k, v in r.items() if k != "verdict_no_margin"}
+        if "margin" in r:
+            r["declared"] = r.get("declared", BEST_FIXED)
+        r["verdict"] = verdict(claim_of(r), r["ci"], r.get("margin"))
+        return r
+
+    def walk(x):
+        if isinstance(x, dict):
+            return row(x) if "verdict" in x and "ci" in x else {k: walk(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [walk(v) for v in x]
+        return x
+
+    return walk(cl)
 
 
 def charges_compute(res) -> bool:
@@ -139,9 +174,10 @@ def claims(results: dict, adaptive: str = "adaptive", myopic: str = "myopic") ->
     for key, res in (("C2", u), ("C3b", c)):
         if res is not None:
             rows = [compare(res, adaptive, b, "rmse") for b in (myopic, "ml", "default")]
-            rows.append(compare(res, adaptive, _best_fixed(res, "rmse"), "rmse", better="equal"))
+            rows.append(compare(res, adaptive, _best_fixed(res, "rmse"), "rmse", better="equal", declared=BEST_FIXED))
             if any(n.startswith("fixed-both-") for n in res.names):  # a UKF with one kappa in both steps
-                rows.append(compare(res, adaptive, res.best_fixed("rmse", both_steps=True), "rmse", better="equal"))
+                rows.append(compare(res, adaptive, res.best_fixed("rmse", both_steps=True), "rmse", better="equal",
+                                    declared=BEST_FIXED))
             out[key] = rows
     out["C4"] = [row for res in (u, c) if res is not None
                  for row in [compare(res, adaptive, myopic, m) for m in ("rmse", "anees")] + cost_rows(res, adaptive, myopic)]

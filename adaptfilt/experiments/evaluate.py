@@ -13,7 +13,8 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from adaptfilt.evaluation import CHUNK_SIZE, evaluate, learned_names
+from adaptfilt.evaluation import evaluate
+from adaptfilt.runs import CHUNK_SIZE
 from adaptfilt.experiments.jobs import evaluate_command
 from adaptfilt.results import Results
 from adaptfilt.files import atomic_write
@@ -58,7 +59,7 @@ def evaluate_experiment(
     policies = exp.baselines()
     policy_files = [Path(p) for p in policy_files]
     if policy_files:
-        from adaptfilt.learned import load_policy  # torch is imported only when needed
+        from adaptfilt.learned import learned_names, load_policy  # torch is imported only when needed
 
         baseline_names = {p.name for p in policies}
         names = learned_names(policy_files, exp.name)

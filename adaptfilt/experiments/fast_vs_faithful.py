@@ -1,25 +1,29 @@
-r"""Is the fast trainer as good as Algorithm 2 as printed? The seed-level comparison.
+r"""Is the fast trainer as good as Algorithm 2's loop (the faithful trainer)? The seed-level comparison.
 
 For an experiment evaluated with both seed groups, ``adaptive`` (the fast
 mode, :data:`adaptfilt.trainers.FAST`) and ``adaptive-faithful`` (Algorithm 2,
 one episode at a time), on the same runs: for each metric the IQM over seeds
 of each group and the difference fast minus faithful with its two-level
 (seeds x runs) bootstrap interval. The target: the fast mode is **not worse**
-on cost, RMSE and ANEES, a non-inferiority verdict: the interval lies below
-the margin of :data:`adaptfilt.seed_stats.MARGINS` (a fraction of the
-faithful IQM). The verdict the interval gives without a margin (it includes 0
-or lies below it) is kept beside it. The objective both optimise (mean
-``log(1 + L)``) is reported with them.
+on cost, RMSE and ANEES, a non-inferiority claim judged by the one rule
+(:func:`adaptfilt.verdicts.verdict`: confirmed when the interval lies below the
+margin, contradicted when it lies wholly above it) with the margins declared for
+``"fast vs faithful"`` in :data:`adaptfilt.verdicts.DECLARED_MARGINS` (a fraction
+of the faithful IQM). The objective both optimise (mean ``log(1 + L)``) is
+judged with them.
 """
 from __future__ import annotations
 
 from adaptfilt.experiments.claims import members
 from adaptfilt.experiments.report import md_table
-from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
+from adaptfilt.seed_stats import aggregate, difference
+from adaptfilt.verdicts import judge, verdict
 
-__all__ = ["comparison", "comparison_md", "METRICS"]
+__all__ = ["comparison", "comparison_md", "rejudge", "METRICS", "DECLARED"]
 
 METRICS = ("cost", "rmse", "anees", "objective")
+#: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) whose margins judge it.
+DECLARED = "fast vs faithful"
 
 
 def comparison(results: dict, train_times: dict | None = None, fast: str = "adaptive",
@@ -39,12 +43,10 @@ def comparison(results: dict, train_times: dict | None = None, fast: str = "adap
                 continue
             d = difference(res, A, B, m)
             faithful_agg = aggregate(res, B, m)
-            margin = margin_for(m, faithful_agg.iqm)
-            words = {"confirmed": "not worse", "contradicted": "worse"}
+            word, margin = judge("not worse", d["iqm"], DECLARED, m, faithful_agg.iqm)
             rows.append({"metric": m, "fast": aggregate(res, A, m).to_dict(), "faithful": faithful_agg.to_dict(),
                          "diff_iqm": list(d["iqm"]), "diff_mean": list(d["mean"]), "margin": margin,
-                         "verdict": words.get(seed_verdict(d["iqm"], "not worse", margin), "not shown"),
-                         "verdict_no_margin": words.get(seed_verdict(d["iqm"], "not worse", 0.0), "worse")})
+                         "claim": "fast not worse than faithful", "declared": DECLARED, "verdict": word})
         times = {}
         for group, names in ((fast, A), (faithful, B)):
             t = [v for k, v in (train_times or {}).items() if any(k.endswith(f"{e}-{n}.npz") for n in names)]
@@ -56,16 +58,31 @@ def comparison(results: dict, train_times: dict | None = None, fast: str = "adap
     return out
 
 
+def rejudge(comp: dict) -> dict:
+    """A stored comparison judged again by the one rule from each row's interval and margin (for the summaries
+    of a reproduction whose evaluations are not kept); rows lose the old ``verdict_no_margin``."""
+    out = {}
+    for e, d in comp.items():
+        rows = []
+        for r in d["rows"]:
+            r = {k: v for k, v in r.items() if k != "verdict_no_margin"}
+            r.update(claim="fast not worse than faithful", declared=DECLARED,
+                     verdict=verdict("not worse", r["diff_iqm"], r["margin"]))
+            rows.append(r)
+        out[e] = {**d, "rows": rows}
+    return out
+
+
 def comparison_md(comp: dict) -> str:
     lines = md_table(["experiment", "metric", "fast, IQM [95% CI] (range)", "faithful, IQM [95% CI] (range)",
-                      "fast - faithful, IQM [seed-level 95% CI]", "margin", "verdict", "without a margin"])
+                      "fast - faithful, IQM [seed-level 95% CI]", "margin", "fast not worse than faithful"])
     for e, d in comp.items():
         for r in d["rows"]:
             f, g, (x, lo, hi) = r["fast"], r["faithful"], r["diff_iqm"]
             cell = lambda a: (f"{a['iqm']:.4g} [{a['iqm_ci'][0]:.4g}, {a['iqm_ci'][1]:.4g}] "
                               f"({min(a['values']):.3g}..{max(a['values']):.3g})")
             lines.append(f"| {e} | {r['metric']} | {cell(f)} | {cell(g)} | {x:+.4g} [{lo:+.4g}, {hi:+.4g}] "
-                         f"| {r['margin']:.3g} | {r['verdict']} | {r['verdict_no_margin']} |")
+                         f"| {r['margin']:.3g} | {r['verdict']} |")
     times = []
     for e, d in comp.items():
         for g, t in d["train_time"].items():

@@ -22,7 +22,7 @@ takes a part whose key it records from the stored evaluation instead of computin
 :func:`look_summary` gives, per experiment, each reference's paired difference to greedy (run level:
 a reference is one policy) on the verdict cost (charged for what it computes where the cost charges
 compute, the SIF), RMSE and ANEES, its compute per step, and the learned groups' seed-level differences
-to greedy, ML and every reference with their verdicts (:func:`adaptfilt.seed_stats.seed_verdict`);
+to greedy, ML and every reference with their verdicts (:func:`adaptfilt.verdicts.verdict`, "lower");
 :func:`plot_look_gain` draws the gain over greedy against the horizon.
 """
 from __future__ import annotations
@@ -32,9 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from adaptfilt.experiments.report import md_table
+from adaptfilt.verdicts import verdict
 
 __all__ = ["LOOK", "LOOK_QUICK", "LOOK_BASES", "LOOK_BASES_QUICK", "look_specs", "look_job", "look_summary",
-           "plot_look_gain", "look_md", "look_files", "look_new_files", "stored_part", "part_names", "best_references"]
+           "rejudge", "plot_look_gain", "look_md", "look_files", "look_new_files", "stored_part", "part_names",
+           "best_references"]
 
 #: experiment -> (paired runs, ((H, S), ...)): the rollout references; UNGM also gets the two-step cross-check.
 #: Sized by ``benchmarks/bench_lookahead.py`` (rollout H = 1, S = 4 costs 36x greedy's time on UNGM, 59x on
@@ -82,7 +84,7 @@ def _policies(experiment: str, spec: tuple, files: list[str]) -> list:
 
     exp = get_experiment(experiment)
     if spec[0] == "base":
-        base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
+        base = [p for p in exp.baselines() if p.kind != "fixed-both"]
         return base + load_learned(exp, files)
     if spec[0] == "learned":
         return load_learned(exp, files)
@@ -150,7 +152,7 @@ def look_summary(res) -> dict:
         if n != "greedy":
             row["minus_greedy"] = {m: list(res.paired_difference(n, "greedy", m)) for m in metrics}
         (out["references"] if n in refs else out["baselines"])[n] = row
-    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = res.fixed_names()
     best = min(fixed, key=lambda n: getattr(res[n], cost))
     out["baselines"]["best fixed"] = {"policy": best, **{m: getattr(res[best], m) for m in metrics},
                                       "spent": res[best].spent,
@@ -164,22 +166,32 @@ def look_summary(res) -> dict:
             # cost and the objective, with its seed-level verdict ("lower": the interval below 0)
             out["learned"][g]["against"] = _against(res, names, ["ml"] + refs, (cost, "objective"))
     # Bertsekas' cost improvement: rollout on greedy costs no more than greedy (exact expectations, full
-    # horizon); here truncated and sampled, so measured: "holds" when the paired interval is not above 0
+    # horizon); here truncated and sampled, so measured: the verdict on "the reference is lower than greedy"
     for n, row in out["references"].items():
-        d = row["minus_greedy"][cost]
-        row["improves_on_greedy"] = "yes" if d[2] < 0 else ("no (worse)" if d[1] > 0 else "not separable")
+        row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
+    return out
+
+
+def rejudge(look: dict) -> dict:
+    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` judged again
+    by the one rule from its stored interval of the verdict cost's difference to greedy."""
+    out = {}
+    for e, s in look.items():
+        refs = {n: {**row, "improves_on_greedy": verdict("lower", row["minus_greedy"][s["verdict_cost"]])}
+                for n, row in s["references"].items()}
+        out[e] = {**s, "references": refs}
     return out
 
 
 def _against(res, names: list[str], refs: list[str], metrics) -> dict:
     """``{ref: {metric: [IQM difference, lo, hi], "verdict": ...}}`` of the seed group ``names`` against each
     single-policy reference (seed-level, paired runs); the verdict is on the first metric."""
-    from adaptfilt.seed_stats import difference, seed_verdict
+    from adaptfilt.seed_stats import difference
 
     out = {}
     for r in refs:
         row = {m: list(difference(res, names, [r], m)["iqm"]) for m in metrics}
-        row["verdict"] = seed_verdict(tuple(row[metrics[0]]), "lower")
+        row["verdict"] = verdict("lower", row[metrics[0]])
         out[r] = row
     return out
 
@@ -304,7 +316,7 @@ def look_md(look: dict) -> str:
              "cost: the experiment's verdict cost, charged for what a policy computes where the cost charges "
              "compute; compute per step in UKF updates or SIF iterations)", "",
              *md_table(["experiment", "policy", "cost", "cost - greedy", "RMSE - greedy", "ANEES - greedy",
-                        "compute per step", "improves on greedy?"])]
+                        "compute per step", "lower cost than greedy"])]
     for e, s in look.items():
         c = s["verdict_cost"]
         g = s["baselines"]["greedy"]

@@ -49,25 +49,18 @@ CONDITIONS = tuple(Condition(q, r) for q in FACTORS for r in FACTORS)
 
 
 def truth_model(experiment: str, condition: Condition):
-    """The experiment's model with ``Q`` and ``R`` scaled (same functions, prior, horizon)."""
-    from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.models import StateSpaceModel
+    """The experiment's model with ``Q`` and ``R`` scaled (same functions, prior, horizon):
+    :func:`adaptfilt.experiment_registry.scaled_truth`."""
+    from adaptfilt.experiment_registry import get_experiment, scaled_truth
 
-    m = get_experiment(experiment).make_model()
-    return StateSpaceModel(f=m.f, h=m.h, Q=m.Q * condition.q, R=m.R * condition.r, m0=m.m0, P0=m.P0,
-                           residual=m.residual, name=m.name, n_steps=m.n_steps, F=m.F, H=m.H,
-                           circular_z=m.circular_z, time_features=m.time_features,
-                           time_feature_names=m.time_feature_names, description=f"{m.name}, {condition.name}")
+    return scaled_truth(get_experiment(experiment).make_model(), condition.q, condition.r)
 
 
 def mismatched_env(experiment: str, condition: Condition, seed: int = 0, n_steps: int | None = None):
-    """The nominal filter and cost, trajectories from the scaled truth."""
+    """The nominal filter and cost, trajectories from the scaled truth (the experiment's variant)."""
     from adaptfilt.experiment_registry import get_experiment
 
-    exp = get_experiment(experiment)
-    env = exp.make_env(seed=seed, n_steps=n_steps)
-    env.truth = truth_model(experiment, condition)
-    return env
+    return get_experiment(experiment).make_env(seed=seed, n_steps=n_steps, truth=truth_model(experiment, condition))
 
 
 def evaluate_condition(experiment: str, condition: Condition, policies: list, n_runs: int = 2000,
@@ -78,7 +71,7 @@ def evaluate_condition(experiment: str, condition: Condition, policies: list, n_
 
     exp = get_experiment(experiment)
     env = mismatched_env(experiment, condition, seed, n_steps)
-    base = [p for p in exp.baselines() if not p.name.startswith("fixed-both-")]
+    base = [p for p in exp.baselines() if p.kind != "fixed-both"]
     res = evaluate(env, base + list(policies), n_runs=n_runs, seed=seed, progress=False)
     res.config.update(experiment=experiment, condition=condition.key)
     return res
@@ -105,7 +98,6 @@ def retune(policy, experiment: str, condition: Condition, episodes: int = 50, se
 
     env = mismatched_env(experiment, condition, seed, n_steps)
     venv = afg.SB3VecEnv(afg.FilterVectorEnv(env, n_envs, policy.feature_set, policy.scaler, seed=seed))
-    venv.venv.experiment = experiment
     venv.seed(seed)
     hidden = list(policy.actor.hidden)
     act = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh}[policy.actor.activation]

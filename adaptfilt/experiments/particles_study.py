@@ -1,4 +1,4 @@
-"""The particle-count study of ``adaptfilt beyond --studies particles`` (issue 24's study, chapter 15).
+"""The particle-count study of ``adaptfilt beyond --studies particles`` (chapter 17).
 
 Learned particle counts (the fast mode, gamma 0.5, 8 seeds) on every experiment of
 :data:`~adaptfilt.experiment_registry.PARTICLE_EXPERIMENTS` (UNGM and the CTM, two prices per particle),
@@ -13,12 +13,12 @@ what is particular to the study: its scale, its jobs' arguments, the floor and t
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from adaptfilt.experiments.report import md_table
+from adaptfilt.verdicts import verdict
 
 __all__ = ["ParticleScale", "PARTICLE_FULL", "PARTICLE_QUICK", "REFERENCE_PREFIX", "EVAL_PARTS", "evaluate_model_job",
            "merge_model_parts", "reference_parts", "floor_job", "particle_rows", "particles_md", "plot_particle_tradeoff"]
@@ -38,6 +38,10 @@ class ParticleScale:
     n_steps: int | None
     eval_runs: int
     floor_runs: int
+
+    def words(self) -> str:
+        """The budgets, as a journal key reads them."""
+        return f"episodes={self.episodes} steps={self.n_steps} runs={self.eval_runs} floor={self.floor_runs}"
 
 
 #: Budgets of the particle study: 500 training episodes (5x10^4 transitions on UNGM's 100 steps; about 6
@@ -80,7 +84,7 @@ def evaluate_model_job(experiments: list[str], files: list[list[str]], scale: Pa
             shared = evaluate_costs(exps, pols, n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps)
             got = [shared[e.name] for e in exps]
         elif part == "reference":
-            ref, failed = reference_parts(exps, blind[:1], scale, seed)
+            ref, failed = reference_parts(exps, scale, seed)
             got = [ref[e.name] for e in exps]
             for r in got:
                 r.config["reference_failed"] = failed
@@ -108,72 +112,48 @@ def merge_model_parts(parts: list):
     return res
 
 
-def reference_parts(exps: list, probe: list, scale: ParticleScale, seed: int = 0) -> tuple[dict, dict]:
+def reference_parts(exps: list, scale: ParticleScale, seed: int = 0) -> tuple[dict, dict]:
     """The fixed counts in their best-known form: the library's
     :class:`~adaptfilt.exact.BootstrapParticleFilter` (systematic resampling, only when ESS < N/2; the
-    weights carried otherwise) with every count ``N`` of the grid, named ``bpf-N``, on the evaluation's runs
-    and bootstrap resamples, charged each experiment's cost (``||x_filt - x||^2 + price N``). The study's
-    own filter resamples multinomially at every step, which is what KLD-sampling and a count that changes
-    per step need, and what makes particle ``j`` the same for every count; a fixed count needs neither,
-    so this is the bar a learned count has to clear. Returns ``({experiment: Results}, {N: reason})``: a
-    count whose filter fails (no particle explains a measurement) has no row and its reason.
-    ``probe``: one cost-blind policy, to set the evaluation up (:func:`~adaptfilt.evaluation.setup_evaluation`) exactly
-    as :func:`~adaptfilt.evaluation.evaluate` does."""
-    from adaptfilt.evaluation import setup_evaluation, summarise_rollout
+    weights carried otherwise) with every count ``N`` of the grid, named ``bpf-N``, evaluated beside the
+    policies on the evaluation's runs (:func:`~adaptfilt.evaluation.evaluate_costs` with ``filters``),
+    charged each experiment's cost (``||x_filt - x||^2 + price N``). The study's own filter resamples
+    multinomially at every step, which is what KLD-sampling and a count that changes per step need, and
+    what makes particle ``j`` the same for every count; a fixed count needs neither, so this is the bar a
+    learned count has to clear. Returns ``({experiment: Results}, {N: reason})``: a count whose filter
+    fails (no particle explains a measurement) has no row and its reason."""
+    from adaptfilt.evaluation import evaluate_costs
     from adaptfilt.exact import BootstrapParticleFilter
-    from adaptfilt.gaf import FilterRun
-    from adaptfilt.particle_env import ParticleUpdate
-    from adaptfilt.results import PolicyResult, Results
 
     for e in exps:
         if getattr(e.cost, "kind", None) != "sqerr":
             raise ValueError(f"{e.name}: the reference filter is charged the squared error only (its NIS and update "
                              f"step are not the study filter's), got the cost {e.cost.name!r}")
-    setups = [setup_evaluation(e, probe, scale.eval_runs, seed, 1000, None, 0.95, None, scale.n_steps) for e in exps]
-    env, _, traj, counts, _ = setups[0]
-    M, T = traj.n_runs, env.n_steps
-    x = traj.x[:, :T]
-    out = {e.name: Results(config=dict(c)) for e, (*_, c) in zip(exps, setups)}
+    env = exps[0].make_env(seed=seed, n_steps=scale.n_steps)
+    filters = {f"{REFERENCE_PREFIX}{N}": BootstrapParticleFilter(env.model, n_particles=int(N),
+                                                                 seed=[_REFERENCE_KEY, seed, int(N)])
+               for N in env.grid.astype(int)}
+    out = evaluate_costs(exps, [], n_runs=scale.eval_runs, seed=seed, progress=False, n_steps=scale.n_steps,
+                         filters=filters, on_filter_error="skip")
     failed: dict = {}
-    for N in env.grid.astype(int):
-        pf = BootstrapParticleFilter(env.model, n_particles=int(N), seed=np.random.default_rng([_REFERENCE_KEY, seed, int(N)]))
-        t0 = time.perf_counter()
-        try:
-            run = pf.run(traj.z[:, :T])
-        except ValueError as err:  # no particle explains a measurement: not a usable filter at this count
-            failed[int(N)] = str(err)
-            continue
-        run = FilterRun(mean=run.mean, cov=run.cov, nis=run.nis, loglik=run.loglik, params=np.full((M, T), float(N)),
-                        info={**run.info, "spent": np.full(M, float(N)), "on_indefinite": "inf"})
-        err = (run.mean - x).reshape(M * T, -1)
-        u = ParticleUpdate(nis=np.full(M * T, np.nan), dx=np.full_like(err, np.nan), err=err)
-        for e in exps:
-            cost = e.cost(u, np.full(M * T, float(N)), env.nz).reshape(M, T)
-            summ = summarise_rollout(f"{REFERENCE_PREFIX}{N}", x, run, cost, env.grid, counts, 0, 0.95,
-                                     e.cost.compute_weight)
-            out[e.name].policies[f"{REFERENCE_PREFIX}{N}"] = PolicyResult(name=f"{REFERENCE_PREFIX}{N}", **summ,
-                                                                         wall_time_s=time.perf_counter() - t0)
-    for r in out.values():
-        r.config["policies"] = list(r.policies)
+    for r in out.values():  # every experiment's results name the same failures
+        failed = {int(n[len(REFERENCE_PREFIX):]): why for n, why in r.config.pop("failed_filters", {}).items()}
     return out, failed
 
 
 def floor_job(experiment: str, scale: ParticleScale, seed: int = 0) -> dict:
-    """RMSE of the point-mass filter (the exact posterior up to its grid) on the first ``floor_runs`` of the
-    evaluation's runs of a one-dimensional model: the accuracy no particle count can beat. None for others."""
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
-    from adaptfilt.exact import PointMassFilter
+    """RMSE of the point-mass filter (the exact posterior up to its grid, :func:`~adaptfilt.exact.bayes_floor`)
+    on the first ``floor_runs`` of the evaluation's runs of a one-dimensional model: the accuracy no particle
+    count can beat. None for others."""
+    from adaptfilt.exact import UNGM_STUDY_FLOOR_GRID, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.runs import EvalRuns
 
-    exp = get_experiment(experiment)
-    env = exp.make_env(seed=seed, n_steps=scale.n_steps)
+    env = get_experiment(experiment).make_env(seed=seed, n_steps=scale.n_steps)
     if env.nx != 1:
         return {"rmse": None, "runs": 0}
-    traj = env.truth.simulate(scale.eval_runs, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, seed]))
-    sub = traj[: scale.floor_runs]
-    run = PointMassFilter(env.model, grid=np.linspace(-45, 45, 1801)).run(sub.z)
-    se = ((run.mean - sub.x) ** 2).sum(axis=-1)
-    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "runs": int(scale.floor_runs)}
+    runs = EvalRuns(env.truth, scale.eval_runs, seed, env.n_steps)
+    return bayes_floor(env.model, runs, scale.floor_runs, UNGM_STUDY_FLOOR_GRID).summary()
 
 
 def particle_rows(res, floor: dict | None = None) -> dict:
@@ -204,10 +184,11 @@ def particle_rows(res, floor: dict | None = None) -> dict:
         for label, other in (("best kld", kld), ("best fixed", best), ("best reference", best_ref)):
             if other is not None:
                 g[f"minus_{label}"] = {m: list(difference(res, members, [other], m)["iqm"]) for m in ("cost_charged", "rmse")}
-        # a seed is below a baseline alone when its own paired run-level interval lies below zero
+        # a seed is below a baseline alone when its own paired run-level interval confirms "lower"
         for label, other in (("kld", kld), ("fixed", best), ("reference", best_ref)):
             if other is not None:
-                g[f"seeds_below_{label}"] = int(sum(res.paired_difference(n, other, "cost_charged")[2] < 0 for n in members))
+                g[f"seeds_below_{label}"] = sum(verdict("lower", res.paired_difference(n, other, "cost_charged"))
+                                                == "confirmed" for n in members)
         rows["adaptive"] = g
     return rows
 

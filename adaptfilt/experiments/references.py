@@ -6,7 +6,10 @@ r"""Independent references for the reproduction: the Bayes floor on UNGM and the
   match a filter on the CTM as printed: every reading of the set-up and every
   RMSE definition we could think of, side by side.
 
-``python -c "from adaptfilt.experiments.references import ungm_floor; print(ungm_floor(2000, 0))"``
+``adaptfilt floor --runs 2000 --seed 0 --out data/results/ungm-floor.json`` and ``adaptfilt reconcile --runs 2000
+--seed 0 --out data/results/ctm-reconciliation.json`` (the reproduction's stages of those names) write them;
+each JSON records that line (:func:`floor_command`, :func:`reconcile_command`), with the reproduction's path
+wherever it was written.
 """
 from __future__ import annotations
 
@@ -14,47 +17,48 @@ import time
 
 import numpy as np
 
-__all__ = ["ungm_floor", "ctm_reconciliation", "SEED"]
+__all__ = ["ungm_floor", "ctm_reconciliation", "floor_command", "reconcile_command", "SEED"]
 
 #: Seed of the reference computations (the evaluations' seed).
 SEED = 0
 
 
+def floor_command(n_runs: int, seed: int, n_steps: int | None = None, eval_runs: int = 10_000) -> str:
+    """The ``adaptfilt floor`` line of :func:`ungm_floor` (what its JSON and the manifest record)."""
+    return (f"adaptfilt floor --runs {n_runs} --seed {seed}" + ("" if n_steps is None else f" --horizon {n_steps}")
+            + ("" if eval_runs == 10_000 else f" --eval-runs {eval_runs}") + " --out data/results/ungm-floor.json")
+
+
+def reconcile_command(n_runs: int, seed: int, n_steps: int | None = None) -> str:
+    """The ``adaptfilt reconcile`` line of :func:`ctm_reconciliation`."""
+    return (f"adaptfilt reconcile --runs {n_runs} --seed {seed}" + ("" if n_steps is None else f" --horizon {n_steps}")
+            + " --out data/results/ctm-reconciliation.json")
+
+
 def ungm_floor(n_runs: int = 2000, seed: int = SEED, n_steps: int | None = None, chunk: int = 250,
                n_boot: int = 1000, eval_runs: int = 10_000) -> dict:
-    """Bayes floor on UNGM: the point-mass filter (grid -45..45, 901 points) on the
-    first ``n_runs`` trajectories of the UNGM evaluation on ``eval_runs`` runs (same
-    seed, so the same runs the UKF policies are scored on), time-averaged RMSE with a
-    bootstrap CI."""
+    """Bayes floor on UNGM: :func:`adaptfilt.exact.bayes_floor` (the point-mass filter, grid -45..45, 901
+    points) on the first ``n_runs`` runs of the UNGM evaluation on ``eval_runs`` runs (same seed, so the same
+    runs the UKF policies are scored on), time-averaged RMSE with a bootstrap CI (resamples of its own)."""
     from adaptfilt import metrics
-    from adaptfilt.evaluation import TRAJ_SEED_KEY
-    from adaptfilt.exact import PointMassFilter
+    from adaptfilt._version import __version__
+    from adaptfilt.exact import UNGM_FLOOR_GRID, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.runs import EvalRuns, bootstrap_counts
 
     t0, c0 = time.perf_counter(), time.process_time()
     env = get_experiment("ungm-ukf").make_env(seed=seed, n_steps=n_steps)
-    T = env.n_steps
-    # evaluate() simulates eval_runs runs of T steps from this generator; the floor takes the first n_runs.
-    traj = env.model.simulate(max(int(eval_runs), n_runs), T, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed)]))
-    x, z = traj.x[:n_runs], traj.z[:n_runs]
-    pmf = PointMassFilter(env.model, grid=np.linspace(-45, 45, 901))
-    mean = pmf.run(z, chunk=chunk).mean  # chunk by chunk, the kernel once per step: as a call per chunk
-    se = np.concatenate([metrics.squared_error(x[i:i + chunk], mean[i:i + chunk]) for i in range(0, n_runs, chunk)])
-    counts = metrics.bootstrap_counts(n_runs, n_boot, rng=np.random.default_rng([TRAJ_SEED_KEY, int(seed), 2]))
-    boot = metrics.bootstrap_rmse(se, counts)
+    runs = EvalRuns(env.model, max(int(eval_runs), n_runs), seed, env.n_steps)
+    floor = bayes_floor(env.model, runs, n_runs, UNGM_FLOOR_GRID, chunk=chunk)  # chunk by chunk, the kernel once a step
+    boot = metrics.bootstrap_rmse(floor.se, bootstrap_counts(n_runs, n_boot, seed, stream=2))
     lo, hi = metrics.percentile_ci(boot)
-    from adaptfilt._version import __version__
-
-    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "rmse_ci": [lo, hi],
-            "rmse_run_median": float(np.median(np.sqrt(se.mean(axis=1)))), "n_runs": int(n_runs), "n_steps": int(T),
-            "seed": int(seed), "grid": "np.linspace(-45, 45, 901)",
-            "trajectories": f"first {n_runs} of the UNGM evaluation (default_rng([{TRAJ_SEED_KEY}, {seed}]), "
+    return {"rmse": floor.rmse, "rmse_ci": [lo, hi], "rmse_run_median": float(np.median(floor.run_rmse)),
+            "n_runs": int(n_runs), "n_steps": int(env.n_steps), "seed": int(seed), "grid": floor.grid,
+            "trajectories": f"first {n_runs} of the UNGM evaluation ({runs.trajectories.replace('seed', str(seed))}, "
                             f"{'10^4' if eval_runs == 10_000 else eval_runs} runs)",
             "version": __version__,
-            "command": "python -c \"from adaptfilt.experiments.references import ungm_floor; "
-                       f"print(ungm_floor({n_runs}, {seed}{'' if eval_runs == 10_000 else f', eval_runs={eval_runs}'}))\"",
+            "command": floor_command(n_runs, seed, n_steps, eval_runs),
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}
-
 
 
 def _ctm(omega=0.5, q=1.0, R=0.04, P0=None, m0=(80.0, 0.0, 0.0, 20.0), sensor=(0.0, 0.0), n_steps=150):
@@ -144,5 +148,5 @@ def ctm_reconciliation(n_runs: int = 2000, seed: int = SEED, n_steps: int | None
 
     return {"rows": rows, "paper_table1_rmse_range": [5.630, 6.866], "seed": int(seed),
             "version": __version__,
-            "command": f"python -c \"from adaptfilt.experiments.references import ctm_reconciliation; ctm_reconciliation({n_runs}, {seed})\"",
+            "command": reconcile_command(n_runs, seed, n_steps),
             "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - c0}

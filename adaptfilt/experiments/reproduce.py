@@ -20,7 +20,7 @@ Learned policies (``kind``):
   :data:`SEEDS` training seeds each, trained by the fast mode
   (:mod:`adaptfilt.trainers`, ``--algo fast``);
 * ``adaptive-faithful``, on UNGM-UKF and CTM-UKF, the same seeds trained by
-  Algorithm 2 as printed (``--algo faithful``): the reference the fast mode is
+  Algorithm 2's loop with the library's recipe (``--algo faithful``): the reference the fast mode is
   measured against. About 11 CPU-minutes each, so trained only with
   ``faithful=True`` (``--faithful``) and otherwise reused from ``data/`` when
   their file records the expected command.
@@ -63,15 +63,16 @@ from pathlib import Path
 
 import numpy as np
 
-from adaptfilt.experiments.claims import PAPER_TABLE1, SIF_EXPERIMENTS, claims, table1  # noqa: F401 (re-exported)
-from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, train
+from adaptfilt.experiment_registry import SIF_EXPERIMENTS
+from adaptfilt.experiments.claims import claims, table1
+from adaptfilt.experiments.jobs import TrainSpec, evaluate_command as _evaluate_line, load_learned, run_training
 from adaptfilt.experiments.journal import Journal, load_results, save_results
-from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor  # noqa: F401 (old commands use these names)
+from adaptfilt.experiments.references import ctm_reconciliation, ungm_floor
 from adaptfilt.experiments.report import embed_report_tables, figures, report_tables, table1_md
 from adaptfilt.files import atomic_write, sha256
 
-__all__ = ["reproduce", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command", "sha256",
-           "ungm_floor", "ctm_reconciliation", "embed_report_tables"]
+__all__ = ["reproduce", "report_only", "Scale", "FULL", "QUICK", "SEEDS", "KINDS", "FAITHFUL", "policy_command",
+           "sha256", "embed_report_tables"]
 
 #: Training seeds of every learned policy.
 SEEDS = tuple(range(8))
@@ -275,7 +276,7 @@ class _Run:
 
     def adopt(self, rel: str, command: str, keep: bool = False) -> bool:
         """A policy file in data/ that no manifest lists yet, made by the expected command."""
-        from adaptfilt.learned import read_npz
+        from adaptfilt.files import read_npz
 
         if self.quick or self.found is None or (self.retrain and not keep) or not (self.data / rel).exists():
             return False
@@ -292,15 +293,14 @@ class _Run:
 
 def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, progress: bool = True,
               workers: int | None = None, cluster=None, experiments: tuple[str, ...] | None = None,
-              faithful: bool = False, jobs: int | None = None, scale: str | Scale | None = None,
+              faithful: bool = False, scale: str | Scale | None = None,
               data: str | Path | None = None) -> dict:
     """Train + evaluate + floor + reconciliation + figures + tables into ``out_dir`` (module docstring).
 
     ``scale``: ``"full"`` (default), ``"medium"`` or ``"quick"`` (:data:`SCALES`; ``quick=True``
     is ``"quick"``). Only the full scale reuses the fast-mode policies and results of ``data/``;
     every scale but ``quick`` reuses its paper-faithful policies.
-    ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``; ``jobs`` is
-    its old name); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
+    ``workers``: local processes (default: every core, or ``$ADAPTFILT_JOBS``); ``cluster``: a Dask scheduler address, ``"local"`` or a ``distributed.Client``.
     ``data``: the stored artefacts to reuse (default: ``$ADAPTFILT_DATA``, then the checkout's ``data/``).
     Returns ``{"timings", "table1", "claims", "figures"}``.
     """
@@ -308,7 +308,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, retrain: bool = False, p
     from adaptfilt.results import Results
 
     exps = tuple(EXPERIMENTS) if experiments is None else tuple(experiments)
-    r = _start(out_dir, quick, retrain, progress, workers if workers is not None else jobs, cluster, scale, data, exps)
+    r = _start(out_dir, quick, retrain, progress, workers, cluster, scale, data, exps)
     T0 = time.perf_counter()
     learned = _train_stage(r, exps, faithful)
     _evaluate_stage(r, exps, learned)
@@ -371,7 +371,8 @@ def _train_stage(r: _Run, exps: tuple[str, ...], faithful: bool) -> dict[str, li
     resumed = r.journal.count(keys)
     r.say(f"[train] {len(todo) - resumed} policies to train, {resumed} finished by an earlier run ({JOURNAL}), "
           f"{n_reused} reused")
-    res_jobs = r.jobs(train, [(spec,) for _, spec in todo], keys, "train", files=[[spec.out] for _, spec in todo])
+    made = r.jobs(run_training, [(spec,) for _, spec in todo], keys, "train", files=[[spec.out] for _, spec in todo])
+    res_jobs = [m[spec.out] for m, (_, spec) in zip(made, todo)]
     for (rel, spec), t in zip(todo, res_jobs):
         t = {k: v for k, v in t.items() if k != "command"}
         r.entries[rel] = {"command": spec.command, "seed": spec.seed, **t}
@@ -517,6 +518,135 @@ def _extra_tables(r: _Run, results: dict, cl: dict) -> dict[str, str]:
     return extra
 
 
+def report_only(out_dir: str | Path, data: str | Path | None = None, progress: bool = True) -> list[str]:
+    """``adaptfilt reproduce --out DIR --report-only``: the verdicts and the report's tables again, from what
+    ``DIR`` holds, nothing trained or evaluated; for a change of the verdict rule or of the report. Returns the
+    files rewritten; each is listed in DIR's manifest with its new sha256 and, as its command, this one.
+
+    * A reproduction (``data/``, or a full-scale ``DIR``): the claims, Table I and the fast-vs-faithful
+      comparison recomputed from its evaluations (``results/<experiment>/``), and ``report-tables.md`` with
+      every stage time and training time that ``timings.json`` recorded (kept unchanged: no run was made);
+      the figures are kept (they hold no verdict); a ``DIR`` other than ``data/`` also gets its agreement
+      with ``data/`` again, as ``reproduce`` writes it.
+    * A stored check (``data/medium``, ``data/retrain``: its summaries only,
+      :func:`adaptfilt.experiments.artefacts.store_check`): every stored row judged again by the one rule from
+      its stored interval and margin (:func:`adaptfilt.experiments.claims.rejudge`), its agreement with
+      ``data/``'s claims recomputed, and the verdict sections of its ``report-tables.md`` rewritten.
+    """
+    from adaptfilt.experiment_registry import EXPERIMENTS
+    from adaptfilt.experiments.artefacts import find_data
+
+    out = Path(out_dir).resolve()
+    man = _load_manifest(out)
+    if not man.get("files"):
+        raise ValueError(f"{out}: no manifest.json listing files; not a reproduction or a stored check")
+    found = find_data(data)
+    ref_dir = found.resolve() if found is not None else None
+    exps = [e for e in EXPERIMENTS if (out / f"results/{e}/results.json").exists()]  # the reproduction's order
+    files = _rejudge_reproduction(out, exps, ref_dir) if exps else _rejudge_check(out, ref_dir)
+    cmd = report_only_command(out, ref_dir)
+    files = {rel: text for rel, text in files.items()  # a file that comes out byte for byte the same stays as made
+             if not (out / rel).exists() or (out / rel).read_text() != text}
+    for rel, text in files.items():
+        atomic_write(out / rel, text)
+    for e in man["files"]:  # the files the manifest lists (data/'s does not list its report-tables.md)
+        if e["path"] in files:
+            e.update(sha256=sha256(out / e["path"]), command=cmd)
+    atomic_write(out / "manifest.json", json.dumps(man, indent=1) + "\n")
+    if progress:
+        print(f"[report-only] {out}: {len(files)} files rewritten ({', '.join(sorted(files))})", file=sys.stderr)
+    return sorted(files)
+
+
+def _read_json(out: Path, rel: str):
+    return json.loads((out / rel).read_text()) if (out / rel).exists() else None
+
+
+def _rejudge_reproduction(out: Path, exps: list[str], ref_dir: Path | None) -> dict[str, str]:
+    """:func:`report_only` on a reproduction: its files' new texts, everything from its evaluations."""
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+    from adaptfilt.experiments.fast_vs_faithful import comparison_md
+    from adaptfilt.results import Results
+
+    files: dict[str, str] = {}
+    results = {e: Results.load(out / f"results/{e}") for e in exps}
+    stored = _read_json(out, "timings.json") or {}
+    t1, cl = table1(results), claims(results)
+    files["results/table1.json"], files["results/claims.json"] = _dump(t1), _dump(cl)
+    files["results/table1.md"] = table1_md(t1)
+    extra = {}
+    if any("adaptive-faithful-s0" in x for x in results.values()):
+        from adaptfilt.experiments.fast_vs_faithful import comparison
+
+        ff = comparison(results, stored.get("jobs", {}))
+        files["results/fast-vs-faithful.json"] = _dump(ff)
+        extra["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+    if ref_dir is not None and ref_dir != out and (ref_dir / "results/claims.json").exists():
+        agr = agreement(json.loads(files["results/claims.json"]), json.loads((ref_dir / "results/claims.json")
+                                                                            .read_text()))
+        files["results/agreement.json"] = _dump(agr)
+        extra["Verdicts of this full-scale run against the full scale (data/)"] = agreement_md(
+            agr, "this run", "full scale (data/)")
+    files["report-tables.md"] = report_tables(results, _read_json(out, "results/ungm-floor.json"), t1, cl,
+                                              _read_json(out, "results/ctm-reconciliation.json"),
+                                              stored.get("timings", {}), extra)
+    return files
+
+
+def _rejudge_check(out: Path, ref_dir: Path | None) -> dict[str, str]:
+    """:func:`report_only` on a stored check: its files' new texts, its rows judged again from their intervals."""
+    from adaptfilt.experiments.agreement import agreement, agreement_md
+    from adaptfilt.experiments.artefacts import CHECK_FILES
+    from adaptfilt.experiments.claims import rejudge
+    from adaptfilt.experiments.fast_vs_faithful import comparison_md, rejudge as rejudge_ff
+    from adaptfilt.experiments.report import claims_md, replace_sections
+
+    files: dict[str, str] = {}
+    have = [rel for rel in CHECK_FILES if (out / rel).exists()]
+    if "results/claims.json" not in have:
+        raise ValueError(f"{out}: neither evaluations (results/<experiment>/) nor stored claims to judge again")
+    cl = rejudge(_read_json(out, "results/claims.json"))
+    files["results/claims.json"] = _dump(cl)
+    sections = {"Claims (fast trainer, seed level)": claims_md(cl)}
+    if "faithful" in cl:
+        sections["Claims, paper-faithful training (seed level)"] = claims_md(cl["faithful"])
+    if "results/table1.json" in have:
+        files["results/table1.json"] = _dump(rejudge(_read_json(out, "results/table1.json")))
+    if "results/fast-vs-faithful.json" in have:
+        ff = rejudge_ff(_read_json(out, "results/fast-vs-faithful.json"))
+        files["results/fast-vs-faithful.json"] = _dump(ff)
+        sections["Fast trainer vs paper-faithful trainer (seed level)"] = comparison_md(ff)
+    if "results/agreement.json" in have:
+        if ref_dir is None or not (ref_dir / "results/claims.json").exists():
+            raise ValueError(f"{out} holds an agreement with data/'s claims, and no data/ was found")
+        agr = agreement(cl, json.loads((ref_dir / "results/claims.json").read_text()))
+        files["results/agreement.json"] = _dump(agr)
+        tables = (out / "report-tables.md").read_text()
+        title = next(t for t in ("Verdicts at medium scale against the full scale (data/)",
+                                 "Verdicts of this full-scale run against the full scale (data/)")
+                     if f"\n### {t}\n" in tables)
+        here = "medium scale" if "medium" in title else "this run"
+        sections[title] = agreement_md(agr, here, "full scale (data/)")
+    if "report-tables.md" in have:
+        files["report-tables.md"] = replace_sections((out / "report-tables.md").read_text(), sections)
+    return files
+
+
+def report_only_command(out: Path, data: Path | None = None) -> str:
+    """The command a file rewritten by :func:`report_only` records: ``--out data`` for the repository's
+    ``data/`` and its checks (``data/medium``), ``--out DIR`` elsewhere."""
+    try:
+        rel = out.relative_to(data.parent) if data is not None else None
+    except ValueError:
+        rel = None
+    where = str(rel) if rel is not None and str(rel).split("/")[0] == data.name == "data" else "DIR"
+    return f"adaptfilt reproduce --out {where} --report-only"
+
+
+def _dump(value) -> str:
+    return json.dumps(value, indent=1) + "\n"
+
+
 def run_command(scale: Scale) -> str:
     """The command recorded for the report's files (and as the manifest's ``generated_by``)."""
     return ("adaptfilt reproduce --out " + ("data" if scale is FULL else "DIR")
@@ -557,7 +687,7 @@ def _load_parts(folder: Path, stored: dict) -> tuple[list, dict]:
 
 
 def _names(experiment: str, rels: list[str]) -> list[str]:
-    from adaptfilt.evaluation import learned_name
+    from adaptfilt.learned import learned_name
 
     return [learned_name(r, experiment) for r in rels]
 

@@ -7,8 +7,9 @@ A study is a module with a ``NAME`` (its ``--studies`` word) and six functions (
 jobs of all studies share the workers:
 
 1. ``prepare(run)``: what must be chosen before training (the SIF study's safe action set), as summary entries;
-2. ``policies(run, summary)``: what it trains, ``[(path in DIR/beyond, TrainSpec)]``;
-3. ``evaluations(run, summary, trained)``: what it evaluates, ``[EvalSpec]`` (``trained``: its own policies);
+2. ``policies(run, summary)``: what it trains, ``[Training]`` (:class:`~adaptfilt.experiments.jobs.Training`:
+   ``adaptfilt train`` or ``adaptfilt train-gain`` lines, each naming the files it writes in DIR/beyond);
+3. ``evaluations(run, summary, trained)``: what it evaluates, ``[EvalSpec]`` (``trained``: its own trainings);
 4. ``rows(run, summary, specs, values)``: writes the evaluations' files, returns its summary entries;
 5. ``figures(run, summary)``: draws its figures into ``DIR/beyond/figures``, returns their paths;
 6. ``markdown(summary)``: its tables for REPRODUCTION.md (empty when the summary lacks it).
@@ -22,9 +23,10 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, evaluate_spec, job_key, load_learned, take_times
+from adaptfilt.experiments.jobs import EvalSpec, Training, evaluate_spec, job_key, load_learned, same_command, take_times
 from adaptfilt.experiments.report import md_table
 from adaptfilt.files import sha256
+from adaptfilt.verdicts import verdict
 
 __all__ = ["Study", "Run", "BeyondScale", "FULL", "QUICK", "GROUPS", "COMPACT", "study_rows", "groups_md",
            "evaluation", "evaluate_job", "divergence", "listed_policies", "same_training"]
@@ -36,8 +38,8 @@ class Study(Protocol):
     NAME: str
 
     def prepare(self, run: "Run") -> dict: ...
-    def policies(self, run: "Run", summary: dict) -> list[tuple[str, TrainSpec]]: ...
-    def evaluations(self, run: "Run", summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]: ...
+    def policies(self, run: "Run", summary: dict) -> list[Training]: ...
+    def evaluations(self, run: "Run", summary: dict, trained: list[Training]) -> list[EvalSpec]: ...
     def rows(self, run: "Run", summary: dict, specs: list[EvalSpec], values: list) -> dict: ...
     def figures(self, run: "Run", summary: dict) -> list[str]: ...
     def markdown(self, summary: dict) -> str: ...
@@ -53,6 +55,10 @@ class BeyondScale:
     n_steps: int | None
     eval_runs: int
     retune_episodes: int
+
+    def words(self) -> str:
+        """The budgets, as a journal key reads them."""
+        return f"runs={self.eval_runs} steps={self.n_steps} episodes={self.episodes} retune={self.retune_episodes}"
 
 
 FULL = BeyondScale("full", 1000, tuple(range(8)), None, 10_000, 50)
@@ -123,8 +129,7 @@ def evaluate_job(experiment: str, files: list[str], scale: BeyondScale, keep: tu
     from adaptfilt.experiment_registry import get_experiment
 
     exp = get_experiment(experiment)
-    base = [p for p in exp.baselines() if keep is None or p.name in keep or
-            (p.name.startswith("fixed-") and not p.name.startswith("fixed-both-"))]
+    base = [p for p in exp.baselines() if keep is None or p.name in keep or p.kind == "fixed"]
     target = exp if scale.n_steps is None else exp.make_env(n_steps=scale.n_steps)
     res = evaluate(target, base + load_learned(exp, files), n_runs=scale.eval_runs, seed=seed, progress=False)
     res.config.update(experiment=experiment)
@@ -135,7 +140,7 @@ def evaluation(study: str, experiment: str, files: list[str], scale: BeyondScale
                *seed: int) -> EvalSpec:
     """The :func:`evaluate_job` of ``study`` on ``experiment`` (``seed``: the evaluation seed when not 0)."""
     return EvalSpec(study, experiment, evaluate_job, (experiment, files, scale, keep, *seed),
-                    job_key("evaluate", study, experiment, files, scale, keep, *seed))
+                    job_key("evaluate", study, experiment, files, scale.words(), keep, *seed))
 
 
 def save_each(run: Run, study: str, specs: list[EvalSpec], values: list, rows: Callable) -> dict:
@@ -179,16 +184,17 @@ def study_rows(study: str, res, selection: dict | None = None, groups: Sequence[
         rows[g]["divergent_frac_max"] = float(max(res[n].divergent_frac for n in members))
         rows[g].update(divergence(res, members))
         rows[g]["spent"] = float(np.mean([res[n].spent for n in members]))
-        # each seed alone: is its own paired run-level interval of the cost difference below 0?
+        # each seed alone: does its own paired run-level interval confirm a lower cost than greedy's?
         c = "cost_charged" if study == "sif" else "cost"
-        rows[g]["seeds_below_greedy"] = int(sum(res.paired_difference(n, "greedy", c)[2] < 0 for n in members))
+        rows[g]["seeds_below_greedy"] = sum(verdict("lower", res.paired_difference(n, "greedy", c)) == "confirmed"
+                                            for n in members)
     if groups["adaptive-raw"] and groups["adaptive"]:  # the transform's effect, paired
         rows["adaptive-raw"]["minus_adaptive"] = {m: list(difference(res, groups["adaptive-raw"],
                                                                      groups["adaptive"], m)["iqm"])
                                                   for m in ("cost", "objective", "rmse", "anees")}
     # what a constant can do: the cheapest fixed value, among the safe ones where the study chose a safe set
     # (on its selection runs: a value that happened not to diverge on these runs was not chosen on them)
-    fixed = [n for n in res.names if n.startswith("fixed-") and not n.startswith("fixed-both-")]
+    fixed = res.fixed_names()
     if study == "sif":
         fixed = [n for n in fixed if any(n == f"fixed-{res.config['param_name']}={v:g}" for v in selection["safe"])]
     label = "best safe fixed" if study == "sif" else "best fixed"
@@ -272,5 +278,4 @@ def same_training(entry: dict | None, command: str, path: Path) -> bool:
     """A listed policy made by ``command`` (its --out aside: the folder may have moved) and unchanged since."""
     if entry is None or not path.is_file():
         return False
-    recorded = str(entry.get("command", "")).rsplit(" --out ", 1)[0]
-    return recorded == command.rsplit(" --out ", 1)[0] and sha256(path) == entry["sha256"]
+    return same_command(str(entry.get("command", "")), command) and sha256(path) == entry["sha256"]

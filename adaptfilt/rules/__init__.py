@@ -43,7 +43,6 @@ The rules live in :mod:`adaptfilt.rules.base` (:class:`Moments`, :class:`MomentR
 :mod:`adaptfilt.rules.unscented` (the deterministic rules) and :mod:`adaptfilt.rules.stochastic` (the
 stochastic integration rule); this package exports their public names.
 """
-from adaptfilt import linalg_kernels
 from adaptfilt.rules import _sif_kernels
 from adaptfilt.rules.base import MomentRule, Moments
 from adaptfilt.rules.stochastic import StochasticIntegrationRule, haar_rotations, stochastic_rule_points
@@ -59,8 +58,6 @@ def compiled_kernels() -> bool:
     """Whether the filters' compiled kernels run (the SIF's sums and draws, the scalar UKF's passes, the
     Cholesky factor): numba installed (the extra ``fast``), ``ADAPTFILT_SIF_BACKEND`` not ``numpy``, and
     numpy's einsum summing without fused multiply-adds, as the kernels do (their numbers are numpy's bit
-    for bit). Imports numba the first time."""
+    for bit). The switch is :mod:`adaptfilt.linalg_kernels`'s (:func:`~adaptfilt.linalg_kernels.compiled_sums`),
+    which the Cholesky factor reads too. Imports numba the first time."""
     return _sif_kernels.sums_available()
-
-
-linalg_kernels.gate = compiled_kernels  # the Cholesky factor's kernel follows the same switch

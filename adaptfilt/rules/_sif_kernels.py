@@ -26,24 +26,19 @@ same arithmetic in the same order and gives the same bits:
 The kernel also gathers the runs it is asked for (``runs``: a subset of the draws' runs, or the copies
 of a tiled batch), which the numpy form does with an explicit ``G[..., runs]`` first. numba is
 imported on first use, not with :mod:`adaptfilt`. ``ADAPTFILT_SIF_BACKEND=numpy`` (or
-:data:`BACKEND` set to ``"numpy"``) selects the numpy form everywhere, e.g. to time it.
+:data:`adaptfilt.linalg_kernels.BACKEND` set to ``"numpy"``, the one switch of every compiled kernel) selects
+the numpy form everywhere, e.g. to time it.
 """
 from __future__ import annotations
 
-import os
 import threading
 
 import numpy as np
 
-__all__ = ["BACKEND", "SUMS", "available", "fused_available", "gram_schmidt", "gram_schmidt_numpy", "points", "rule3_draws",
+from adaptfilt import linalg_kernels
+
+__all__ = ["available", "fused_available", "gram_schmidt", "gram_schmidt_numpy", "points", "rule3_draws",
            "rule3_points", "rule3_accumulate", "sums_available", "weighted_sums"]
-
-#: ``"auto"`` (the compiled kernel where numba is installed), ``"numba"`` (required) or ``"numpy"``
-BACKEND: str = os.environ.get("ADAPTFILT_SIF_BACKEND", "auto")
-
-#: whether the point sets' weighted sums (:func:`points`, :func:`weighted_sums`) are compiled too (where :data:`BACKEND` allows it
-#: and numpy's einsum sums without fused multiply-adds); False: numpy's form, e.g. to time the kernels apart
-SUMS: bool = True
 
 _kernel = None  # the compiled kernel once built; False where numba is missing
 _sums = None  # (points kernel, sums kernel) once built and checked against numpy; False where unusable
@@ -100,15 +95,8 @@ def available() -> bool:
 
 
 def _use_kernel() -> bool:
-    if BACKEND == "numpy":
-        return False
-    if BACKEND == "numba":
-        if not available():
-            raise ImportError("ADAPTFILT_SIF_BACKEND=numba needs numba (the optional extra 'fast')")
-        return True
-    if BACKEND != "auto":
-        raise ValueError(f"ADAPTFILT_SIF_BACKEND must be 'auto', 'numba' or 'numpy', got {BACKEND!r}")
-    return available()
+    """The switch (:func:`adaptfilt.linalg_kernels.use_compiled`) and this kernel built."""
+    return linalg_kernels.use_compiled() and available()
 
 
 def gram_schmidt_numpy(G: np.ndarray) -> np.ndarray:
@@ -140,7 +128,7 @@ def gram_schmidt(G: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
 def _build_sums():
     """The compiled point construction and weighted sums, or False: numba missing, or numpy's einsum
     found to sum otherwise than the kernel (a build whose baseline fuses multiply-adds, see
-    :func:`_einsum_is_plain`)."""
+    :func:`adaptfilt.linalg_kernels.einsum_is_plain`)."""
     global _sums
     if _sums is None:
         if not available():
@@ -227,30 +215,15 @@ def _build_sums():
                                     e[b] = e[b] + (-a[b]) * wd[b]
 
         _sums = (_points, _pair_sums_kernel)
-        if not _einsum_is_plain():
+        if not linalg_kernels.einsum_is_plain():
             _sums = False
     return _sums
 
 
-def _einsum_is_plain() -> bool:
-    """Whether numpy's einsum adds its products as the kernels do: one rounded product, then one
-    rounded sum, per term. A numpy built with fused multiply-adds in its baseline (aarch64's NEON;
-    an x86-64 build with FMA3 in its baseline) rounds once per term instead, and no kernel without
-    FMA can give its bits. Checked on products whose fused and unfused sums differ."""
-    e = 2.0 ** -30
-    M = 37  # SIMD blocks and a tail
-    a = np.empty((1, 2, M))
-    a[0, 0], a[0, 1] = 1.0 + e, 1.0 + e
-    b = np.empty((1, 2, M))
-    b[0, 0], b[0, 1] = -1.0, 1.0 - e  # 0 + -(1 + e), then + (1 + e)(1 - e) = 1 - e^2: 1 rounded, -e fused
-    got = np.einsum("isM,jsM->ijM", a, b)  # fused: -e - e^2
-    return bool(np.all(got == -e))
-
-
 def sums_available() -> bool:
-    """Whether :func:`points` and :func:`weighted_sums` are compiled (numba importable, :data:`BACKEND` and :data:`SUMS` allow it and
-    numpy's einsum sums as the kernel does); imports numba the first time."""
-    return SUMS and _use_kernel() and bool(_build_sums())
+    """Whether :func:`points` and :func:`weighted_sums` are compiled (the switch,
+    :func:`adaptfilt.linalg_kernels.compiled_sums`, and these kernels built); imports numba the first time."""
+    return linalg_kernels.compiled_sums() and _use_kernel() and bool(_build_sums())
 
 
 def _buffer(work: dict | None, key: str, shape: tuple) -> np.ndarray:
@@ -437,7 +410,7 @@ _DRAWS_MIN = 2048  # normals per call from which the compiled draw pays for numb
 def _build_draws():
     """numba's own port of numpy's Generator methods (the bit generator through its ctypes interface,
     numpy's ziggurat and Marsaglia-Tsang gamma with the same tables and the same calls to the C
-    library's ``exp`` and ``log``), compiled, or False: numba missing, :data:`BACKEND` is numpy, or the
+    library's ``exp`` and ``log``), compiled, or False: numba missing, the backend is numpy, or the
     port found to draw otherwise than numpy on a throwaway generator."""
     global _draws
     if not _use_kernel():

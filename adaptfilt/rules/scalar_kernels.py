@@ -11,7 +11,7 @@ the runs, element by element, with the operations numpy's form applies, in its o
   (:func:`_points1`); ``g`` at them (numpy, the model's code); then (:func:`_sums1`) the deviations
   ``d = g(X) - g(m)``, ``w d``, ``ED = 0 + w d_+ + w d_-`` (numpy's reduction from 0),
   ``EDD = 0 + (w d_+) d_+ + (w d_-) d_-`` and ``EXD = 0 + a (w d_+) + (-a)(w d_-)`` (einsum's sums
-  from 0, each product rounded: :func:`adaptfilt.rules._sif_kernels._einsum_is_plain`), the first
+  from 0, each product rounded: :func:`adaptfilt.linalg_kernels.einsum_is_plain`), the first
   set's ``+ 0``, ``Cov = EDD - ED ED`` and the mean ``g(m) + ED``
   (:meth:`adaptfilt.rules.MomentRule.moments`);
 * :func:`update`: the update from the measurement moments
@@ -27,7 +27,7 @@ the same numbers on any CPU (``tests/test_scalar_kernels.py``, also with numpy's
 Where a kernel's result would be an error or a repair in numpy's form (a factor of a covariance that
 is not positive, a non-finite mean), the caller computes the step again in numpy's form, which
 raises or repairs as it always did. They are used where :func:`available` (numba installed,
-:data:`adaptfilt.rules._sif_kernels.BACKEND` not ``"numpy"``, numpy's einsum without fused
+:data:`adaptfilt.linalg_kernels.BACKEND` not ``"numpy"``, numpy's einsum without fused
 multiply-adds) and for ``M >= 2`` runs (with one run numpy reduces a contiguous axis otherwise).
 """
 from __future__ import annotations
@@ -113,8 +113,8 @@ def _build():
 
 
 def available() -> bool:
-    """Whether the scalar kernels are used (numba importable, :data:`~adaptfilt.rules._sif_kernels.BACKEND`
-    and :data:`~adaptfilt.rules._sif_kernels.SUMS` allow compiled sums, numpy's einsum sums as they do)."""
+    """Whether the scalar kernels are used (numba importable, :data:`~adaptfilt.linalg_kernels.BACKEND`
+    and :data:`~adaptfilt.linalg_kernels.SUMS` allow compiled sums, numpy's einsum sums as they do)."""
     return _sif_kernels.sums_available() and bool(_build())
 
 

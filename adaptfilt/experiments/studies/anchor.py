@@ -3,7 +3,7 @@ r"""Study 5, ``anchor``: learned policies anchored on greedy (:mod:`adaptfilt.an
 On the candidate-aware state (greedy is a function of its inputs), a residual over greedy's choice
 (``adaptive-anchored``, gamma = 0.5), beside the same learner with gamma = 0 (``myopic-anchored``: all
 else equal, so that the paired difference is what of the anchored gain is looking ahead, the rule of
-chapter 7) and the candidate-aware policies of :mod:`~adaptfilt.experiments.studies.cand`, on runs no
+chapter 8) and the candidate-aware policies of :mod:`~adaptfilt.experiments.studies.cand`, on runs no
 choice of its recipe saw (:data:`ANCHOR_EVAL_SEED`).
 """
 from __future__ import annotations
@@ -28,17 +28,17 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     sc = run.scale
-    return [(rel, TrainSpec(e, g, sc.episodes, s, str(run.out / rel), features=feats, horizon=sc.n_steps,
-                            anchor=ANCHOR))
+    return [TrainSpec(e, g, sc.episodes, s, str(run.out / rel), features=feats, horizon=sc.n_steps,
+                      anchor=ANCHOR)
             for e, feats in CAND_EXPERIMENTS.items() for kind, g in KINDS for s in sc.seeds
             for rel in [f"policies/{e}-{kind}-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """Beside the candidate-aware policies there are (of this run or an earlier one)."""
-    return [evaluation(NAME, e, [str(run.out / rel) for rel, t in trained if t.experiment == e]
+    return [evaluation(NAME, e, [t.out for t in trained if t.experiment == e]
                        + [str(p) for p in sorted((run.out / "policies").glob(f"{e}-adaptive-cand-s*.npz"))],
                        run.scale, ("default", "ml", "greedy"), ANCHOR_EVAL_SEED) for e in CAND_EXPERIMENTS]
 

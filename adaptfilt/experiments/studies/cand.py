@@ -24,15 +24,15 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     sc = run.scale
-    return [(rel, TrainSpec(e, g, sc.episodes, s, str(run.out / rel), algo=CAND_ALGO, features=feats, horizon=sc.n_steps))
+    return [TrainSpec(e, g, sc.episodes, s, str(run.out / rel), algo=CAND_ALGO, features=feats, horizon=sc.n_steps)
             for e, feats in CAND_EXPERIMENTS.items() for kind, g in KINDS for s in sc.seeds
             for rel in [f"policies/{e}-{kind}-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
-    return [evaluation(NAME, e, [str(run.out / rel) for rel, t in trained if t.experiment == e], run.scale,
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
+    return [evaluation(NAME, e, [t.out for t in trained if t.experiment == e], run.scale,
                        ("default", "ml", "greedy")) for e in CAND_EXPERIMENTS]
 
 

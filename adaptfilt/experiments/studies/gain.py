@@ -1,4 +1,4 @@
-r"""Study 8, ``gain``: learn the parameter or learn the gain? (issue 38, item 2)
+r"""Study 8, ``gain``: learn the parameter or learn the gain?
 
 A 2 x 2 design on UNGM (``ungm-ukf``, T = 500) and the bearing-only CTM (``ctm-ukf``, T = 150) that
 separates *what is learned* from *what it is trained on*:
@@ -18,10 +18,12 @@ epochs (KalmanNet), so that the same seed gives the same policy on any machine o
 numbers were calibrated once on this 2-core machine (under ``nice -n 19``, other work running) to the
 targets :data:`TARGET_CPU_S` = 5, 15 and 45 CPU-s per policy (:data:`CALIBRATION` records the
 measurements that set them), and every policy's *measured* training CPU-s is reported beside its
-budget. KalmanNet trains once per seed and arm and is snapshotted at the three epoch counts
-(``train_kalmannet(snapshots=...)``: a snapshot is bit for bit the filter of a training that stopped
-there); the kappa learner (:func:`adaptfilt.trainers.train_policy` has no snapshots) trains
-separately at each budget, as the other studies' ``adaptfilt train`` jobs.
+budget. KalmanNet trains once per seed and arm and is snapshotted at the three epoch counts (one
+``adaptfilt train-gain ... --snapshots`` each, :func:`knet_spec`, writing a file per budget: a snapshot is
+bit for bit the filter of a training that stopped there); the kappa learner
+(:func:`adaptfilt.trainers.train_policy` has no snapshots) trains separately at each budget, as the
+other studies' ``adaptfilt train`` jobs. Both kinds are trainings of :func:`policies`, run, journaled,
+reused and recorded by the one loop of ``adaptfilt beyond``.
 
 **KalmanNet's recipe** (:data:`KNET`, fixed before any evaluation): 100 training and 50 validation
 trajectories of the full horizon simulated per seed (``data_seed`` = the seed: both gain arms of a seed
@@ -45,11 +47,11 @@ constant kappa (the best one in hindsight by RMSE is the bar), greedy and ML (on
 reproduction's), the bootstrap particle filter (:class:`~adaptfilt.exact.BootstrapParticleFilter`,
 :data:`PF_PARTICLES`) and, on UNGM, the point-mass filter on the first :attr:`GainScale.floor_runs`
 runs with the truth's own model (the Bayes floor; under the mismatch the filter that knows ``Q x 4``).
-KalmanNet enters the same :class:`~adaptfilt.results.Results` through :func:`kalmannet_result`, the
-library's own :func:`~adaptfilt.evaluation.summarise_rollout` on the evaluation's trajectories and
-bootstrap counts (:func:`~adaptfilt.evaluation.setup_evaluation`), so its differences to every other
-policy are paired. Two regimes (:data:`REGIMES`): the nominal model and a truth with ``Q x 4``
-(:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the nominal model, the filters keep it).
+KalmanNet and the particle filter are filters (:class:`~adaptfilt.filters.Filter`) evaluated beside the
+policies by the same :func:`~adaptfilt.evaluation.evaluate` (``filters=``), on the same runs and bootstrap
+resamples, so their differences to every other policy are paired. Two regimes (:data:`REGIMES`): the
+nominal model and a truth with ``Q x 4`` (:func:`adaptfilt.experiments.ood.mismatched_env`: trained on the
+nominal model, the filters keep it).
 The final budget is evaluated on :attr:`GainScale.eval_runs` runs (10^4), the budget curve (all three
 budgets, default and constants) on :attr:`GainScale.curve_runs` runs (2000: a cheaper, separate set).
 
@@ -58,8 +60,9 @@ and steps, KalmanNet's unit; per seed, IQM over seeds without an interval), ANEE
 defined, divergent runs by the error rule (a non-finite estimate, counted as an infinite error, never
 dropped, or a run RMSE above :data:`DIVERGED_RMSE`) for every arm and by the library's NEES rule where a
 covariance exists, training CPU-s, microseconds per run-step (the evaluation's wall time over its
-``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level with
-:data:`adaptfilt.seed_stats.MARGINS` for the pairs of :data:`PAIRS`, at every budget, model and regime.
+``M T`` run-steps, one thread). Verdicts (:func:`verdict_rows`) at the seed level by the one rule of
+:mod:`adaptfilt.verdicts`, "not worse" with the margin declared for :data:`DECLARED`, for the pairs of
+:data:`PAIRS`, at every budget, model and regime.
 
 **Size of the full run.** Estimated before it from one training per arm and budget (seed 0, :data:`SIZE`:
 about 250 CPU-s of training per seed and model, ~4,000 CPU-s in all); the CTM's kappa budgets were then set
@@ -72,15 +75,14 @@ means over seeds; the CTM kappa's first budget took 1.6 CPU-s, not the 5 targete
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, job_key
+from adaptfilt.experiments.jobs import EvalSpec, GainSpec, Training, TrainSpec, job_key
 from adaptfilt.experiments.report import md_table
-from adaptfilt.experiments.study import COMPACT, Run, diff_ci, listed_policies, same_training
+from adaptfilt.experiments.study import COMPACT, Run, diff_ci
 
 NAME = "gain"
 
@@ -99,7 +101,7 @@ REGIMES = {"nominal": (1.0, 1.0), "q4": (4.0, 1.0)}
 TARGET_CPU_S = (5.0, 15.0, 45.0)
 #: KalmanNet's training recipe (module docstring); ``n_steps`` is the model's horizon (the scale's at quick).
 KNET = dict(n_train=100, n_val=50, batch_size=20, lr=1e-3, weight_decay=1e-4, clip=10.0, feature_norm="scale",
-            on_diverged="stop", tbptt=100)
+            on_diverged="stop", tbptt=100, model_grad="finite-difference")
 #: Particles of the bootstrap particle filter reference (the reproduction's references: bpf-500 on UNGM,
 #: bpf-1000 on the CTM).
 PF_PARTICLES = {"ungm-ukf": 500, "ctm-ukf": 1000}
@@ -196,78 +198,35 @@ def knet_options(scale: GainScale) -> dict:
     return {**KNET, **scale.knet}
 
 
-def knet_command(experiment: str, arm: str, seed: int, scale: GainScale, epoch: int) -> str:
-    """What a KalmanNet file records (the manifest's ``command``): the call that makes it."""
-    from adaptfilt.experiment_registry import get_experiment
-
-    model = get_experiment(experiment).make_model()
-    T = scale.n_steps or model.n_steps
-    kw = ", ".join(f"{k}={v!r}" for k, v in sorted(knet_options(scale).items()))
-    last = scale.knet_epochs[experiment][-1]
-    return (f"adaptfilt.kalmannet.train_kalmannet(<{model.name}>, loss={LOSS[arm]!r}, n_steps={T}, epochs={last}, "
-            f"seed={seed}, {kw}, snapshots={list(scale.knet_epochs[experiment])}).snapshot({epoch})")
-
-
-# ------------------------------------------------------------------ KalmanNet training (prepare)
-def train_gain_job(experiment: str, arm: str, seed: int, scale: GainScale, paths: list[str]) -> dict:
-    """Train KalmanNet for ``arm`` once to the top budget and save its snapshot at each budget's epochs into
-    ``paths``; returns per path its training CPU-s (up to the snapshot), epochs, best epoch, restores."""
-    from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.kalmannet import train_kalmannet
-
-    model = get_experiment(experiment).make_model()
-    epochs = scale.knet_epochs[experiment]
-    knet = train_kalmannet(model, loss=LOSS[arm], n_steps=scale.n_steps or model.n_steps, epochs=epochs[-1],
-                           seed=seed, progress=False, snapshots=epochs, **knet_options(scale))
-    out = {}
-    for e, p in zip(epochs, paths):
-        snap = knet.snapshot(e)
-        snap.save(p)
-        h = snap.history
-        out[p] = {"cpu_time_s": float(h["cpu_s"]), "epochs": int(e), "best_epoch": int(h["best_epoch"]),
-                  "restores": len(h["restores"]), "optimiser_steps": int(h["optimiser_steps"]),
-                  "stopped_by_divergence": h.get("stopped_by_divergence")}
-    return out
+def knet_spec(experiment: str, arm: str, seed: int, scale: GainScale, root: Path) -> GainSpec:
+    """KalmanNet's training for ``arm`` (:data:`LOSS`) on ``experiment``'s model, seed ``seed``: once to the
+    top budget's epochs, snapshotted at each budget's into ``root / policy_rel(...)`` (``adaptfilt train-gain``)."""
+    k = knet_options(scale)
+    epochs = tuple(scale.knet_epochs[experiment])
+    return GainSpec(experiment, LOSS[arm], epochs[-1], seed,
+                    tuple(str(root / policy_rel(experiment, arm, b, seed)) for b in budgets(scale)), snapshots=epochs,
+                    horizon=scale.n_steps, train_runs=k["n_train"], val_runs=k["n_val"], batch_size=k["batch_size"],
+                    lr=k["lr"], weight_decay=k["weight_decay"], clip=k["clip"], tbptt=k["tbptt"],
+                    feature_norm=k["feature_norm"], on_diverged=k["on_diverged"], model_grad=k["model_grad"])
 
 
 def prepare(run: Run) -> dict:
-    """KalmanNet's trainings (one per model, gain arm and seed, snapshotted at the budgets), as journaled jobs;
-    files an earlier run listed in the manifest with the same command and sha256 are reused."""
-    sc = scale_of(run)
-    listed = listed_policies(run.out)
-    jobs, keys, files = [], [], []
-    for e in MODELS:
-        for arm in LOSS:
-            for s in sc.seeds:
-                rels = [policy_rel(e, arm, b, s) for b in budgets(sc)]
-                cmds = [knet_command(e, arm, s, sc, ep) for ep in sc.knet_epochs[e]]
-                if all(same_training(listed.get(r), c, run.out / r) for r, c in zip(rels, cmds)):
-                    continue
-                paths = [str(run.out / r) for r in rels]
-                jobs.append((e, arm, s, sc, paths))
-                keys.append((f"beyond gain kalmannet {e} {arm} {sc.words()} {KNET}", s))
-                files.append(paths)
-    run.say(f"[beyond] gain: {len(jobs)} KalmanNet trainings (each snapshotted at {len(TARGET_CPU_S)} budgets)")
-    values = run.jobs(train_gain_job, jobs, keys, files=files, progress=run.progress, desc="beyond: KalmanNet")
-    for (e, arm, s, _, paths), v in zip(jobs, values):
-        for ep, p in zip(sc.knet_epochs[e], paths):
-            rel = str(Path(p).relative_to(run.out))
-            run.entries[rel] = {"command": knet_command(e, arm, s, sc, ep), "cpu_time_s": v[p]["cpu_time_s"]}
     return {}
 
 
-# ------------------------------------------------------------------ kappa trainings
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+# ------------------------------------------------------------------ trainings
+def policies(run: Run, summary: dict) -> list[Training]:
     """The kappa learner (fast mode, gamma 0.5) on the NIS cost and on the squared error, one training per
-    budget (episodes) and seed."""
+    budget (episodes) and seed; KalmanNet once per model, gain arm and seed, snapshotted at the budgets."""
     sc = scale_of(run)
-    out = []
+    out: list[Training] = []
     for e, sq in MODELS.items():
         for arm, exp in (("kappa-nis", e), ("kappa-sqerr", sq)):
             for b, episodes in zip(budgets(sc), sc.kappa_episodes[e]):
                 for s in sc.seeds:
                     rel = policy_rel(e, arm, b, s)
-                    out.append((rel, TrainSpec(exp, 0.5, episodes, s, str(run.out / rel), horizon=sc.n_steps)))
+                    out.append(TrainSpec(exp, 0.5, episodes, s, str(run.out / rel), horizon=sc.n_steps))
+    out += [knet_spec(e, arm, s, sc, run.out) for e in MODELS for arm in LOSS for s in sc.seeds]
     return out
 
 
@@ -302,126 +261,50 @@ def _kappa(experiment: str, files: dict[str, str]) -> list:
     return out
 
 
-def kalmannet_result(name: str, knet, env, traj, counts: np.ndarray, level: float = 0.95):
-    """One :class:`~adaptfilt.results.PolicyResult` for a trained KalmanNet on an evaluation's runs ``traj``
-    and bootstrap ``counts`` (:func:`~adaptfilt.evaluation.setup_evaluation`), reduced by the library's
-    :func:`~adaptfilt.evaluation.summarise_rollout` as any policy, so that it is paired with the others.
+def _kalmannets(gains: dict[str, str], model) -> dict:
+    """The KalmanNet files ``{name: file}``, each loaded (and checked) for ``model``: filters to evaluate."""
+    from adaptfilt.kalmannet import load_kalmannet
 
-    A non-finite estimate (a learned gain can make the recursion unstable) counts as an infinite error from
-    that step on: the run is kept and diverged. Plain KalmanNet has no covariance: its ANEES fields and its
-    NEES-based ``divergent_frac`` are set to NaN here explicitly (summarise_rollout is given an identity
-    covariance to run, whose NEES is discarded); the Bayesian variant keeps its own. No NIS cost (no
-    innovation covariance): ``cost`` and the objective are NaN, as for a cost-less evaluation.
-    ``wall_time_s``: filtering plus reduction, as for every policy."""
-    from adaptfilt.evaluation import summarise_rollout
-    from adaptfilt.gaf import FilterRun
-    from adaptfilt.results import PolicyResult
-
-    T = env.n_steps
-    x = traj.x[:, :T]
-    M = x.shape[0]
-    t0 = time.perf_counter()
-    with np.errstate(over="ignore", invalid="ignore"):
-        r = knet.run(traj.z[:, :T])
-    mean = np.where(np.isfinite(r.mean).all(axis=-1, keepdims=True), r.mean, np.inf)
-    # a step after a non-finite one stays diverged (the recursion has no way back)
-    bad = np.maximum.accumulate(~np.isfinite(mean).all(axis=-1), axis=1)
-    mean = np.where(bad[..., None], np.inf, mean)
-    has_cov = knet.bayesian
-    cov = r.cov if has_cov else np.broadcast_to(np.eye(env.nx), (M, T, env.nx, env.nx))
-    nan = np.full((M, T), np.nan)
-    fr = FilterRun(mean=mean, cov=np.where(np.isfinite(cov), cov, np.inf) if has_cov else cov, nis=nan, loglik=nan,
-                   params=nan, info={"spent": np.full(M, np.nan), "on_indefinite": "inf"})
-    with np.errstate(over="ignore", invalid="ignore"):
-        summ = summarise_rollout(name, x, fr, None, env.grid, counts, 0, level)
-    if not has_cov:
-        B = counts.shape[0]
-        summ.update(anees=np.nan, anees_ci=(np.nan, np.nan), anees_t=np.full(T, np.nan),
-                    anees_t_band=np.full((2, T), np.nan), boot_anees=np.full(B, np.nan), run_anees=np.full(M, np.nan),
-                    anees_run_median=np.nan, divergent_frac=np.nan)
-    summ["nis"] = np.nan
-    return PolicyResult(name=name, **summ, wall_time_s=time.perf_counter() - t0)
-
-
-def _runs(env, exp, n_runs: int, seed: int = 0):
-    """The evaluation's trajectories, bootstrap counts and config, as :func:`~adaptfilt.evaluation.evaluate`
-    makes them for ``env`` (the same draws: the pairing of KalmanNet with the filters rests on it)."""
-    from adaptfilt.evaluation import setup_evaluation
-
-    probe = [p for p in exp.baselines() if p.name == "default"]
-    _, _, traj, counts, config = setup_evaluation(env, probe, n_runs, seed, 1000, None, 0.95, None)
-    return traj, counts, config
+    return {name: load_kalmannet(f, model) for name, f in gains.items()}
 
 
 def evaluate_part(experiment: str, regime: str, part: str, kappa: dict[str, str], gains: dict[str, str],
                   scale: GainScale, seed: int = 0):
     """One part (:data:`PARTS`) of the evaluation of ``experiment`` under ``regime``: a
     :class:`~adaptfilt.results.Results` (``"reference"``: also the floor, in ``config["floor"]``).
-    ``kappa``/``gains``: policy name -> file."""
+    ``kappa``/``gains``: policy name -> file. The UKF's policies and the filters (KalmanNet, the particle
+    filter) are evaluated on the same runs by one :func:`~adaptfilt.evaluation.evaluate` (``filters=``), so
+    that every difference between them is paired."""
     from adaptfilt.evaluation import evaluate
+    from adaptfilt.exact import UNGM_STUDY_FLOOR_GRID, BootstrapParticleFilter, bayes_floor
     from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.kalmannet import load_kalmannet
-    from adaptfilt.results import Results
+    from adaptfilt.runs import EvalRuns
 
     if part not in PARTS:
         raise ValueError(f"unknown part {part!r}; known: {', '.join(PARTS)}")
     exp = get_experiment(experiment)
     env = _env(experiment, regime, scale, seed)
-    n = scale.curve_runs if part == "curve" else scale.eval_runs
+    runs = EvalRuns(env.truth, scale.curve_runs if part == "curve" else scale.eval_runs, seed, env.n_steps)
     if part == "anchored":  # kappa: the anchored learner's files (study 5's), evaluated as any policy
         from adaptfilt.experiments.jobs import load_learned
 
-        res = evaluate(env, load_learned(exp, list(kappa.values())), n_runs=n, seed=seed, progress=False)
-        res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
-        return res
-    fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
-    if part in ("ukf", "curve"):
-        base = [p for p in exp.baselines() if p.name in ("default", "ml", "greedy")] if part == "ukf" else \
-            [p for p in exp.baselines() if p.name == "default"]
-        res = evaluate(env, base + fixed + _kappa(experiment, kappa), n_runs=n, seed=seed, progress=False)
-    if part != "ukf":
-        traj, counts, config = _runs(env, exp, n, seed)
-        if part != "curve":
-            res = Results(config=dict(config))
-    if part in ("gain", "curve"):
-        for name, f in gains.items():
-            res.policies[name] = kalmannet_result(name, load_kalmannet(f, env.model), env, traj, counts)
-    if part == "reference":
-        res.policies[f"bpf-{scale.pf_particles[experiment]}"] = _pf_result(env, traj, counts, scale.pf_particles[experiment], seed)
-        res.config["floor"] = _floor(env, traj, scale.floor_runs)
-    res.config.update(experiment=experiment, regime=regime, policies=list(res.policies))
+        pols = load_learned(exp, list(kappa.values()))
+    else:
+        named = {"ukf": ("default", "ml", "greedy"), "curve": ("default",)}.get(part, ())
+        pols = [p for p in exp.baselines() if p.name in named]
+        if part in ("ukf", "curve"):  # every update-only constant: the best one in hindsight is the bar
+            pols += exp.baselines(kinds=("fixed",))
+            pols += _kappa(experiment, kappa)
+    filters = _kalmannets(gains, env.model) if part in ("gain", "curve") else {}
+    if part == "reference":  # the particle filter, knowing the nominal model like the others
+        N = scale.pf_particles[experiment]
+        filters = {f"bpf-{N}": BootstrapParticleFilter(env.model, n_particles=N, seed=[_PF_KEY, seed, N])}
+    res = evaluate(env, pols, filters=filters, runs=runs, progress=False)
+    if part == "reference":  # the point-mass filter with the truth's model on the first runs (scalar models)
+        res.config["floor"] = (bayes_floor(env.truth, runs, scale.floor_runs, UNGM_STUDY_FLOOR_GRID).summary()
+                               if env.nx == 1 else {"rmse": None, "runs": 0})
+    res.config.update(experiment=experiment, regime=regime)
     return res
-
-
-def _pf_result(env, traj, counts, N: int, seed: int):
-    """The bootstrap particle filter with ``N`` particles on the runs, knowing the nominal model like the others."""
-    from adaptfilt.evaluation import summarise_rollout
-    from adaptfilt.exact import BootstrapParticleFilter
-    from adaptfilt.gaf import FilterRun
-    from adaptfilt.results import PolicyResult
-
-    T = env.n_steps
-    M = traj.n_runs
-    t0 = time.perf_counter()
-    pf = BootstrapParticleFilter(env.model, n_particles=int(N), seed=np.random.default_rng([_PF_KEY, seed, int(N)]))
-    r = pf.run(traj.z[:, :T])
-    fr = FilterRun(mean=r.mean, cov=r.cov, nis=r.nis, loglik=r.loglik, params=np.full((M, T), np.nan),
-                   info={**r.info, "spent": np.full(M, np.nan), "on_indefinite": "inf"})
-    summ = summarise_rollout(f"bpf-{N}", traj.x[:, :T], fr, None, env.grid, counts, 0, 0.95)
-    return PolicyResult(name=f"bpf-{N}", **summ, wall_time_s=time.perf_counter() - t0)
-
-
-def _floor(env, traj, n: int) -> dict:
-    """RMSE of the point-mass filter with the truth's model on the first ``n`` runs (scalar models; else None)."""
-    from adaptfilt.exact import PointMassFilter
-
-    if env.nx != 1:
-        return {"rmse": None, "runs": 0}
-    T = env.n_steps
-    sub = traj[:n]
-    r = PointMassFilter(env.truth, grid=np.linspace(-45, 45, 1801)).run(sub.z[:, :T])
-    se = ((r.mean - sub.x[:, :T]) ** 2).sum(axis=-1)
-    return {"rmse": float(np.sqrt(se.mean(axis=0)).mean()), "runs": int(n)}
 
 
 def _files(run: Run, experiment: str, budgets_: range) -> tuple[dict, dict]:
@@ -433,7 +316,7 @@ def _files(run: Run, experiment: str, budgets_: range) -> tuple[dict, dict]:
     return kappa, gains
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[Training]) -> list[EvalSpec]:
     sc = scale_of(run)
     last = range(len(TARGET_CPU_S), len(TARGET_CPU_S) + 1)
     specs = []
@@ -460,6 +343,8 @@ def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -
 
 # ------------------------------------------------------------------ rows
 #: The pairs judged: (a, b, what the pair isolates). ``default`` and ``best fixed`` are the references.
+#: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) whose margin judges "not worse".
+DECLARED = "learned gain vs learned kappa"
 PAIRS = (("gain-sup", "kappa-sqerr", "what is learned (objective: squared error)"),
          ("gain-unsup", "kappa-nis", "what is learned (objective: measurements only)"),
          ("kappa-sqerr", "kappa-nis", "what it is trained on (learning kappa)"),
@@ -490,15 +375,16 @@ def _train_cpu(run: Run, rel: str) -> float | None:
                 return float(f["cpu_time_s"])
     p = run.out / rel
     if p.exists() and "-gain-" in p.name:  # a KalmanNet file records its own
-        from adaptfilt.learned import read_npz
+        from adaptfilt.files import read_npz
 
-        return float(read_npz(p, what="KalmanNet file")[1]["history"]["cpu_s"])
+        cpu = read_npz(p, what="KalmanNet file")[1]["history"].get("cpu_s")  # files before the byte-reproducible ones
+        return None if cpu is None else float(cpu)
     return None
 
 
 def _stopped(run: Run, rel: str) -> bool:
     """Whether a KalmanNet file's training ended by divergence (its history says so)."""
-    from adaptfilt.learned import read_npz
+    from adaptfilt.files import read_npz
 
     p = run.out / rel
     return p.exists() and bool(read_npz(p, what="KalmanNet file")[1]["history"].get("stopped_by_divergence"))
@@ -563,9 +449,10 @@ def reference_rows(res, experiment: str) -> dict:
 
 def verdict_rows(res, budget: int, seeds: tuple[int, ...]) -> list[dict]:
     """Seed-level verdicts on RMSE for :data:`PAIRS` at ``budget``: the IQM difference ``a - b`` with its
-    two-level interval, "a lower than b" and "a not worse than b" (margin :func:`~adaptfilt.seed_stats.margin_for`
-    of b's IQM)."""
-    from adaptfilt.seed_stats import aggregate, difference, margin_for, seed_verdict
+    two-level interval, "a lower than b" and "a not worse than b" (:func:`adaptfilt.verdicts.judge`, the margin
+    declared for :data:`DECLARED` around b's IQM; none where that IQM is infinite)."""
+    from adaptfilt.seed_stats import aggregate, difference
+    from adaptfilt.verdicts import judge
 
     fixed = [n for n in res.names if n.startswith("fixed-")]
     refs = {"default": ["default"], "best fixed": [min(fixed, key=lambda n: res[n].rmse)] if fixed else []}
@@ -578,10 +465,10 @@ def verdict_rows(res, budget: int, seeds: tuple[int, ...]) -> list[dict]:
         with np.errstate(invalid="ignore", over="ignore"):
             d = difference(res, na, nb, "rmse")["iqm"]
             ref = aggregate(res, nb, "rmse").iqm
-        margin = margin_for("rmse", ref) if np.isfinite(ref) else 0.0
+        not_worse, margin = judge("not worse", d, DECLARED, "rmse", ref) if np.isfinite(ref) else (None, None)
         out.append({"a": a, "b": b if b in groups else f"{b} ({nb[0]})", "isolates": what, "budget": budget,
-                    "rmse_diff": [_num(v) for v in d], "lower": seed_verdict(d, "lower"),
-                    "not_worse": seed_verdict(d, "not worse", margin), "margin": margin})
+                    "rmse_diff": [_num(v) for v in d], "lower": judge("lower", d)[0],
+                    "not_worse": not_worse, "margin": margin})
     return out
 
 
@@ -703,7 +590,7 @@ def markdown(summary: dict) -> str:
     if NAME not in summary:
         return ""
     g = summary[NAME]
-    lines = [f"**Learn the parameter or learn the gain** (issue 38; IQM over seeds [two-level 95 % CI]; budgets "
+    lines = [f"**Learn the parameter or learn the gain** (IQM over seeds [two-level 95 % CI]; budgets "
              f"targeted at {', '.join(f'{c:g}' for c in g['target_cpu_s'])} CPU-s per policy; final budget on "
              f"{g['eval_runs']} runs, the curve on {g['curve_runs']}; n/a: not defined for the arm)", ""]
     head = ["model", "regime", "policy", "budget (work units)", "train CPU-s (mean)", "RMSE", "MSE dB", "ANEES",
@@ -724,7 +611,8 @@ def markdown(summary: dict) -> str:
                     lines.append(_arm_line(e, r, a, int(b), row, g["budgets"][e]))
                 lines.append(_arm_line(e, r, a, len(g["target_cpu_s"]), m["final"][a], g["budgets"][e], final=True))
     lines += ["", "**Learn the parameter or learn the gain: seed-level verdicts on RMSE** (a - b, IQM over seeds "
-              "[two-level 95 % CI]; 'not worse' within 5 % of b's RMSE, seeds.MARGINS)", "",
+              "[two-level 95 % CI]; 'not worse' within 5 % of b's RMSE, the margin declared in "
+              "adaptfilt.verdicts.DECLARED_MARGINS)", "",
               *md_table(["model", "regime", "budget", "a", "b", "isolates", "RMSE a - b", "a lower", "a not worse"])]
     for e, regimes in g["models"].items():
         for r, m in regimes.items():
@@ -732,7 +620,7 @@ def markdown(summary: dict) -> str:
                 d = v["rmse_diff"]
                 ds = "n/a" if None in d else diff_ci(d)
                 lines.append(f"| {e} | {r} | {v['budget']} | {v['a']} | {v['b']} | {v['isolates']} | {ds} | "
-                             f"{v['lower']} | {v['not_worse']} |")
+                             f"{v['lower']} | {v['not_worse'] or 'n/a (no margin)'} |")
     return "\n".join(lines) + "\n"
 
 

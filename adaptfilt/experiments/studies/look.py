@@ -23,11 +23,11 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     return []
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     from adaptfilt.experiments.look import (LOOK, LOOK_BASES, LOOK_BASES_QUICK, LOOK_QUICK, look_files, look_job,
                                             look_new_files, look_specs, part_names, stored_part)
 

@@ -35,8 +35,10 @@ recipe), a learner that sees the candidates' log-likelihoods (``adaptive-lik``: 
 imitation reaches ML), trained from scratch by PPO, and the ML-anchored learner (which starts at ML).
 
 **4. Verdicts** at the seed level on 10^4 runs of seed :data:`EVAL_SEED` (the anchor study's: no choice of
-the recipe saw them) against greedy and ML (:func:`adaptfilt.seed_stats.seed_verdict`, "lower": the
-seed-level interval of the paired difference below 0), the gamma = 0 control beside every gamma = 0.5 group;
+the recipe saw them) against greedy and ML (:func:`adaptfilt.verdicts.verdict`, "lower" with margin 0: the
+seed-level interval of the paired difference below 0, the issue's criterion), the gamma = 0 control beside every
+gamma = 0.5 group; RMSE and ANEES "not worse" than ML's with the margins declared for ``"learned vs ML"``
+(:data:`adaptfilt.verdicts.DECLARED_MARGINS`: a lower cost bought with a worse track would not answer the question);
 against the rollout references in the ``look`` study, on its runs (seed 0, M = 2000), where these groups are
 a part of their own (:data:`LOOK_GROUPS`).
 """
@@ -82,6 +84,9 @@ CURVE_RUNS = {"full": 2000, "quick": 100}
 #: The groups the look study shows on its runs (where the files exist).
 LOOK_GROUPS = ("adaptive-mlanchored", "myopic-mlanchored", "adaptive-mlanchored-raw", "myopic-mlanchored-raw",
                "imitation-paper", "imitation-cand", "imitation-lik", "adaptive-lik-e1000")
+#: The declared comparison (:data:`adaptfilt.verdicts.DECLARED_MARGINS`) whose margins judge each group's RMSE
+#: and ANEES "not worse" than ML's.
+NOT_WORSE_THAN_ML = "learned vs ML"
 #: The learned groups of the final evaluation, in table order.
 GROUPS = tuple(k for k, *_ in KINDS) + tuple(IMITATION) + ("adaptive-lik-e1000",)
 
@@ -152,7 +157,7 @@ def _curve_rel(learner: str, episodes: int, seed: int) -> str:
     return f"policies/ctm-ukf-{learner}-e{episodes}-s{seed}.npz"
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     """The anchored groups (:data:`KINDS`) and the learning curve's trainings: the likelihood-aware learner at
     every budget, the ML-anchored one at every budget but the main one (its main group is that point)."""
     sc = run.scale
@@ -160,17 +165,16 @@ def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
     for kind, g, transform, exps in KINDS:
         for e in exps:
             for s in sc.seeds:
-                rel = f"policies/{e}-{kind}-s{s}.npz"
-                out.append((rel, TrainSpec(e, g, sc.episodes, s, str(run.out / rel), features=CAND_EXPERIMENTS[e],
-                                           horizon=sc.n_steps, cost_transform=transform, anchor=ANCHOR)))
+                out.append(TrainSpec(e, g, sc.episodes, s, str(run.out / f"policies/{e}-{kind}-s{s}.npz"),
+                                     features=CAND_EXPERIMENTS[e], horizon=sc.n_steps, cost_transform=transform,
+                                     anchor=ANCHOR))
     for ep in CURVE_EPISODES[_size(run)]:
         for s in sc.seeds:
-            rel = _curve_rel("adaptive-lik", ep, s)
-            out.append((rel, TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / rel), features=LIK_FEATURES, horizon=sc.n_steps)))
+            out.append(TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / _curve_rel("adaptive-lik", ep, s)),
+                                 features=LIK_FEATURES, horizon=sc.n_steps))
             if ep != sc.episodes:
-                rel = _curve_rel("adaptive-mlanchored", ep, s)
-                out.append((rel, TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / rel), features=CAND_EXPERIMENTS["ctm-ukf"],
-                                           horizon=sc.n_steps, anchor=ANCHOR)))
+                out.append(TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / _curve_rel("adaptive-mlanchored", ep, s)),
+                                     features=CAND_EXPERIMENTS["ctm-ukf"], horizon=sc.n_steps, anchor=ANCHOR))
     return out
 
 
@@ -197,7 +201,7 @@ def curve_files(run: Run) -> dict[str, tuple[str, int, list[str]]]:
     return {g: (lr, ep, [str(f) for f in fs if Path(f).exists()]) for g, (lr, ep, fs) in out.items()}
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """The final evaluation per experiment (10^4 runs of :data:`EVAL_SEED`) and the learning curve (CTM, selection
     runs)."""
     specs = []
@@ -216,9 +220,12 @@ def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -
 # ------------------------------------------------------------------ rows
 def _final_rows(res, files: list[str]) -> dict:
     """:func:`study_rows` for the study's groups, and each group against ML, its gamma = 0 control, with the
-    seed-level verdicts; the imitation groups' held-out accuracy (from their files)."""
+    seed-level verdicts (:func:`adaptfilt.verdicts.verdict`: "lower" at all, margin 0; RMSE and ANEES "not worse"
+    than ML's with the margins declared for :data:`NOT_WORSE_THAN_ML`); the imitation groups' held-out accuracy
+    (from their files)."""
     from adaptfilt.learned import load_policy
-    from adaptfilt.seed_stats import difference, seed_groups, seed_verdict
+    from adaptfilt.seed_stats import difference, seed_groups
+    from adaptfilt.verdicts import judge, verdict
 
     rows = study_rows(NAME, res, groups=GROUPS)
     seeds = seed_groups(res.names)
@@ -228,12 +235,17 @@ def _final_rows(res, files: list[str]) -> dict:
             continue
         r = rows[g]
         r["minus_ml"] = {m: list(difference(res, seeds[g], ["ml"], m)["iqm"]) for m in metrics}
-        r["verdict"] = {"below greedy": seed_verdict(tuple(r["minus_greedy"]["cost"]), "lower"),
-                        "below ml": seed_verdict(tuple(r["minus_ml"]["cost"]), "lower")}
-        r["seeds_below_ml"] = int(sum(res.paired_difference(n, "ml", "cost")[2] < 0 for n in seeds[g]))
+        r["verdict"] = {"below greedy": verdict("lower", r["minus_greedy"]["cost"]),
+                        "below ml": verdict("lower", r["minus_ml"]["cost"])}
+        for m in ("rmse", "anees"):  # a margin around ML's value, as declared
+            word, margin = judge("not worse", r["minus_ml"][m], NOT_WORSE_THAN_ML, m, getattr(res["ml"], m))
+            r["verdict"][f"{m} not worse than ml"] = word
+            r.setdefault("margin_vs_ml", {})[m] = margin
+        r["seeds_below_ml"] = int(sum(verdict("lower", res.paired_difference(n, "ml", "cost")) == "confirmed"
+                                      for n in seeds[g]))
         if g in CONTROLS and CONTROLS[g] in seeds:
             r["minus_myopic"] = {m: list(difference(res, seeds[g], seeds[CONTROLS[g]], m)["iqm"]) for m in metrics}
-            r["verdict"]["below its gamma = 0 control"] = seed_verdict(tuple(r["minus_myopic"]["cost"]), "lower")
+            r["verdict"]["below its gamma = 0 control"] = verdict("lower", r["minus_myopic"]["cost"])
         if g in IMITATION:
             by_name = {Path(f).stem.split("ctm-ukf-", 1)[-1]: f for f in files}
             acc = [load_policy(by_name[n]).metadata["imitation"] for n in seeds[g]]

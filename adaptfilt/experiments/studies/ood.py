@@ -34,17 +34,17 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     return []
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     from adaptfilt.experiments.ood import CONDITIONS
 
     files = run.reproduction(EXPERIMENT)
     conds = CONDITIONS[:2] if run.quick else CONDITIONS
     return [EvalSpec(NAME, EXPERIMENT, condition_job, (c, files, run.scale),
-                     job_key("ood", c.key, EXPERIMENT, files, run.scale)) for c in conds] if files else []
+                     job_key("ood", c.key, EXPERIMENT, files, run.scale.words())) for c in conds] if files else []
 
 
 def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:

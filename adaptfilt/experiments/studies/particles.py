@@ -1,4 +1,4 @@
-r"""Study 7, ``particles``: the particle count (chapter 15). The science is
+r"""Study 7, ``particles``: the particle count (chapter 17). The science is
 :mod:`adaptfilt.experiments.particles_study` (the evaluation's parts, the reference filter, the floor, the
 rows, table and figure); this file is what ``adaptfilt beyond`` runs of it.
 
@@ -25,15 +25,15 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     from adaptfilt.experiment_registry import PARTICLE_EXPERIMENTS
 
     ps = _budget(run)
-    return [(rel, TrainSpec(e, 0.5, ps.episodes, s, str(run.out / rel), horizon=ps.n_steps))
+    return [TrainSpec(e, 0.5, ps.episodes, s, str(run.out / rel), horizon=ps.n_steps)
             for e in PARTICLE_EXPERIMENTS for s in run.scale.seeds for rel in [f"policies/{e}-adaptive-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     from adaptfilt.experiment_registry import PARTICLE_EXPERIMENTS
     from adaptfilt.experiments.particles_study import EVAL_PARTS, evaluate_model_job, floor_job
 
@@ -43,11 +43,10 @@ def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -
         models.setdefault(e.split("-pf-")[0], []).append(e)
     specs = []
     for es in models.values():  # each model's evaluation in parts, one job each, so that they run side by side
-        files = [[str(run.out / rel) for rel, t in trained if t.experiment == e] for e in es]
+        files = [[t.out for t in trained if t.experiment == e] for e in es]
         specs += [EvalSpec(NAME, "+".join(es), evaluate_model_job, (es, files, ps, 0, (part,)),
-                           job_key("particles", part, es, *files, ps), tag=es) for part in EVAL_PARTS]
-    specs += [EvalSpec(NAME, e, floor_job, (e, ps),
-                       f"beyond floor {e} runs={ps.eval_runs} floor={ps.floor_runs} steps={ps.n_steps}", tag="floor")
+                           job_key("particles", part, es, *files, ps.words()), tag=es) for part in EVAL_PARTS]
+    specs += [EvalSpec(NAME, e, floor_job, (e, ps), job_key("floor", e, ps.words()), tag="floor")
               for e in PARTICLE_EXPERIMENTS]
     return specs
 

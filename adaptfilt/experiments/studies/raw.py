@@ -20,15 +20,15 @@ def prepare(run: Run) -> dict:
     return {}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     sc = run.scale
-    return [(rel, TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), horizon=sc.n_steps, cost_transform="none"))
+    return [TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), horizon=sc.n_steps, cost_transform="none")
             for e in RAW_EXPERIMENTS for s in sc.seeds for rel in [f"policies/{e}-adaptive-raw-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """Beside the reproduction's policies, trained on log(1 + L) with the same recipe."""
-    return [evaluation(NAME, e, [str(run.out / rel) for rel, t in trained if t.experiment == e] + run.reproduction(e),
+    return [evaluation(NAME, e, [t.out for t in trained if t.experiment == e] + run.reproduction(e),
                        run.scale, ("default", "ml", "greedy")) for e in RAW_EXPERIMENTS]
 
 

@@ -10,7 +10,7 @@ rate with its exact 95 % interval.
 from __future__ import annotations
 
 from adaptfilt.experiment_registry import SIF_EXPERIMENTS
-from adaptfilt.experiments.jobs import EvalSpec, TrainSpec
+from adaptfilt.experiments.jobs import EvalSpec, TrainSpec, job_key
 from adaptfilt.experiments.study import Run, evaluation, groups_md, save_each, study_rows
 
 NAME = "sif"
@@ -35,7 +35,7 @@ def select_safe_actions(experiment: str, n_runs: int, n_steps: int | None = None
     if seed == 0:
         raise ValueError("the selection seed must differ from the evaluation seed 0")
     exp = get_experiment(experiment)
-    fixed = [p for p in exp.baselines() if p.name.startswith("fixed-") and not p.name.startswith("fixed-both-")]
+    fixed = exp.baselines(kinds=("fixed",))
     res = evaluate(exp, fixed, n_runs=n_runs, seed=seed, progress=False, n_steps=n_steps)
     diverged = {float(p.value): int(round(res[p.name].divergent_frac * n_runs)) for p in fixed}
     safe = tuple(v for v in exp.grid if diverged[float(v)] == 0)
@@ -52,24 +52,24 @@ def prepare(run: Run) -> dict:
     sc = run.scale
     run.say(f"[beyond] choosing the safe action set on {sc.eval_runs} selection runs (seed {SELECTION_SEED})")
     job = (SIF_EXPERIMENTS[0], sc.eval_runs, sc.n_steps)
-    selection = run.jobs(select_safe_actions, [job], [(f"select_safe_actions{job!r}", SELECTION_SEED)],
+    selection = run.jobs(select_safe_actions, [job], [(job_key("select-safe-actions", *job), SELECTION_SEED)],
                          progress=False)[0]
     run.say(f"[beyond] safe action set: {', '.join(f'{v:g}' for v in selection['safe'])}")
     return {"sif-selection": selection}
 
 
-def policies(run: Run, summary: dict) -> list[tuple[str, TrainSpec]]:
+def policies(run: Run, summary: dict) -> list[TrainSpec]:
     sc, safe = run.scale, summary["sif-selection"]["safe"]
-    return [(rel, TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), repair_penalty=pen, horizon=sc.n_steps,
-                            actions=acts))
+    return [TrainSpec(e, 0.5, sc.episodes, s, str(run.out / rel), repair_penalty=pen, horizon=sc.n_steps,
+                      actions=acts)
             for e in SIF_EXPERIMENTS for kind, pen, acts in (("adaptive-penalised", PENALTY, None),
                                                                ("adaptive-safe", 0.0, safe))
             for s in sc.seeds for rel in [f"policies/{e}-{kind}-s{s}.npz"]]
 
 
-def evaluations(run: Run, summary: dict, trained: list[tuple[str, TrainSpec]]) -> list[EvalSpec]:
+def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """Beside the reproduction's unpenalised policies."""
-    return [evaluation(NAME, e, [str(run.out / rel) for rel, t in trained if t.experiment == e] + run.reproduction(e),
+    return [evaluation(NAME, e, [t.out for t in trained if t.experiment == e] + run.reproduction(e),
                        run.scale, ("default", "greedy")) for e in SIF_EXPERIMENTS]
 
 
