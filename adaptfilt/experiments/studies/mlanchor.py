@@ -108,6 +108,11 @@ def _imitation_commands(run: Run, seed: int) -> dict[str, str]:
             for g, fs in IMITATION.items()}
 
 
+def imitation_files(run: Run) -> dict[str, str]:
+    """Every imitation policy of the run (``policies/...``) and the command its manifest entry records."""
+    return {imitation_rel("ctm-ukf", g, s): c for s in run.scale.seeds for g, c in _imitation_commands(run, s).items()}
+
+
 def imitation_job(seed: int, runs: int, epochs: int, n_steps: int | None, paths: dict[str, str],
                   commands: dict[str, str]) -> dict:
     """Fit the three imitation policies of ``seed`` on the same ML trajectories and save them to ``paths``
