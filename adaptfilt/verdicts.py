@@ -151,8 +151,8 @@ DECLARED_MARGINS: dict[str, DeclaredMargin] = {m.comparison: m for m in (
         "the CTM's open question (the mlanchor study): a learned policy whose cost is below maximum likelihood's "
         "answers it only with RMSE and ANEES not worse than ML's; the margins of 'anchored vs greedy', ML in "
         "greedy's place",
-        "2026-11-28, commit of the mlanchor study's merge onto the one verdict rule, after its trainings and "
-        "before its evaluation was read"),
+        "2026-11-28, commit c4a6a14 (the mlanchor study on the one verdict rule), after its trainings, before "
+        "its evaluations were read"),
 )}
 
 

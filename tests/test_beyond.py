@@ -202,6 +202,42 @@ def test_committed_particle_study_is_what_its_stored_evaluations_give():
         assert argv[:3] == ["adaptfilt", "train", e] and argv[argv.index("--algo") + 1] == "fast"
 
 
+def test_committed_mlanchor_study_is_what_its_stored_evaluations_give():
+    """data/beyond's mlanchor study (``adaptfilt beyond --out data --studies mlanchor``): the final evaluations
+    (10^4 runs of the anchor study's seed, UNGM and CTM) and the CTM learning curve (2000 selection runs) are
+    stored; the summary's rows, verdicts and the imitation policies' held-out agreement are what the study
+    computes from them and from the policy files; 8 seeds in every group; the imitation fits record their call."""
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.experiments.studies import mlanchor
+    from adaptfilt.experiments.studies.sif import SELECTION_SEED
+    from adaptfilt.learned import load_policy
+    from adaptfilt.seed_stats import seed_groups
+
+    root = artefacts.data_dir() / "beyond"
+    man = {f["path"]: f for f in json.loads((root / "manifest.json").read_text())["files"]}
+    s = artefacts.load_beyond()["mlanchor"]
+    assert s["eval-seed"] == mlanchor.EVAL_SEED == 2 and s["selection-seed"] == SELECTION_SEED
+    for e, rows in s["final"].items():
+        res = artefacts.load_beyond_results(f"mlanchor-{e}")
+        assert res.config["n_runs"] == 10_000 and res.config["seed"] == mlanchor.EVAL_SEED
+        groups = seed_groups(res.names)
+        files = [str(root / f"policies/{e}-{n}.npz") for g in mlanchor.GROUPS for n in groups.get(g, [])]
+        assert json.loads(json.dumps(mlanchor._final_rows(res, files))) == rows
+        assert all(len(groups[g]) == 8 for g in mlanchor.GROUPS if g in groups)
+        assert set(mlanchor.CONTROLS) & set(rows) and all(c in rows for g, c in mlanchor.CONTROLS.items() if g in rows)
+    ctm = s["final"]["ctm-ukf"]
+    for g in mlanchor.IMITATION:  # the held-out agreement is the one each file records
+        pol = load_policy(root / f"policies/ctm-ukf-{g}-s3.npz", experiment="ctm-ukf")
+        assert ctm[g]["imitation"]["heldout_accuracy"][3] == pol.metadata["imitation"]["heldout_accuracy"]
+        assert man[f"policies/ctm-ukf-{g}-s3.npz"]["command"].startswith("adaptfilt.imitation.imitate('ctm-ukf'")
+    curve = artefacts.load_beyond_results("mlanchor-ctm-ukf-curve")
+    assert curve.config["n_runs"] == 2000 and curve.config["seed"] == SELECTION_SEED
+    tags = {r["group"]: (learner, int(ep)) for learner, by in s["curve"]["learners"].items() for ep, r in by.items()}
+    assert json.loads(json.dumps(mlanchor._curve_rows(curve, tags))) == s["curve"]
+    assert {ep: r["n_seeds"] for ep, r in s["curve"]["learners"]["adaptive-lik"].items()} == {
+        str(ep): 8 for ep in mlanchor.CURVE_EPISODES["full"]}
+
+
 @pytest.mark.crosscpu
 def test_the_stored_particle_evaluations_rerun():
     """The particle study was evaluated with the numpy form of the filter on a CPU whose numpy ``exp`` is the
@@ -465,7 +501,7 @@ def test_look_gain_figure_cuts_far_values_at_the_edge():
 
 #: Studies whose full run is not in data/beyond yet (the manifest guard leaves them out, and a test checks that the
 #: manifest indeed lists none of their files: once one is stored it must leave this list).
-NOT_STORED: dict[str, str] = {"mlanchor": "the CTM's open question: its full run is being made"}
+NOT_STORED: dict[str, str] = {}
 
 
 def _beyond_policy_commands(root: str, selection: dict) -> dict[str, str]:
@@ -548,7 +584,7 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
         study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(
             rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
         assert study is None or study in studies, rel
-    assert len(man["files"]) == 415 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 352
+    assert len(man["files"]) == 551 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 480
     # and the studies train nothing the manifest lacks
     assert set(next(iter(built.values()))) == {f["path"] for f in man["files"] if f["path"].startswith("policies/")}
 
