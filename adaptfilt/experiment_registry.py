@@ -307,6 +307,21 @@ SQERR_VARIANTS: dict[str, Experiment] = {
 }
 VARIANTS.update(SQERR_VARIANTS)
 
+#: Weights of the consistency term the learned-gain study's consistency arm may add to the squared error
+#: (:attr:`adaptfilt.costs.Cost.nll_weight`: the true state's Gaussian negative log-likelihood under the
+#: filter's mean and covariance); the study chooses one on validation runs.
+NLL_WEIGHTS = (0.01, 0.1, 1.0)
+#: UNGM's kappa experiment on ``||x_{t|t} - x_t||^2 + w (NEES + log det P_{t|t})``, one per weight of
+#: :data:`NLL_WEIGHTS` (beyond the paper: the learned-gain study's consistency arm; simulation-only, as ``sqerr``).
+NLL_VARIANTS: dict[str, Experiment] = {
+    f"ungm-ukf-sqerr-nll{w:g}": replace(
+        SQERR_VARIANTS["ungm-ukf-sqerr"], name=f"ungm-ukf-sqerr-nll{w:g}", cost=Cost("sqerr", nll_weight=w),
+        description=SQERR_VARIANTS["ungm-ukf-sqerr"].description.replace(
+            "||x_filt - x||^2 cost", f"||x_filt - x||^2 + {w:g} (NEES + log det P) cost"))
+    for w in NLL_WEIGHTS
+}
+VARIANTS.update(NLL_VARIANTS)
+
 #: Prices per particle of the particle-count experiments (beyond the paper), per model: the default's
 #: 1000 particles cost about a tenth of, and about as much as, the default's mean squared error
 #: (UNGM about 1.5 over 100 steps, the CTM about 10^3). The learned count is judged at each price.
