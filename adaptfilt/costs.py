@@ -36,7 +36,7 @@ from typing import Any, Callable, Literal, Protocol, runtime_checkable
 import numpy as np
 
 __all__ = ["StepCost", "Cost", "ParticleCost", "FunctionCost", "nis_cost", "logmaxnis_cost", "stateinnov_cost",
-           "NIS_COSTS", "transform_cost"]
+           "gaussian_nll", "NIS_COSTS", "transform_cost"]
 
 
 @runtime_checkable
@@ -72,6 +72,25 @@ def stateinnov_cost(K: np.ndarray, innovation: np.ndarray) -> np.ndarray:
     return np.sqrt((dx * dx).sum(axis=0))
 
 
+def gaussian_nll(e: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``e^T P^{-1} e + log det P`` per run (run-last: ``e (nx, M)``, ``P (nx, nx, M)``): twice the Gaussian
+    negative log-likelihood of an error ``e`` under the covariance ``P``, less its constant ``nx log 2 pi``.
+    ValueError naming the first run whose ``P`` is not positive definite.
+
+    >>> gaussian_nll(np.array([[2.0]]), np.array([[[4.0]]])).round(4).tolist()   # 1 + log 4
+    [2.3863]
+    """
+    Pm = np.moveaxis(np.asarray(P, dtype=float), -1, 0)  # (M, nx, nx)
+    em = np.asarray(e, dtype=float).T[..., None]          # (M, nx, 1)
+    sign, logdet = np.linalg.slogdet(Pm)
+    bad = ~(sign > 0) | ~np.isfinite(logdet)
+    if bad.any():
+        raise ValueError(f"the negative log-likelihood needs a positive definite covariance: run {int(np.argmax(bad))} "
+                         f"has P_filt = {Pm[int(np.argmax(bad))].tolist()}")
+    nees = (em * np.linalg.solve(Pm, em)).sum(axis=(1, 2))
+    return nees + logdet
+
+
 #: The NIS-type estimation costs by kind: both cost families read them from here.
 NIS_COSTS: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {"nis": nis_cost, "logmaxnis": logmaxnis_cost}
 
@@ -97,6 +116,15 @@ class Cost:
     policy is trained on the objective supervised KalmanNet is trained on); ``compute_weight`` adds
     ``weight * theta`` (the iteration count of the SIF).
 
+    ``nll_weight`` (``"sqerr"`` only; beyond the paper, the learned-gain study's consistency arm) adds
+    ``w`` times the Gaussian negative log-likelihood of the true state under the filter's claim
+    ``N(x_{t|t}, P_{t|t})``, up to its constant: ``||e||^2 + w (e^T P^{-1} e + log det P)``, the NEES plus
+    the log-determinant. For a given mean its expectation over the error is smallest when ``P_{t|t}``
+    equals the error's covariance (``E[e^T P^{-1} e] + log det P`` with ``P = c C`` is
+    ``nx / c + nx log c + const``, smallest at ``c = 1``), so unlike a penalty on ``(NEES - nx)^2``,
+    which an inflated covariance lowers, it rewards a covariance that is right, neither too small nor too
+    large. A covariance that is not positive definite is a ValueError naming the run.
+
     Only ``"sqerr"`` reads the truth (:attr:`needs_truth`): :class:`~adaptfilt.mdp.FilterEnv` then passes
     ``truth (nx, M)``, the true state of the step, run-last as the update; the other kinds are called
     exactly as before, without it. A policy trained on ``"sqerr"`` still sees only its information state.
@@ -105,19 +133,28 @@ class Cost:
 
     >>> Cost("nis").name, Cost("stateinnov", 1 / 50).name, Cost("sqerr").needs_truth
     ('nis', 'stateinnov+n_iter/50', True)
+    >>> Cost("sqerr", nll_weight=0.1).name
+    'sqerr+0.1*nll'
     """
 
     kind: Literal["nis", "logmaxnis", "stateinnov", "sqerr"] = "nis"
     compute_weight: float = 0.0
+    nll_weight: float = 0.0
 
     KINDS = ("nis", "logmaxnis", "stateinnov", "sqerr")
 
     def __post_init__(self):
         _check_kind(self.kind, self.KINDS)
         _check_weight("compute_weight", self.compute_weight)
+        _check_weight("nll_weight", self.nll_weight)
+        if self.nll_weight and self.kind != "sqerr":
+            raise ValueError(f"nll_weight adds the true state's negative log-likelihood: it needs kind='sqerr', "
+                             f"got {self.kind!r}")
 
     @property
     def name(self) -> str:
+        if self.nll_weight:
+            return f"{self.kind}+{self.nll_weight:g}*nll"
         if self.compute_weight == 0:
             return self.kind
         inv = 1.0 / self.compute_weight
@@ -146,7 +183,8 @@ class Cost:
                 raise ValueError("the 'sqerr' cost needs the true states (simulate, or replay a trajectory with x); "
                                  "got non-finite ones")
             e = u.x_filt - truth
-            return (e * e).sum(axis=0)
+            c = (e * e).sum(axis=0)
+            return c + self.nll_weight * gaussian_nll(e, u.P_filt) if self.nll_weight else c
         return stateinnov_cost(u.K, u.innovation)
 
     def __call__(self, u, theta: np.ndarray, nz: int, truth: np.ndarray | None = None) -> np.ndarray:

@@ -63,7 +63,11 @@ in saved files):
   reported issue).
 
 **Bayesian variant** (``n_samples = J > 1``, ``dropout = p > 0``; Dahan, Revach, Duník, Shlezinger,
-"Bayesian KalmanNet", arXiv 2309.03058 / ICASSP 2024): Monte-Carlo dropout on the hidden layer of
+"Bayesian KalmanNet: Quantifying Uncertainty in Deep Learning Augmented Kalman Filter", IEEE Trans. Signal
+Processing 73, 2025, doi 10.1109/TSP.2025.3581703, arXiv 2309.03058; parts presented at ICASSP 2024. Another
+construction, not implemented here, computes KalmanNet's error covariance from its internal features given
+``H``: Klein, Revach, Shlezinger et al., "Uncertainty in data-driven Kalman filtering for partially known
+state-space models", ICASSP 2022, arXiv 2110.04738): Monte-Carlo dropout on the hidden layer of
 the gain head FC2 (architecture 1: on the top GRU's output), kept on when filtering. Each run is
 filtered by ``J`` copies of the filter, each with its own dropout mask (drawn once per sequence: one
 sample of the weights, as a Bayesian network's), its own estimate and GRU states; the estimate is the
@@ -734,7 +738,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     max_cpu_s: float | None = None, snapshots: Sequence[int] = (),
                     fresh: Literal["epoch", "batch"] | None = None, val_every: int | None = None,
                     max_steps: int | None = None, snapshot_steps: Sequence[int] = (), restarts: int = 0,
-                    patience: int | None = None, **options) -> KalmanNet:
+                    patience: int | None = None, truth: StateSpaceModel | None = None, **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
     Parameters
@@ -763,6 +767,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     fresh : None, "epoch" or "batch"
         Draw new training trajectories every epoch or every minibatch (the simulator is free; its
         CPU time counts in the budget). Not with ``train``.
+    truth : StateSpaceModel, optional
+        Simulate the training and validation trajectories from this model instead of ``model`` (same
+        dimensions): a truth that differs from the model the filter keeps (other noise levels or
+        dynamics), the setting in which KalmanNet's authors train it; the filter's ``f``, ``h``, ``m0``,
+        scales and bounds stay ``model``'s. Recorded as ``history["truth"]`` (its description).
     val_every : int, optional
         Validate after every ``val_every``-th optimiser step (counted over attempts) instead of once
         per epoch; ``history["val_steps"]`` holds the step of each validation (0: the initial network).
@@ -836,6 +845,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         raise ValueError(f"fresh must be one of {FRESH}, got {fresh!r}")
     if fresh is not None and train is not None:
         raise ValueError("fresh draws new training trajectories: give no train set")
+    if truth is not None and (not isinstance(truth, StateSpaceModel) or (truth.nx, truth.nz) != (model.nx, model.nz)):
+        raise ValueError(f"truth must be a StateSpaceModel with the model's dimensions (nx={model.nx}, nz={model.nz}), "
+                         f"got {truth!r}"[:300])
+    if truth is not None and (train is not None or val is not None):
+        raise ValueError("truth simulates the training and validation trajectories: give no train or val set")
     if not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be positive, got {lr}")
     snaps = sorted({int(e) for e in snapshots})
@@ -872,16 +886,17 @@ class _Training:
         self.cpu0 = time.process_time()
         self.model, self.a = model, a
         self.ds = int(a["seed"] if a["data_seed"] is None else a["data_seed"])
+        self.sim = model if a["truth"] is None else a["truth"]  # what the trajectories are simulated from
         train, val = a["train"], a["val"]
         T = a["n_steps"] or (train.n_steps if train is not None else model.n_steps)
         if (train is None or val is None) and T is None:
             raise ValueError(f"model {model.name!r} has no horizon: give n_steps")
         self.train = None
         if a["fresh"] is None:
-            self.train = _check_traj(train, model, "train") if train is not None else model.simulate(
+            self.train = _check_traj(train, model, "train") if train is not None else self.sim.simulate(
                 int(a["n_train"]), T, rng=np.random.default_rng([self.ds, 0]))
             T = self.train.n_steps
-        self.val = _check_traj(val, model, "val") if val is not None else model.simulate(
+        self.val = _check_traj(val, model, "val") if val is not None else self.sim.simulate(
             int(a["n_val"]), T, rng=np.random.default_rng([self.ds, 1]))
         self.T = T
         self.n_train = self.train.n_runs if self.train is not None else int(a["n_train"])
@@ -903,6 +918,8 @@ class _Training:
             "patience": a["patience"], "val_steps": [], "best_step": 0, "best_attempt": 0, "attempts": [],
             "n_restarts": 0, "failed": None, "trajectories_seen": self.n_train if self.train is not None else 0,
             "trajectory_steps": 0}
+        if a["truth"] is not None:  # recorded only when set: files made before the option existed stay reproducible
+            self.hist["truth"] = a["truth"].description
 
     # ------------------------------------------------------------------ the whole training
     def run(self) -> KalmanNet:
@@ -1012,13 +1029,13 @@ class _Training:
         a, bs = self.a, int(self.a["batch_size"])
         if a["fresh"] == "batch":
             for b, i in enumerate(range(0, self.n_train, bs)):
-                tr = self.model.simulate(min(bs, self.n_train - i), self.T,
+                tr = self.sim.simulate(min(bs, self.n_train - i), self.T,
                                          rng=np.random.default_rng([self.ds, 4, n, epoch, b]))
                 self.hist["trajectories_seen"] += tr.n_runs
                 yield tr.z, self.knet._z_prev(tr.z), tr.x
             return
         if a["fresh"] == "epoch":
-            tr = self.model.simulate(self.n_train, self.T, rng=np.random.default_rng([self.ds, 3, n, epoch]))
+            tr = self.sim.simulate(self.n_train, self.T, rng=np.random.default_rng([self.ds, 3, n, epoch]))
             self.hist["trajectories_seen"] += tr.n_runs
             z_all, zp_all, x_all = tr.z, self.knet._z_prev(tr.z), tr.x
         else:

@@ -221,7 +221,7 @@ class StateSpaceModel:
         return Trajectory(x=x, z=z)
 
 
-def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) -> StateSpaceModel:
+def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500, forcing: float = 8.0) -> StateSpaceModel:
     r"""Univariate nonstationary growth model (Section VI-A).
 
     .. math::
@@ -229,24 +229,28 @@ def ungm(Q: float = 1.0, R: float = 0.1, P0: float = 5.0, n_steps: int = 500) ->
         z_k = x_k^2 / 20 + v_k,
 
     ``w ~ N(0, 1)``, ``v ~ N(0, 0.1)``, ``x_1 ~ N(0, 5)``, ``k = 1..500``.
-    The measurement is even in ``x``: the posterior is bimodal.
+    The measurement is even in ``x``: the posterior is bimodal. ``forcing``: the amplitude of the
+    forcing term (the paper's 8; another value makes a truth whose dynamics differ from the model's,
+    for the learned-gain study's trained-on-the-truth regime).
     """
+    c = float(forcing)
 
     def f(x, k):
-        return 0.5 * x + 25.0 * x / (1.0 + x * x) + 8.0 * np.cos(0.05 * k)
+        return 0.5 * x + 25.0 * x / (1.0 + x * x) + c * np.cos(0.05 * k)
 
     def h(x, k):
         return x * x / 20.0
 
     def f_torch(x, k):  # the same operations on a tensor (the forcing a float): bit for bit f's values
-        return 0.5 * x + 25.0 * x / (1.0 + x * x) + float(8.0 * np.cos(0.05 * k))
+        return 0.5 * x + 25.0 * x / (1.0 + x * x) + float(c * np.cos(0.05 * k))
 
     def phase(k):
         return (np.cos(0.05 * k), np.sin(0.05 * k))
 
     return StateSpaceModel(
         f=f, h=h, Q=[[Q]], R=[[R]], m0=[0.0], P0=[[P0]], name="ungm", n_steps=n_steps,
-        description="univariate nonstationary growth model (paper Sec. VI-A)",
+        description="univariate nonstationary growth model (paper Sec. VI-A)"
+        + ("" if c == 8.0 else f", forcing {c:g} cos(0.05k)"),
         time_features=phase, time_feature_names=("cos 0.05k", "sin 0.05k"),
         f_torch=f_torch, h_torch=h,  # h's arithmetic works on tensors as written
     )

@@ -56,6 +56,7 @@ differently and training amplifies that into a different policy (README, Convent
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,7 +127,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               progress: bool = True, command: str | None = None, name: str | None = None,
               max_seconds: float | None = None, repair_penalty: float = 0.0,
               actions: Sequence[float] | None = None, cost_transform: str = "log1p",
-              normalize_reward: bool = False, anchor=None):
+              normalize_reward: bool = False, anchor=None, max_cpu_s: float | None = None,
+              snapshots: Sequence[int] = ()):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiment_registry.Experiment`
@@ -138,7 +140,16 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     from the SB3 model) with its learning curve (mean transformed cost per
     batch of episodes) and metadata (algorithm, hyperparameters, seed, command).
     ``max_seconds`` stops training after that much wall time (for comparisons
-    at equal wall time; such a policy depends on the machine, not only its seed).
+    at equal wall time; such a policy depends on the machine, not only its seed);
+    ``max_cpu_s`` after that many process CPU seconds since the call (set-up included; for tuning at
+    equal CPU budgets, likewise not reproducible).
+    ``snapshots``: episode counts ``E`` (at most ``episodes``) at which the policy is kept as a training of
+    ``E`` episodes would have returned it, bit for bit: SB3 trains on whole rollouts, so a training of
+    ``E`` episodes ends after the first rollout that reaches ``E T`` transitions, and with the fast mode's
+    constant learning rate and clip range nothing else depends on the total. ``pol.snapshots[E]`` is that
+    policy (its weights, metadata and curve those of the shorter training, ``command`` this training's: the
+    command that made it; its ``cpu_s``: the process CPU seconds spent up to it). One training then serves a
+    budget curve.
     ``actions``: the grid values the policy may choose, a subset of the experiment's
     grid holding its default (a *safe action set*: e.g. no SIF iteration count that
     can diverge); the policy still acts in the full experiment (named experiments only).
@@ -160,10 +171,16 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     from adaptfilt.gym import make_vec, to_learned_policy
     from adaptfilt.nets import one_torch_thread
 
+    cpu0 = time.process_time()
     classes = {"a2c": A2C, "ppo": PPO}
     if config.algo not in classes:
         raise ValueError(f"unknown SB3 algorithm {config.algo!r}; choose one of {sorted(classes)}")
     _check(gamma, episodes)
+    snaps = sorted({int(e) for e in snapshots})
+    if snaps and (snaps[0] < 1 or snaps[-1] > int(episodes) or any(int(e) != e for e in snapshots)):
+        raise ValueError(f"snapshots must be episode counts in 1..episodes={episodes}, got {list(snapshots)}")
+    if snaps and any(callable(config.kwargs.get(k)) for k in ("learning_rate", "clip_range")):
+        raise ValueError("snapshots need a constant learning rate and clip range (a schedule depends on the total)")
     if actions is not None:  # the experiment's environment with its grid cut to the actions, built once
         experiment, features, n_steps = _restricted(experiment, actions, seed, n_steps, features)
     target = resolve(experiment, seed, n_steps)  # an environment's horizon is its own
@@ -187,6 +204,30 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         kwargs["policy_kwargs"].update(strength=anchor.strength, shield=anchor.shield is not None)
         kwargs["ent_coef"] = anchor.kl
     curve: list[float] = []
+    kept: dict = {}
+
+    def learned(m, n_episodes: int, c: list, cmd: str | None):
+        c = np.asarray(c, dtype=float)
+        meta = {"seed": int(seed), "episodes": int(n_episodes), "n_steps": int(T), "parallel": int(config.n_envs),
+                "trainer": config.to_dict(), "transitions": int(m.num_timesteps), "version": __version__,
+                "command": cmd, "torch_version": torch.__version__.split("+")[0],
+                "curve_summary": {"episodes": int(n_episodes), "train_cost_first10pct": _frac(c, 0),
+                                  "train_cost_last10pct": _frac(c, 1)}}
+        if repair_penalty:  # recorded only when set: files made before the option existed stay reproducible
+            meta["repair_penalty"] = float(repair_penalty)
+        if normalize_reward:
+            meta["normalize_reward"] = True
+        pol = to_learned_policy(m, venv, gamma=gamma, name=name, metadata=meta)
+        pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
+        return pol
+
+    def snapshot(m, e: int):
+        """The policy a training of ``e`` episodes returns, from the model now (its CPU-s so far in ``cpu_s``)."""
+        with torch.random.fork_rng(devices=[]):  # building the policy's actor draws initial weights: not the training's
+            p = learned(m, e, list(curve), command)
+        p.cpu_s = time.process_time() - cpu0
+        return p
+
     with one_torch_thread(), torch.random.fork_rng(devices=[]):
         venv.seed(seed)
         env = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=float(gamma)) if normalize_reward else venv
@@ -198,22 +239,38 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         callbacks = [_curve_callback(curve, config.n_envs)]
         if max_seconds is not None:
             callbacks.append(_deadline(float(max_seconds)))
+        if max_cpu_s is not None:
+            callbacks.append(_deadline(float(max_cpu_s), clock=time.process_time, start=cpu0))
+        if snaps:
+            callbacks.append(_snapshot_callback(snaps, T, kept, snapshot))
         if progress:  # SB3 collects whole rollouts: the bar's end is the total rounded up to one
             rollout = model.n_steps * model.n_envs
             callbacks.append(_Progress(-(-total // rollout) * rollout, f"{config.algo} {label} gamma={gamma:g} seed={seed}"))
         model.learn(total_timesteps=total, callback=callbacks)
-    c = np.asarray(curve, dtype=float)
-    meta = {"seed": int(seed), "episodes": int(episodes), "n_steps": int(T), "parallel": int(config.n_envs),
-            "trainer": config.to_dict(), "transitions": int(model.num_timesteps), "version": __version__,
-            "command": command, "torch_version": torch.__version__.split("+")[0],
-            "curve_summary": {"episodes": int(episodes), "train_cost_first10pct": _frac(c, 0), "train_cost_last10pct": _frac(c, 1)}}
-    if repair_penalty:  # recorded only when set: files made before the option existed stay reproducible
-        meta["repair_penalty"] = float(repair_penalty)
-    if normalize_reward:
-        meta["normalize_reward"] = True
-    pol = to_learned_policy(model, venv, gamma=gamma, name=name, metadata=meta)
-    pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
+    for e in snaps:  # the snapshots the end of training reaches (the last rollout's)
+        if e not in kept and int(e) * T <= model.num_timesteps:
+            kept[e] = snapshot(model, e)
+    pol = learned(model, episodes, curve, command)
+    pol.cpu_s = time.process_time() - cpu0
+    pol.snapshots = dict(sorted(kept.items()))
     return pol
+
+
+def _snapshot_callback(snaps: list[int], T: int, kept: dict, snapshot):
+    """Keep ``snapshot(model, e)`` at the start of the rollout after the one a training of ``e`` episodes ends with."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Snapshots(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            done = self.model.num_timesteps
+            for e in snaps:
+                if e not in kept and 0 < e * T <= done:
+                    kept[e] = snapshot(self.model, e)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return Snapshots()
 
 
 def _anchor(anchor):
@@ -268,18 +325,17 @@ def _curve_callback(curve: list, n_envs: int):
     return Curve()
 
 
-def _deadline(seconds: float):
-    """Stop SB3's ``learn`` once ``seconds`` of wall time have passed."""
-    import time
-
+def _deadline(seconds: float, clock=time.perf_counter, start: float | None = None):
+    """Stop SB3's ``learn`` once ``seconds`` have passed on ``clock`` (wall time by default) since ``start``
+    (default: the training's start)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class Deadline(BaseCallback):
         def _on_training_start(self):
-            self.t0 = time.perf_counter()
+            self.t0 = clock() if start is None else start
 
         def _on_step(self) -> bool:
-            return time.perf_counter() - self.t0 < seconds
+            return clock() - self.t0 < seconds
 
     return Deadline()
 

@@ -226,3 +226,72 @@ def test_quick_gain_study_resumes_from_its_journal(quick, tmp_path, monkeypatch)
             for a in g[e][r]["final"]:
                 assert g[e][r]["final"][a]["rmse"] == h[e][r]["final"][a]["rmse"]
                 assert g[e][r]["final"][a]["train_cpu_s"] == h[e][r]["final"][a]["train_cpu_s"]
+
+
+def test_nll_cost_adds_the_gaussian_log_score_and_is_smallest_at_the_true_covariance():
+    """||e||^2 + w (e' P^-1 e + log det P) per run, checked against a direct computation on a 2-D case; its
+    expectation over errors of covariance C, with P = c C, is smallest at c = 1 (a proper score), where a
+    penalty (NEES - nx)^2 would prefer a larger covariance."""
+    from types import SimpleNamespace
+
+    from adaptfilt.costs import gaussian_nll
+
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((2, 2))
+    C = A @ A.T + np.eye(2)
+    e = rng.multivariate_normal(np.zeros(2), C, size=20000).T  # (nx, M)
+    P = np.repeat(C[:, :, None], e.shape[1], axis=2)
+    u = SimpleNamespace(x_filt=e, P_filt=P, nis=np.zeros(e.shape[1]))
+    got = Cost("sqerr", nll_weight=0.5)(u, np.zeros(e.shape[1]), 1, truth=np.zeros_like(e))
+    want = (e * e).sum(0) + 0.5 * (np.einsum("im,ij,jm->m", e, np.linalg.inv(C), e) + np.log(np.linalg.det(C)))
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+    score = {c: gaussian_nll(e, c * P).mean() for c in (0.5, 0.8, 1.0, 1.25, 2.0)}
+    assert min(score, key=score.get) == 1.0
+    nees_sq = {c: ((np.einsum("im,ij,jm->m", e, np.linalg.inv(c * C), e) - 2) ** 2).mean() for c in score}
+    assert min(nees_sq, key=nees_sq.get) == 2.0
+    assert Cost("sqerr", nll_weight=0.1).name == "sqerr+0.1*nll"
+    with pytest.raises(ValueError, match="needs kind='sqerr'"):
+        Cost("nis", nll_weight=1.0)
+    bad = np.repeat(np.array([[1.0, 0.0], [0.0, -1.0]])[:, :, None], 3, axis=2)
+    with pytest.raises(ValueError, match="positive definite covariance: run 0"):
+        gaussian_nll(np.zeros((2, 3)), bad)
+
+
+def test_nll_experiments_are_the_sqerr_experiment_with_the_term():
+    from adaptfilt.experiment_registry import NLL_WEIGHTS, get_experiment
+
+    base = get_experiment("ungm-ukf-sqerr")
+    for w in NLL_WEIGHTS:
+        e = get_experiment(f"ungm-ukf-sqerr-nll{w:g}")
+        assert e.cost == Cost("sqerr", nll_weight=w) and e.grid == base.grid and e.features == base.features
+
+
+def test_ungm_forcing_changes_only_the_forcing_term():
+    import adaptfilt as af
+
+    m, t = af.models.ungm(), af.models.ungm(forcing=10.0)
+    x = np.linspace(-20, 20, 9)[:, None]
+    for k in (1, 17, 300):
+        np.testing.assert_allclose(t.f(x, k) - m.f(x, k), np.full_like(x, 2.0 * np.cos(0.05 * k)), rtol=1e-12)
+    assert m.name == t.name and "forcing 10" in t.description and "forcing" not in m.description
+    np.testing.assert_array_equal(af.models.ungm(forcing=8.0).f(x, 5), m.f(x, 5))
+
+
+def test_kalmannet_trains_on_a_truths_trajectories_and_keeps_the_model():
+    """``truth=``: training and validation trajectories come from the truth (here the process noise x 100: the
+    validation loss of the untrained filter differs from the model's), the filter keeps the model's f and h."""
+    import dataclasses
+
+    import adaptfilt as af
+    from adaptfilt.kalmannet import train_kalmannet
+
+    model = af.models.linear_gaussian(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
+    truth = dataclasses.replace(model, Q=model.Q * 100, description="lin, Q x 100")
+    kw = dict(n_train=8, n_val=4, n_steps=10, batch_size=4, seed=3, progress=False, epochs=1)
+    a = train_kalmannet(model, **kw)
+    b = train_kalmannet(model, truth=truth, **kw)
+    assert b.history["truth"] == "lin, Q x 100" and "truth" not in a.history
+    assert b.history["val_loss"][0] > 10 * a.history["val_loss"][0]
+    assert b.model is model
+    with pytest.raises(ValueError, match="truth must be a StateSpaceModel with the model's dimensions"):
+        train_kalmannet(model, truth=af.models.coordinated_turn(), **kw)

@@ -123,3 +123,39 @@ def test_sb3_training_leaves_nothing_in_the_temporary_directory(tmp_path, monkey
     for algo in ("fast", "a2c"):
         train_policy("ungm-ukf", algo, 0.5, episodes=2, seed=0, parallel=2, n_steps=5, progress=False)
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith("SB3-")] == []
+
+
+def test_snapshots_of_one_training_are_the_shorter_trainings_byte_for_byte(tmp_path):
+    """A snapshot at E episodes is bit for bit the policy of a training of E episodes (SB3 trains on whole
+    rollouts; the fast mode's learning rate and clip range are constants), whether E ends a rollout or lies
+    inside one; building a snapshot's actor does not move the training's random numbers."""
+    from adaptfilt.trainers import SB3Config, train_sb3
+
+    cfg = SB3Config("ppo", 8, {"n_steps": 16, "batch_size": 32, "n_epochs": 2, "learning_rate": 2e-3})
+    cmd = "adaptfilt train ungm-ukf --episodes 12 --seed 0"
+    long = train_sb3("ungm-ukf", 0.5, 12, 0, cfg, n_steps=20, progress=False, command=cmd, snapshots=(3, 7, 12))
+    assert sorted(long.snapshots) == [3, 7, 12]
+    cpu = [long.snapshots[e].cpu_s for e in (3, 7, 12)]
+    assert 0 < cpu[0] <= cpu[1] <= cpu[2] <= long.cpu_s
+    for e in (3, 7):
+        short = train_sb3("ungm-ukf", 0.5, e, 0, cfg, n_steps=20, progress=False, command=cmd)
+        long.snapshots[e].save(tmp_path / f"a{e}.npz")
+        short.save(tmp_path / f"b{e}.npz")
+        assert (tmp_path / f"a{e}.npz").read_bytes() == (tmp_path / f"b{e}.npz").read_bytes()
+        assert long.snapshots[e].metadata["episodes"] == e
+    long.snapshots[12].save(tmp_path / "a12.npz")
+    long.save(tmp_path / "b12.npz")
+    assert (tmp_path / "a12.npz").read_bytes() == (tmp_path / "b12.npz").read_bytes()
+    with pytest.raises(ValueError, match="snapshots must be episode counts"):
+        train_sb3("ungm-ukf", 0.5, 4, 0, cfg, n_steps=20, progress=False, snapshots=(5,))
+
+
+def test_a_cpu_budget_stops_training_after_that_many_cpu_seconds():
+    import time
+
+    from adaptfilt.trainers import SB3Config, train_sb3
+
+    cfg = SB3Config("ppo", 8, {"n_steps": 16, "batch_size": 32, "n_epochs": 2, "learning_rate": 2e-3})
+    c0 = time.process_time()
+    pol = train_sb3("ungm-ukf", 0.5, 10 ** 6, 0, cfg, n_steps=20, progress=False, max_cpu_s=1.0)
+    assert 1.0 <= pol.cpu_s <= time.process_time() - c0 and pol.metadata["transitions"] < 10 ** 6 * 20
