@@ -1,8 +1,15 @@
-r"""Learned policies anchored on greedy: a residual over greedy's choice, kept near it by a KL term.
+r"""Learned policies anchored on a rule: a residual over greedy's (or ML's) choice, kept near it by a KL term.
 
-The anchored learner (study 5 of ``adaptfilt beyond``): a learned policy that starts *as* greedy (the
-exact one-step optimum, the bar every learned policy is measured against) and moves away only where the
-learner finds that it pays.
+A learned policy that starts *as* greedy (the exact one-step optimum, the bar every learned policy is
+measured against) and moves away only where the learner finds that it pays.
+
+**The anchor** (:data:`ANCHORS`, a declared choice of the anchored learner): ``"greedy"`` (below) or
+``"ml"``, maximum likelihood's choice ``argmax_theta log N(z; z_pred(theta), Pzz(theta))``
+(:class:`~adaptfilt.policies.MaxLikelihoodPolicy`, the same ``np.argmax``): on the CTM, ML's run costs
+less than greedy's although greedy is the one-step optimum, so a learner that starts at ML starts from the
+better rule. Everything below holds with ``g(s)`` the anchor's choice; ML's needs the candidates'
+log-likelihoods, which the same candidate updates give (computed and charged as greedy's). The shield stays
+relative to greedy's one-step cost (the one-step optimum), and the anchor's own choice is always allowed.
 
 **The policy.** With ``g(s)`` greedy's choice (the argmin of the one-step cost over the grid,
 :class:`~adaptfilt.policies.GreedyPolicy`) and ``f(s)`` the actor network's logits,
@@ -64,12 +71,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["ANCHORS", "Anchor", "DEFAULT_SHIELD", "greedy_index", "greedy_onehot", "allowed_mask", "anchored_logits", "anchored_policy_class",
+__all__ = ["ANCHORS", "Anchor", "DEFAULT_SHIELD", "greedy_index", "greedy_onehot", "anchor_index", "anchor_onehot",
+           "allowed_mask", "anchored_logits", "anchored_policy_class",
            "DEFAULT_STRENGTH",
            "DEFAULT_KL"]
 
-#: Policies a learned policy can be anchored on.
-ANCHORS = ("greedy",)
+#: Policies a learned policy can be anchored on (module docstring).
+ANCHORS = ("greedy", "ml")
 #: Default anchor strength ``c`` (logit added to greedy's choice). Chosen on selection runs: see
 #: ``benchmarks/bench_anchor.py``.
 DEFAULT_STRENGTH = 3.0
@@ -82,8 +90,8 @@ DEFAULT_SHIELD = 1.0
 
 @dataclass(frozen=True)
 class Anchor:
-    """What a policy is anchored on (``policy``), with the strength ``c`` and the KL coefficient ``beta``
-    it was trained with (``kl``; recorded, not used in acting).
+    """What a policy is anchored on (``policy``, one of :data:`ANCHORS`), with the strength ``c`` and the KL
+    coefficient ``beta`` it was trained with (``kl``; recorded, not used in acting).
 
     >>> Anchor("greedy", 3.0, 0.01).to_dict()
     {'policy': 'greedy', 'strength': 3.0, 'kl': 0.01}
@@ -150,20 +158,49 @@ def greedy_index(decision, grid: Sequence[float] | None = None) -> np.ndarray:
     return np.argmin(cost, axis=0)
 
 
-def greedy_onehot(decision, grid: Sequence[float] | None = None) -> np.ndarray:
-    """Greedy's choice as a float32 one-hot ``(M, G)`` over ``grid`` (see :func:`greedy_index`)."""
-    idx = greedy_index(decision, grid)
-    G = decision.grid.size if grid is None else len(grid)
+def _onehot(idx: np.ndarray, G: int) -> np.ndarray:
     out = np.zeros((idx.size, G), dtype=np.float32)
     out[np.arange(idx.size), idx] = 1.0
     return out
 
 
-def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None) -> np.ndarray:
+def greedy_onehot(decision, grid: Sequence[float] | None = None) -> np.ndarray:
+    """Greedy's choice as a float32 one-hot ``(M, G)`` over ``grid`` (see :func:`greedy_index`)."""
+    return _onehot(greedy_index(decision, grid), decision.grid.size if grid is None else len(grid))
+
+
+def anchor_index(decision, policy: str = "greedy", grid: Sequence[float] | None = None) -> np.ndarray:
+    """The anchor's choice ``(M,)`` as an index into ``grid`` (default: the decision's grid): greedy's
+    (:func:`greedy_index`) or ML's, ``argmax`` of the candidates' log-likelihoods exactly as
+    :class:`~adaptfilt.policies.MaxLikelihoodPolicy` (first index on a tie), over ``grid`` when it is a
+    subset of the decision's."""
+    if policy == "greedy":
+        return greedy_index(decision, grid)
+    if policy != "ml":
+        raise ValueError(f"unknown anchor {policy!r}; choose one of {', '.join(ANCHORS)}")
+    ll = decision.candidates().get("loglik")
+    if ll is None:
+        raise ValueError("an anchor on ML needs the candidates' log-likelihoods")
+    ll = np.asarray(ll)
+    if grid is not None:
+        from adaptfilt.policies import grid_indices
+
+        ll = ll[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
+    return np.argmax(ll, axis=0)
+
+
+def anchor_onehot(decision, policy: str = "greedy", grid: Sequence[float] | None = None) -> np.ndarray:
+    """The anchor's choice as a float32 one-hot ``(M, G)`` over ``grid`` (see :func:`anchor_index`)."""
+    return _onehot(anchor_index(decision, policy, grid), decision.grid.size if grid is None else len(grid))
+
+
+def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None,
+                 keep: np.ndarray | None = None) -> np.ndarray:
     """The shield's float32 mask ``(M, G)`` over ``grid`` (default the decision's): 1 where a candidate's
     one-step ``log(1 + L)`` is at most ``shield`` above greedy's (greedy's own choice always), 0 elsewhere
     (also where the candidate's cost is not finite). ``shield = 1``: a deviation may cost at most
-    ``e (1 + L_greedy) - 1`` now."""
+    ``e (1 + L_greedy) - 1`` now. ``keep (M,)``: indices (into ``grid``) always allowed too, the anchor's
+    choice when it is not greedy (so that the untrained policy is its anchor)."""
     cost = np.asarray(decision.candidates()["cost"], dtype=float)
     if grid is not None:
         from adaptfilt.policies import grid_indices
@@ -174,13 +211,15 @@ def allowed_mask(decision, shield: float, grid: Sequence[float] | None = None) -
         lc = np.log1p(np.maximum(cost, 0.0))
         ok = np.isfinite(lc) & (lc - lc[g, np.arange(g.size)] <= float(shield))
     ok[g, np.arange(g.size)] = True
+    if keep is not None:
+        ok[np.asarray(keep), np.arange(g.size)] = True
     return ok.T.astype(np.float32)
 
 
 def anchored_policy_class():
     """The SB3 ``ActorCriticPolicy`` subclass of an anchored policy (built on first use: SB3 is optional).
 
-    Its observations are ``[scaled features (d), greedy's one-hot (G)]`` and, with ``shield=True``, the
+    Its observations are ``[scaled features (d), the anchor's one-hot (G)]`` and, with ``shield=True``, the
     shield's mask ``(G)`` after them (:class:`~adaptfilt.gym.FilterVectorEnv` with an anchor lays them
     out so); keyword arguments ``strength`` (``c``) and ``shield``. The entropy slot always carries
     ``-KL(pi || pi_0)`` (module docstring): the algorithm's ``ent_coef`` is the KL's weight ``beta``.
@@ -195,7 +234,7 @@ def anchored_policy_class():
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
     class DropAnchor(BaseFeaturesExtractor):
-        """The observation without its last ``n_anchor`` columns (greedy's one-hot): what the networks see."""
+        """The observation without its last ``n_anchor`` columns (the anchor's one-hot): what the networks see."""
 
         def __init__(self, observation_space: spaces.Box, n_anchor: int):
             super().__init__(observation_space, int(observation_space.shape[0]) - int(n_anchor))
@@ -205,7 +244,7 @@ def anchored_policy_class():
             return obs[:, : self.n_keep]
 
     class AnchoredActorCriticPolicy(ActorCriticPolicy):
-        """``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer initialised at zero."""
+        """``pi ∝ exp(actor(s) + c onehot(anchor))`` with the actor's output layer initialised at zero."""
 
         def __init__(self, observation_space, action_space, lr_schedule, *, strength: float = DEFAULT_STRENGTH,
                      shield: bool = False, **kwargs):
@@ -219,12 +258,12 @@ def anchored_policy_class():
             n_extra = self.n_anchor * (2 if self.shield else 1)
             kwargs.update(features_extractor_class=DropAnchor, features_extractor_kwargs={"n_anchor": n_extra})
             super().__init__(observation_space, action_space, lr_schedule, **kwargs)
-            with th.no_grad():  # the untrained policy is pi_0: greedy at its argmax, exactly
+            with th.no_grad():  # the untrained policy is pi_0: the anchor at its argmax, exactly
                 self.action_net.weight.zero_()
                 self.action_net.bias.zero_()
 
         def _extra(self, obs):
-            """(greedy's one-hot, the shield's mask or None) from the observation's last columns."""
+            """(the anchor's one-hot, the shield's mask or None) from the observation's last columns."""
             G = self.n_anchor
             if not self.shield:
                 return obs[:, -G:].float(), None

@@ -7,7 +7,7 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T] [--chunk-size C]
     adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--snapshots E1,E2,...]
                          [--parallel B] [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--lr LR]
-                         [--n-epochs K] [--truth q=4,r=1|forcing=10] [--anchor greedy [--anchor-strength C]
+                         [--n-epochs K] [--truth q=4,r=1|forcing=10] [--anchor greedy|ml [--anchor-strength C]
                          [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--out FILE ...] [--resume]
                          [--workers N] [--cluster ADDRESS]
     adaptfilt train-gain NAME [--arch kalmannet|kalmannet-arch1] [--hidden-mult M] [--loss supervised|unsupervised]
@@ -22,7 +22,7 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
                         [--data DIR]
     adaptfilt reproduce --out DIR --report-only [--data DIR]
-    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain] [--workers N]
+    adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain,mlanchor] [--workers N]
                      [--cluster ADDRESS] [--data DIR]
     adaptfilt beyond --out DIR --report-only
     adaptfilt book --out DIR
@@ -114,7 +114,7 @@ def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
 
 def _train(args: argparse.Namespace) -> int:
     if args.anchor is None and any(v is not None for v in (args.anchor_strength, args.anchor_kl, args.anchor_shield)):
-        raise ValueError("--anchor-strength, --anchor-kl and --anchor-shield set the anchor: give --anchor greedy too")
+        raise ValueError("--anchor-strength, --anchor-kl and --anchor-shield set the anchor: give --anchor greedy (or ml) too")
     if args.anchor is not None and args.algo not in ("fast", "a2c", "ppo"):
         raise ValueError(f"--anchor needs an SB3 trainer (--algo fast, a2c or ppo), not {args.algo}")
     if args.snapshots is not None:  # one file per snapshot, written by one training
@@ -545,12 +545,12 @@ def _add_train(sub) -> None:
     from adaptfilt.anchor import ANCHORS, DEFAULT_KL, DEFAULT_STRENGTH
 
     p.add_argument("--anchor", choices=ANCHORS, default=None,
-                   help="a residual policy over greedy's choice that acts as greedy before training "
+                   help="a residual policy over greedy's (or ML's) choice that acts as that rule before training "
                         "(adaptfilt.anchor; fast/a2c/ppo only)")
     p.add_argument("--anchor-strength", type=_positive, default=None,
-                   help=f"logit added to greedy's choice (default {DEFAULT_STRENGTH:g}; needs --anchor)")
+                   help=f"logit added to the anchor's choice (default {DEFAULT_STRENGTH:g}; needs --anchor)")
     p.add_argument("--anchor-kl", type=_nonnegative, default=None,
-                   help=f"weight of KL(pi || greedy's prior) in the loss (default {DEFAULT_KL:g}; needs --anchor)")
+                   help=f"weight of KL(pi || the anchor's prior) in the loss (default {DEFAULT_KL:g}; needs --anchor)")
     p.add_argument("--anchor-shield", type=_nonnegative, default=None,
                    help="never choose a value whose one-step log(1 + L) exceeds greedy's by more than this "
                         "(default 1; 0: no shield; needs --anchor)")

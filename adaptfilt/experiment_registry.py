@@ -10,28 +10,32 @@ name                   model   rule   cost                             grid
 ``ctm-sif-nis``        CTM     SIF    ``L_NIS + n_iter/50``            n_iter in SIF_ITER_GRID
 =====================  ======  =====  ===============================  ==========================
 
-The paper does not give its discrete grids; these are ours, chosen with the
-fixed-parameter sweeps (``notebooks/04``, update-step parameter only, predict
-at the default, M = 10^4, seed 0):
+The paper does not give its discrete grids; these are ours. The UKF grids
+are chosen with the fixed-kappa sweeps of chapter 4 (``notebooks/04``,
+"Choosing the grid": update-step parameter only, predict at the default,
+M = 2000 runs, seed 0):
 
 * **UNGM, kappa** (``n = 1``, default 2). Every kappa < 0 makes ``P_filt``
   indefinite at the second step in (nearly) every run: ``Pzz`` of the
   quadratic measurement is ``(4 m^2 P + kappa P^2) / 400 + R``, too small for
-  kappa < 0. Time-averaged RMSE falls from 6.86 (kappa = 2) to a minimum of
-  about 3.07 near kappa = 100-300 and rises again (3.23 at 1000, 3.57 at 10^4);
-  ANEES keeps falling as kappa grows because the gain ``K ~ 1/kappa`` switches
-  the update off. The grid is log-spaced from 0 to 10^4 so that the best fixed
-  RMSE value is interior.
+  kappa < 0. Time-averaged RMSE falls from 6.82 (kappa = 2) to a flat minimum
+  of 3.06 at kappa = 200 (3.07 at 100) and rises again beyond (3.67 at
+  10^5); ANEES keeps falling as kappa grows because the gain ``K ~ 1/kappa``
+  switches the update off. The grid is log-spaced from 0 to 10^4 so that the
+  best fixed RMSE value is interior.
 * **CTM, kappa** (``n = 4``, default 0). With Julier's standard form,
-  kappa <= -2 (centre weight ``kappa / (4 + kappa) <= -1``) loses
-  definiteness of ``Pzz`` in some runs; the UKF of the CTM experiment uses the
+  kappa <= -1.5 (centre weight ``kappa / (4 + kappa) <= -0.6``) loses
+  definiteness of the filtering covariance in some runs (chapter 4's 1000
+  runs stop with that error at -1.5 already); the UKF of the CTM experiment uses the
   *modified* form where the centre weight is negative (``form="auto"``:
   covariances about the centre point, positive semi-definite for any kappa,
   identical to the standard form for kappa >= 0), so the grid reaches down to
   -3 (``n + kappa > 0`` requires kappa > -4). From -1 to 2 RMSE and ANEES
-  change by about 1 %, above 5 both degrade monotonically. The grid spans
-  -3 .. 50. (The first reproduction used the standard form and -1 .. 50.)
-* **SIF, n_iter** (default 10): 1 .. 30 iterations; with the ``n_iter/50``
+  change by a few percent (RMSE 39.6-40.9, ANEES 8.01-8.42); above 5 both
+  rise steeply. The grid spans -3 .. 50. (The first reproduction used the
+  standard form and -1 .. 50.)
+* **SIF, n_iter** (default 10): 1 .. 30 iterations, not from a chapter-4
+  sweep (chapter 11 evaluates every count of the grid); with the ``n_iter/50``
   term a low weight favours many iterations, a high weight few. The SIF is
   the form of the authors' Stone Soup port that ``tests/test_sif_reference.py``
   checks draw for draw (:data:`SIF_FORMS` ``"reference"``): degree 3, a fixed

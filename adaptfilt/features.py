@@ -26,6 +26,11 @@ token      what it adds or changes
            ``log(1 + L(s, z, theta_g))`` (needs an environment with a cost):
            what the exhaustive greedy policy sees, as features
            (one tiled update; see :meth:`adaptfilt.mdp.Decision.candidates`).
+``lik``    for every grid value, that candidate's log-likelihood relative to
+           the most likely one, ``log N(z; z_pred(theta_g), Pzz(theta_g)) -
+           max_theta log N(...)`` (``<= 0``; 0 at ML's choice): what maximum
+           likelihood ranks, from the same candidate updates (a non-finite
+           one reads as ``-710``).
 ``innov@v`` the innovation feature computed with parameter ``v`` instead of
            the default: for the SIF, ``innov@1`` costs one iteration instead
            of the default's ten, every step (the paper's information state is
@@ -55,7 +60,7 @@ import numpy as np
 
 __all__ = ["FeatureSet", "FeatureScaler", "feature_names", "fit_scaler", "visited_states", "PAPER"]
 
-_TOKENS = ("time", "circ", "cand")
+_TOKENS = ("time", "circ", "cand", "lik")
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,7 @@ class FeatureSet:
     circular: bool = False
     candidates: bool = False
     innovation: float | None = None  # parameter of the innovation feature (None: the filter's default)
+    likelihoods: bool = False  # the candidates' relative log-likelihoods (token ``lik``)
 
     @classmethod
     def parse(cls, spec: "str | FeatureSet | None") -> "FeatureSet":
@@ -95,11 +101,12 @@ class FeatureSet:
                 value = float(innov[-1][len("innov@"):])
             except ValueError:
                 raise ValueError(f"innov@ needs a parameter value (e.g. innov@1), got {innov[-1]!r}") from None
-        return cls(time="time" in tokens, circular="circ" in tokens, candidates="cand" in tokens, innovation=value)
+        return cls(time="time" in tokens, circular="circ" in tokens, candidates="cand" in tokens, innovation=value,
+                   likelihoods="lik" in tokens)
 
     @property
     def name(self) -> str:
-        tokens = [t for t, on in zip(_TOKENS, (self.time, self.circular, self.candidates)) if on]
+        tokens = [t for t, on in zip(_TOKENS, (self.time, self.circular, self.candidates, self.likelihoods)) if on]
         if self.innovation is not None:
             tokens.append(f"innov@{self.innovation:g}")
         return "+".join(["paper"] + tokens)
@@ -125,6 +132,10 @@ class FeatureSet:
             if grid is None:
                 raise ValueError("the 'cand' features need the parameter grid")
             out += [f"log1p cost[{g:g}]" for g in grid]
+        if self.likelihoods:
+            if grid is None:
+                raise ValueError("the 'lik' features need the parameter grid")
+            out += [f"loglik - max[{g:g}]" for g in grid]
         return out
 
     def size(self, model, grid: Sequence[float] | None = None) -> int:

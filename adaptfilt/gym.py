@@ -55,7 +55,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from adaptfilt.anchor import ANCHORS, Anchor, allowed_mask, greedy_onehot
+from adaptfilt.anchor import ANCHORS, Anchor, allowed_mask, anchor_onehot
 from adaptfilt.costs import transform_cost
 from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import OBS_LIMIT, FeatureScaler, FeatureSet, fit_scaler, observe
@@ -73,7 +73,7 @@ def rewards(cost: np.ndarray, cost_transform: str = "log1p") -> np.ndarray:
 
 class _Observer:
     """Information state -> network input: feature set, scaler, float32, bounded; with an anchor
-    (:mod:`adaptfilt.anchor`), greedy's one-hot appended (the anchored policy drops it before its networks)."""
+    (:mod:`adaptfilt.anchor`), the anchor's one-hot appended (the anchored policy drops it before its networks)."""
 
     def __init__(self, env, features, scaler: FeatureScaler | None, scaler_seed: int, anchor=None):
         if isinstance(anchor, str):
@@ -102,7 +102,9 @@ class _Observer:
         s = self.scaler.network_input(observe(decision, self.features))
         if self.anchor is None:
             return s
-        extra = [greedy_onehot(decision)] + ([] if self.shield is None else [allowed_mask(decision, self.shield)])
+        onehot = anchor_onehot(decision, self.anchor)
+        keep = None if self.anchor == "greedy" else onehot.argmax(axis=1)  # the anchor's choice is always allowed
+        extra = [onehot] + ([] if self.shield is None else [allowed_mask(decision, self.shield, keep=keep)])
         return np.concatenate([s] + extra, axis=1)
 
     def space(self) -> spaces.Box:
@@ -133,8 +135,8 @@ class FilterVectorEnv(VectorEnv):
         trajectories come from ``reset(seed=...)``.
     n_steps : int, optional
         Horizon (default: the model's).
-    anchor : "greedy", an Anchor or None
-        Append greedy's choice as a one-hot ``(G,)`` to each observation, for an anchored policy
+    anchor : "greedy", "ml", an Anchor or None
+        Append the anchor's choice (greedy's or ML's) as a one-hot ``(G,)`` to each observation, for an anchored policy
         (:mod:`adaptfilt.anchor`; default None: the scaled features only), and with the anchor's
         shield its mask ``(G,)`` (:func:`~adaptfilt.anchor.allowed_mask`).
 
@@ -424,11 +426,11 @@ def to_learned_policy(model, venv=None, gamma: float | None = None, name: str | 
     meta = {"experiment": venv_.experiment, "feature_set": venv_.features.name,
             "cost_transform": venv_.cost_transform, "algo": type(model).__name__.lower(), **(metadata or {})}
     anchor = getattr(venv_.observer, "anchor", None)
-    if anchor is not None:  # the policy adds c * onehot(greedy) to the actor's logits (adaptfilt.anchor)
+    if anchor is not None:  # the policy adds c * onehot(anchor's choice) to the actor's logits (adaptfilt.anchor)
         from adaptfilt.anchor import Anchor
 
         if not hasattr(pol, "n_anchor") or pol.shield != (venv_.observer.shield is not None):
-            raise ValueError("the environment appends greedy's one-hot (and the shield's mask) but the model is not "
+            raise ValueError("the environment appends the anchor's one-hot (and the shield's mask) but the model is not "
                              "an anchored policy with the same shield")
         meta["anchor"] = Anchor(anchor, pol.strength, float(getattr(model, "ent_coef", 0.0)),
                                 venv_.observer.shield).to_dict()

@@ -19,7 +19,7 @@ It holds the actor weights (``actor/<parameter>``), the feature scaling
 and one JSON document (``__metadata__``, UTF-8 bytes) with the experiment,
 model, rule parameter, grid, feature names, gamma, cost, seed, episodes,
 parallel, hyperparameters, package version, the training command and a
-learning-curve summary; a policy anchored on greedy (:mod:`adaptfilt.anchor`) also records
+learning-curve summary; a policy anchored on greedy or ML (:mod:`adaptfilt.anchor`) also records
 ``anchor = {policy, strength, kl}``, which ``act`` applies. The zip is written with a fixed date and sorted
 entries and the JSON with sorted keys, so the same training gives a
 byte-identical file.
@@ -42,7 +42,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from adaptfilt.anchor import Anchor, allowed_mask, anchored_logits, greedy_onehot
+from adaptfilt.anchor import Anchor, allowed_mask, anchor_onehot, anchored_logits
 from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, observe
 from adaptfilt.files import read_npz, write_npz
@@ -139,7 +139,7 @@ class LearnedPolicy:
         self.sample = bool(sample)
         self.rng = np.random.default_rng(rng)
         self.feature_set = FeatureSet.parse(self.metadata.get("feature_set"))
-        #: a policy anchored on greedy adds ``c * onehot(greedy's choice)`` to the actor's logits (:mod:`adaptfilt.anchor`)
+        #: an anchored policy adds ``c * onehot(the anchor's choice)`` to the actor's logits (:mod:`adaptfilt.anchor`)
         self.anchor = Anchor.from_dict(self.metadata.get("anchor"))
 
     @property
@@ -160,7 +160,7 @@ class LearnedPolicy:
             a = None if anchor is None else np.asarray(anchor, dtype=np.float32)
             if a is None or a.shape != shape:
                 raise ValueError(f"policy {self.name!r} is anchored on {self.anchor.policy}: its logits need "
-                                 f"anchor=greedy_onehot(decision) of shape {shape}" + ("" if a is None else f", got {a.shape}"))
+                                 f"anchor=anchor_onehot(decision, {self.anchor.policy!r}) of shape {shape}" + ("" if a is None else f", got {a.shape}"))
             m = None if allowed is None else np.asarray(allowed, dtype=np.float32)
             if (self.anchor.shield is None) != (m is None) or (m is not None and m.shape != shape):
                 raise ValueError(f"policy {self.name!r}: " + (f"its shield needs allowed=allowed_mask(decision, "
@@ -171,7 +171,7 @@ class LearnedPolicy:
 
     def logits(self, features: np.ndarray, anchor: np.ndarray | None = None, allowed: np.ndarray | None = None) -> np.ndarray:
         """Actor logits ``(M, |Theta|)`` for raw information states ``(M, d)``; an anchored policy
-        (:mod:`adaptfilt.anchor`) also needs greedy's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it,
+        (:mod:`adaptfilt.anchor`) also needs its anchor's one-hot ``anchor (M, |Theta|)`` and adds ``c`` times it,
         and with a shield its mask ``allowed (M, |Theta|)`` (masked candidates get ``MASKED_LOGIT``)."""
         return self._logits(features, anchor, allowed).double().numpy()
 
@@ -186,9 +186,10 @@ class LearnedPolicy:
         s = observe(decision, self.feature_set)
         anchor = allowed = None
         if self.anchor is not None:
-            anchor = greedy_onehot(decision, self.grid)
-            if self.anchor.shield is not None:
-                allowed = allowed_mask(decision, self.anchor.shield, self.grid)
+            anchor = anchor_onehot(decision, self.anchor.policy, self.grid)
+            if self.anchor.shield is not None:  # the anchor's own choice is always allowed (greedy's is anyway)
+                keep = None if self.anchor.policy == "greedy" else anchor.argmax(axis=1)
+                allowed = allowed_mask(decision, self.anchor.shield, self.grid, keep=keep)
         if not self.sample:
             return to_env[np.argmax(self.logits(s, anchor, allowed), axis=1)]
         p = self.probs(s, anchor, allowed)

@@ -1,4 +1,5 @@
-r"""Look-ahead reference policies: rollout with greedy as the base policy, and the two-step look-ahead.
+r"""Look-ahead reference policies: rollout over a base policy (greedy, ML or the better of both), and the
+two-step look-ahead.
 
 How much can looking ahead buy? :class:`~adaptfilt.policies.GreedyPolicy` is
 the exact one-step optimum; these policies are *not learned* and look
@@ -27,6 +28,27 @@ time-varying UNGM dynamics ``f(x, k)`` are those of step ``k``). With
 stops at the episode's last step (``H_eff = min(H, n_steps - 1 - t)``):
 costs beyond the horizon are not the MDP's, so the last step is always
 greedy's.
+
+**The base policy** (``base``) is what the continuation follows after the
+decision's candidate:
+
+* ``"greedy"`` (default): ``argmin_theta' L`` at every continuation step, as above;
+* ``"ml"``: maximum likelihood, ``argmax_theta' log N(z; z_pred(theta'), Pzz(theta'))``
+  (:class:`~adaptfilt.policies.MaxLikelihoodPolicy`; the same ``np.argmax``), read from the
+  same candidate updates (their log-likelihoods: no extra compute). On the CTM, ML's run is
+  cheaper than greedy's although greedy is the one-step optimum, so rollout over ML bounds what
+  looking ahead buys from the better base;
+* ``"best"``: the better of the two per decision and candidate, ``Q(theta) = L_0(theta) +
+  min(F_greedy(theta), F_ml(theta))`` with ``F_b`` the sampled discounted continuation cost under
+  base ``b`` (parallel rollout, Chang, Givan and Chong 2004: with exact expectations it is no
+  worse than either base). Both continuations share the first continuation step (its candidate
+  updates serve both bases' choices) and the random numbers (common random numbers), so
+  ``F_greedy`` is, bit for bit, rollout over greedy's.
+
+``H = 0`` means no look-ahead: the policy is its base (greedy: ``argmin L_0``, also
+``Q_0``'s argmin; ML: ML's choice, bit for bit; ``"best"``: the better of greedy's and ML's choice
+by their estimate ``L_0``, i.e. greedy). The episode's last step (``H_eff = 0`` with ``H > 0``)
+and ``gamma = 0`` have only the current cost to minimise: every base then takes its argmin.
 
 Cost improvement: rollout with exact expectations over the whole remaining
 horizon costs no more than its base policy (Bertsekas). Here the horizon is
@@ -92,7 +114,9 @@ the exact Kalman predict of the CTM). The first predict is made once per
 branch, then copied to the ``S`` samples. UKF on UNGM (``G = 13``, ``p = 1``):
 ``13 + 13 + 13 S (H - 1) + 169 S H``; the two-step policy is ``H_eff = 1``.
 Sampling the continuation's states and measurements evaluates the model's
-functions only, no moment computation, and is not counted.
+functions only, no moment computation, and is not counted. With ``base="best"`` the
+continuation steps after the first run once per base: ``c_cand + G p + G S c_cand +
+2 G S (H_eff - 1) (p + c_cand)``.
 
 Memory: the continuation of ``m`` runs holds ``G^2 S m`` candidate updates at
 once; runs are taken ``max_batch // (G^2 S)`` at a time (which changes the
@@ -128,7 +152,10 @@ import numpy as np
 from adaptfilt.linalg import chol, mv, sym
 from adaptfilt.mdp import PREDICT, Decision
 
-__all__ = ["RolloutPolicy", "TwoStepPolicy", "FilterLookahead", "lookahead_model"]
+__all__ = ["RolloutPolicy", "TwoStepPolicy", "FilterLookahead", "lookahead_model", "BASES"]
+
+#: The base policies of :class:`RolloutPolicy` (module docstring).
+BASES = ("greedy", "ml", "best")
 
 #: keys the look-ahead's random numbers apart from the filter's and the trajectories'
 _KEY = 0x100C
@@ -162,6 +189,9 @@ class FilterLookahead:
     continuations of ``H`` steps. ``spent(H, S)``: the compute per run (see
     the module docstring).
     """
+
+    #: ``expand(..., loglik=True)`` gives the candidates' log-likelihoods (what an ML base ranks)
+    has_loglik = True
 
     def __init__(self, decision: Decision, measurements: Literal["filter", "model"] = "filter"):
         env = decision.env
@@ -200,12 +230,13 @@ class FilterLookahead:
         return _Branches(Y.m[..., idx], Y.P[..., idx], None if Y.x is None else Y.x[..., idx])
 
     def expand(self, Y: _Branches, h: int, noise: dict, rng: np.random.Generator,
-               tile: int = 1) -> tuple[np.ndarray, _Branches]:
+               tile: int = 1, loglik: bool = False) -> tuple:
         """Step ``t + h``'s candidates from the branches ``Y`` filtered at ``t + h - 1``.
 
         ``noise``: arrays ``(n, S, m)`` (a chunk of ``m`` runs); ``Y`` holds
         ``tile * m`` runs at ``h = 1`` (copied here to the ``S`` samples after
-        the predict) and ``tile * S * m`` later.
+        the predict) and ``tile * S * m`` later. ``loglik``: also return the
+        candidates' log-likelihoods ``(G, B)`` (what an ML base ranks), third.
         """
         filt, model, grid, G = self.filt, self.model, self.grid, self.grid.size
         t = self.t + h
@@ -239,14 +270,18 @@ class FilterLookahead:
 
         u = filt.update_candidates_rl(mp, Pp, z, t, grid, rng=r_upd, tile=K)
         cost = self.env.cost(u, np.repeat(grid, B), model.nz).reshape(G, B)
-        return cost, _Branches(u.x_filt, u.P_filt, None if x is None else np.concatenate([x] * G, axis=-1))
+        Y = _Branches(u.x_filt, u.P_filt, None if x is None else np.concatenate([x] * G, axis=-1))
+        return (cost, Y, u.loglik.reshape(G, B)) if loglik else (cost, Y)
 
-    def spent(self, H: int, S: int) -> float:
-        """Compute per run of a continuation of ``H >= 1`` steps and ``S`` samples, beyond the decision's candidates."""
+    def spent(self, H: int, S: int, bases: int = 1) -> float:
+        """Compute per run of a continuation of ``H >= 1`` steps and ``S`` samples, beyond the decision's
+        candidates; ``bases``: continuations that share their first step (``base="best"``: 2)."""
         filt, G = self.filt, self.grid.size
         p = 0.0 if self.model.F is not None else float(filt.predict_rule.spent(filt.param))
         c = filt.candidates_spent(self.grid)
-        return G * p + G * S * (H - 1) * p + G * S * H * c
+        if bases == 1:
+            return G * p + G * S * (H - 1) * p + G * S * H * c
+        return G * p + G * S * c + bases * G * S * (H - 1) * (p + c)
 
 
 def lookahead_model(decision, measurements: Literal["filter", "model"] = "filter"):
@@ -307,14 +342,14 @@ def _finite(cost: np.ndarray) -> np.ndarray:
 
 
 class RolloutPolicy(_Lookahead):
-    """Rollout with greedy as the base policy: ``argmin_theta Q_H(theta)`` (see the module docstring).
+    """Rollout over a base policy (greedy by default): ``argmin_theta Q_H(theta)`` (see the module docstring).
 
     Parameters
     ----------
     grid : sequence of float
         The environment's parameter grid (a ValueError at the first decision otherwise).
     horizon : int
-        ``H >= 0`` steps followed with greedy after the decision; 0 is greedy.
+        ``H >= 0`` steps followed with the base policy after the decision; 0 is the base policy.
     samples : int
         ``S >= 1`` sampled continuations per candidate (the same for every candidate).
     gamma : float
@@ -325,21 +360,40 @@ class RolloutPolicy(_Lookahead):
         Where the continuation's measurements come from.
     max_batch : int
         Candidate updates held at once (runs are taken in chunks to stay below it).
+    base : "greedy", "ml" or "best"
+        The policy the continuation follows (module docstring): greedy (default), maximum likelihood, or
+        the better of the two per decision and candidate.
     name : str, optional
-        Default ``rollout-H{H}-S{S}`` (plus ``-gamma{gamma}`` unless 0.5, ``-model`` for model measurements).
+        Default ``rollout-H{H}-S{S}`` (``rollout-ml-...``, ``rollout-best-...`` for the other bases; plus
+        ``-gamma{gamma}`` unless 0.5, ``-model`` for model measurements).
     """
 
     def __init__(self, grid, horizon: int = 1, samples: int = 10, gamma: float = 0.5, seed: int = 0,
-                 measurements: Literal["filter", "model"] = "filter", max_batch: int = 2**18, name: str | None = None):
+                 measurements: Literal["filter", "model"] = "filter", max_batch: int = 2**18, name: str | None = None,
+                 base: str = "greedy"):
         self.grid = _check(grid, samples, gamma, measurements, seed)
         if int(horizon) != horizon or horizon < 0:
             raise ValueError(f"horizon must be an integer >= 0, got {horizon}")
         if int(max_batch) != max_batch or max_batch < 1:
             raise ValueError(f"max_batch must be a positive integer, got {max_batch}")
+        if base not in BASES:
+            raise ValueError(f"unknown base policy {base!r}; choose one of {', '.join(BASES)}")
         self.horizon, self.samples, self.gamma = int(horizon), int(samples), float(gamma)
-        self.seed, self.measurements, self.max_batch = int(seed), measurements, int(max_batch)
-        self.name = name or (f"rollout-H{self.horizon}-S{self.samples}" + ("" if self.gamma == 0.5 else f"-gamma{self.gamma:g}")
+        self.seed, self.measurements, self.max_batch, self.base = int(seed), measurements, int(max_batch), base
+        self.name = name or (f"rollout-{'' if base == 'greedy' else base + '-'}H{self.horizon}-S{self.samples}"
+                             + ("" if self.gamma == 0.5 else f"-gamma{self.gamma:g}")
                              + ("-model" if measurements == "model" else ""))
+
+    def act(self, decision) -> np.ndarray:
+        """Grid indices ``(M,)``: ``argmin_theta`` of :meth:`q` (its compute is charged to the decision);
+        with ``H = 0`` the base policy's choice (for ML, :class:`~adaptfilt.policies.MaxLikelihoodPolicy`'s)."""
+        if self.horizon == 0 and self.base == "ml":
+            self._model(decision)  # the grid check, as for every base
+            ll = decision.candidates().get("loglik")
+            if ll is None:
+                raise ValueError(f"policy {self.name!r}: an ML base needs the candidates' log-likelihoods")
+            return np.argmax(ll, axis=0)
+        return super().act(decision)
 
     def q(self, decision) -> np.ndarray:
         """The estimated discounted cost ``Q_H (G, M)`` of every candidate; adds its compute to
@@ -351,23 +405,40 @@ class RolloutPolicy(_Lookahead):
             return L0
         G, M = L0.shape
         S = self.samples
+        bases = ("greedy", "ml") if self.base == "best" else (self.base,)
+        ll = "ml" in bases  # the candidates' log-likelihoods are needed
+        if ll and not getattr(model, "has_loglik", False):
+            raise ValueError(f"policy {self.name!r}: an ML base needs a look-ahead model that gives the candidates' "
+                             f"log-likelihoods (a FilterEnv's); {type(model).__name__} does not")
         noise = model.noise(self._rng(decision, _NOISE), H, S)
-        future = np.zeros((G, M))
+        future = {b: np.zeros((G, M)) for b in bases}
         per_chunk = max(1, self.max_batch // (G * G * S))
         for c, lo in enumerate(range(0, M, per_chunk)):
             J = np.arange(lo, min(lo + per_chunk, M))
-            Y = model.take(Y0, (np.arange(G)[:, None] * M + J[None]).ravel())
-            for h in range(1, H + 1):
-                C, Y = model.expand(Y, h, {k: a[..., J] for k, a in noise[h - 1].items()},
-                                    self._rng(decision, _DRAWS, h, c), tile=G)
-                C = _finite(C)
-                B = C.shape[1]
-                a = np.argmin(C, axis=0)  # greedy's choice in every continuation
-                future[:, J] += self.gamma**h * C[a, np.arange(B)].reshape(G, S, J.size).mean(axis=1)
-                if h < H:
-                    Y = model.take(Y, a * B + np.arange(B))
-        decision.extra_spent += model.spent(H, S)
-        return L0 + future
+            Y1 = model.take(Y0, (np.arange(G)[:, None] * M + J[None]).ravel())
+            first = None  # the first continuation step, shared by the bases
+            for b in bases:
+                Y = Y1
+                for h in range(1, H + 1):
+                    if h == 1 and first is not None:
+                        C, Y, LL = first
+                    else:
+                        out = model.expand(Y, h, {k: a[..., J] for k, a in noise[h - 1].items()},
+                                           self._rng(decision, _DRAWS, h, c), tile=G, **({"loglik": True} if ll else {}))
+                        C, Y, LL = (out if ll else (*out, None))
+                        C = _finite(C)
+                        if h == 1:
+                            first = (C, Y, LL)
+                    B = C.shape[1]
+                    # the base's choice in every continuation: greedy's argmin, or ML's argmax (as MaxLikelihoodPolicy)
+                    a = np.argmin(C, axis=0) if b == "greedy" else np.argmax(LL, axis=0)
+                    future[b][:, J] += self.gamma**h * C[a, np.arange(B)].reshape(G, S, J.size).mean(axis=1)
+                    if h < H:
+                        Y = model.take(Y, a * B + np.arange(B))
+        decision.extra_spent += model.spent(H, S) if len(bases) == 1 else model.spent(H, S, bases=len(bases))
+        if len(bases) == 1:
+            return L0 + future[bases[0]]
+        return L0 + np.minimum(future["greedy"], future["ml"])
 
 
 class TwoStepPolicy(_Lookahead):

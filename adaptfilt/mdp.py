@@ -258,6 +258,14 @@ class FilterEnv:
             # log1p keeps the heavy-tailed NIS cost (up to 1e7) in range; a non-finite
             # candidate (a diverging update) reads as the largest log-cost a float has.
             blocks.append(np.nan_to_num(np.log1p(np.maximum(cost, 0.0)), nan=710.0, posinf=710.0))
+        if fs.likelihoods:
+            # what ML ranks, without the step's common offset; a non-finite candidate reads as -710
+            ll = d.candidates()["loglik"]
+            ok = np.isfinite(ll)
+            top = np.max(np.where(ok, ll, -np.inf), axis=0)
+            with np.errstate(invalid="ignore"):
+                rel = ll - np.where(np.isfinite(top), top, 0.0)
+            blocks.append(np.where(ok, np.maximum(rel, -710.0), -710.0))
         return np.concatenate(blocks, axis=0).T
 
     def _logging_repairs(self, n: int, fn):

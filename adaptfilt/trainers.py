@@ -46,7 +46,8 @@ transitions (rounded up to whole rollouts). Why these values:
 
 **Anchored on greedy** (``anchor="greedy"``, ``adaptfilt train ... --anchor greedy``; SB3 trainers):
 the policy is a residual over greedy's choice that acts exactly as greedy before training, kept near
-it by ``beta KL(pi || pi_0)`` in the place of PPO's entropy term (:mod:`adaptfilt.anchor`).
+it by ``beta KL(pi || pi_0)`` in the place of PPO's entropy term (:mod:`adaptfilt.anchor`);
+``anchor="ml"`` (``--anchor ml``) the same over maximum likelihood's choice.
 
 All trainers return a :class:`~adaptfilt.learned.LearnedPolicy` whose file is
 byte-identical for the same command (one torch thread, seeded everything) on the
@@ -159,9 +160,9 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     the mean cost itself, whose rare large steps the log flattens). ``normalize_reward``: the learner
     sees the reward divided by a running estimate of the return's spread (SB3's ``VecNormalize``,
     observations untouched); the learning curve keeps the transformed cost itself.
-    ``anchor``: ``None``, ``"greedy"`` or an :class:`~adaptfilt.anchor.Anchor`: the policy is a residual
-    over greedy's choice, ``pi ∝ exp(actor(s) + c onehot(greedy))`` with the actor's output layer at
-    zero (the untrained policy acts as greedy), and the loss carries ``kl * KL(pi || pi_0)`` in the
+    ``anchor``: ``None``, ``"greedy"``, ``"ml"`` or an :class:`~adaptfilt.anchor.Anchor`: the policy is a residual
+    over the anchor's choice, ``pi ∝ exp(actor(s) + c onehot(anchor))`` with the actor's output layer at
+    zero (the untrained policy acts as its anchor), and the loss carries ``kl * KL(pi || pi_0)`` in the
     slot of PPO's entropy term (:mod:`adaptfilt.anchor`; ``config.kwargs`` must not set ``ent_coef`` then).
     """
     import torch
@@ -285,7 +286,7 @@ def _anchor(anchor):
         return anchor
     if isinstance(anchor, str):
         return Anchor(anchor)
-    raise ValueError(f"anchor must be None, a name such as 'greedy' or an Anchor, got {anchor!r}")
+    raise ValueError(f"anchor must be None, a name ('greedy', 'ml') or an Anchor, got {anchor!r}")
 
 
 def _variant(experiment, seed: int, n_steps: int | None, features: str | None, actions: Sequence[float] | None,
@@ -372,9 +373,9 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     from the checkpoint next to ``out``. ``name``: the policy's name (default:
     ``adaptive`` for gamma > 0, ``myopic`` for gamma = 0). ``cost_transform``: the learner
     minimises the mean of ``log(1 + L)`` (``"log1p"``, the default; the paper trains on ``L`` itself) or of ``L`` (``"none"``).
-    ``anchor="greedy"`` (SB3 trainers): a residual policy over greedy's choice with strength
+    ``anchor="greedy"`` or ``"ml"`` (SB3 trainers): a residual policy over the anchor's choice with strength
     ``anchor_strength`` (``c``, default :data:`adaptfilt.anchor.DEFAULT_STRENGTH`) and the penalty
-    ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as greedy
+    ``anchor_kl * KL(pi || pi_0)`` (default :data:`adaptfilt.anchor.DEFAULT_KL`): it acts exactly as its anchor
     before training (:mod:`adaptfilt.anchor`); recorded in the file's ``anchor`` metadata.
     ``anchor_shield``: mask out candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than it
     (:func:`adaptfilt.anchor.allowed_mask`; default :data:`adaptfilt.anchor.DEFAULT_SHIELD`, 0: no shield).
@@ -390,7 +391,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     spec = None
     if anchor is None:
         if anchor_strength is not None or anchor_kl is not None or anchor_shield is not None:
-            raise ValueError("anchor_strength, anchor_kl and anchor_shield set the anchor: give anchor='greedy' too")
+            raise ValueError("anchor_strength, anchor_kl and anchor_shield set the anchor: give anchor='greedy' or 'ml' too")
     else:
         from adaptfilt.anchor import DEFAULT_KL, DEFAULT_SHIELD, DEFAULT_STRENGTH, Anchor
 
@@ -404,7 +405,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
         if actions is not None:
             raise ValueError("actions= (a restricted grid) needs an SB3 trainer (fast, a2c or ppo)")
         if spec is not None:
-            raise ValueError("anchor= (a residual policy over greedy) needs an SB3 trainer (fast, a2c or ppo)")
+            raise ValueError("anchor= (a residual policy over greedy or ML) needs an SB3 trainer (fast, a2c or ppo)")
         if truth is not None or len(snapshots):
             raise ValueError("truth= and snapshots= need an SB3 trainer (fast, a2c or ppo)")
 

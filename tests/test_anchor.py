@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from adaptfilt.anchor import Anchor, anchored_policy_class, greedy_index, greedy_onehot
+from adaptfilt.anchor import Anchor, anchor_index, anchor_onehot, anchored_policy_class, greedy_index, greedy_onehot
 from adaptfilt.experiment_registry import get_experiment
 from adaptfilt.learned import load_policy
 from adaptfilt.mdp import rollout
@@ -32,6 +32,46 @@ def test_before_any_improvement_step_the_anchored_policy_is_greedy_exactly(exper
     # ... on the paper's state too (the anchor needs greedy's candidates, not the candidate features)
     paper = train_policy(experiment, "fast", 0.5, sb3={"learning_rate": 0.0}, **{**kw, "features": None})
     assert np.array_equal(_choices(env, paper, 32, 6), _choices(env, GreedyPolicy(env.grid), 32, 6))
+
+
+@pytest.mark.parametrize("experiment", ["ungm-ukf", "ctm-ukf"])
+def test_anchored_on_ml_the_untrained_policy_is_ml_exactly(experiment):
+    """The anchor is a declared choice: on ML, the untrained policy (any features, shield on) acts as
+    MaxLikelihoodPolicy, bit for bit, in training's observation and in acting."""
+    from adaptfilt.anchor import allowed_mask
+    from adaptfilt.policies import MaxLikelihoodPolicy
+
+    kw = dict(episodes=2, seed=3, parallel=8, n_steps=12, progress=False, features=CAND[experiment], anchor="ml")
+    pol = train_policy(experiment, "fast", 0.5, sb3={"learning_rate": 0.0}, **kw)
+    assert pol.anchor == Anchor("ml", 3.0, 0.01, 1.0)
+    env = get_experiment(experiment).make_env(n_steps=12)
+    assert np.array_equal(_choices(env, pol, 64, 5), _choices(env, MaxLikelihoodPolicy(env.grid), 64, 5))
+    assert not np.array_equal(_choices(env, pol, 64, 5), _choices(env, GreedyPolicy(env.grid), 64, 5))
+    d = env.reset(n_runs=200, rng=np.random.default_rng(1))
+    for _ in range(6):
+        d, *_ = env.step(MaxLikelihoodPolicy().act(d))
+    ml = anchor_index(d, "ml")
+    assert np.array_equal(ml, MaxLikelihoodPolicy().act(d)) and np.array_equal(anchor_index(d, "greedy"), greedy_index(d))
+    assert np.array_equal(anchor_onehot(d, "ml").argmax(axis=1), ml)
+    # the shield keeps the anchor's choice whatever its cost (ML's is outside greedy's shield at 3 of 10^5 CTM
+    # steps): any index given to keep is allowed on top of the shield's own mask
+    k = np.random.default_rng(0).integers(0, env.grid.size, 200)
+    plain = allowed_mask(d, 0.01)
+    assert (plain == 0).any() and np.array_equal(allowed_mask(d, 0.01, keep=k), np.maximum(plain, anchor_onehot_of(k, plain.shape)))
+    # the Gymnasium adapter's observation carries ML's one-hot and the mask that keeps it
+    from adaptfilt.gym import make_vec
+
+    venv = make_vec(experiment, n_envs=4, n_steps=5, features=CAND[experiment], anchor=Anchor("ml", shield=1.0))
+    obs = venv.reset()
+    G = env.grid.size
+    assert obs.shape[1] == venv.venv.scaler.center.shape[0] + 2 * G and (obs[:, -2 * G:-G].sum(axis=1) == 1).all()
+    assert (obs[np.arange(4), -G + obs[:, -2 * G:-G].argmax(axis=1)] == 1).all()
+
+
+def anchor_onehot_of(idx, shape):
+    out = np.zeros(shape, dtype=np.float32)
+    out[np.arange(shape[0]), idx] = 1.0
+    return out
 
 
 def test_the_saved_file_loads_and_acts_as_the_trained_model(tmp_path):
@@ -99,11 +139,11 @@ def test_greedy_index_is_greedys_argmin_also_on_a_subset_of_the_grid():
 
 
 def test_bad_options_are_named():
-    for bad, match in [(dict(anchor="ml"), "unknown anchor 'ml'"),
+    for bad, match in [(dict(anchor="median"), "unknown anchor 'median'"),
                        (dict(anchor="greedy", anchor_strength=0.0), "strength must be finite and > 0"),
                        (dict(anchor="greedy", anchor_strength=float("nan")), "strength must be finite"),
                        (dict(anchor="greedy", anchor_kl=-1.0), "kl must be finite and >= 0"),
-                       (dict(anchor_strength=2.0), "give anchor='greedy' too"),
+                       (dict(anchor_strength=2.0), "give anchor='greedy' or 'ml' too"),
                        (dict(anchor="greedy", sb3={"ent_coef": 0.01}), "instead of ent_coef")]:
         with pytest.raises(ValueError, match=match):
             train_policy("ungm-ukf", "fast", episodes=1, n_steps=3, parallel=2, progress=False, **bad)
@@ -113,8 +153,8 @@ def test_bad_options_are_named():
         Anchor.from_dict({"strength": 3})
     from adaptfilt.gym import make_vec
 
-    with pytest.raises(ValueError, match="unknown anchor 'ml'"):
-        make_vec("ungm-ukf", n_envs=2, n_steps=3, anchor="ml")
+    with pytest.raises(ValueError, match="unknown anchor 'median'"):
+        make_vec("ungm-ukf", n_envs=2, n_steps=3, anchor="median")
 
 
 def test_a_damaged_anchor_in_a_policy_file_is_named(tmp_path):
@@ -157,7 +197,7 @@ def test_the_command_line_records_the_anchor(tmp_path, capsys):
     assert main(["train", "ungm-ukf", "--algo", "fast", "--episodes", "1", "--horizon", "3", "--parallel", "2",
                  "--anchor", "greedy", "--anchor-shield", "0", "--out", str(out), "--no-progress"]) == 0
     assert load_policy(out).anchor == Anchor("greedy", 3.0, 0.01, None)
-    for argv, match in [(["--anchor-kl", "0.1"], "give --anchor greedy too"),
+    for argv, match in [(["--anchor-kl", "0.1"], "give --anchor greedy (or ml) too"),
                         (["--anchor", "greedy", "--algo", "batched"], "needs an SB3 trainer")]:
         with pytest.raises(SystemExit):
             main(["train", "ungm-ukf", "--episodes", "1", "--horizon", "3", "--out", str(out)] + argv)

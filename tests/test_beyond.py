@@ -202,6 +202,42 @@ def test_committed_particle_study_is_what_its_stored_evaluations_give():
         assert argv[:3] == ["adaptfilt", "train", e] and argv[argv.index("--algo") + 1] == "fast"
 
 
+def test_committed_mlanchor_study_is_what_its_stored_evaluations_give():
+    """data/beyond's mlanchor study (``adaptfilt beyond --out data --studies mlanchor``): the final evaluations
+    (10^4 runs of the anchor study's seed, UNGM and CTM) and the CTM learning curve (2000 selection runs) are
+    stored; the summary's rows, verdicts and the imitation policies' held-out agreement are what the study
+    computes from them and from the policy files; 8 seeds in every group; the imitation fits record their call."""
+    from adaptfilt.experiments import artefacts
+    from adaptfilt.experiments.studies import mlanchor
+    from adaptfilt.experiments.studies.sif import SELECTION_SEED
+    from adaptfilt.learned import load_policy
+    from adaptfilt.seed_stats import seed_groups
+
+    root = artefacts.data_dir() / "beyond"
+    man = {f["path"]: f for f in json.loads((root / "manifest.json").read_text())["files"]}
+    s = artefacts.load_beyond()["mlanchor"]
+    assert s["eval-seed"] == mlanchor.EVAL_SEED == 2 and s["selection-seed"] == SELECTION_SEED
+    for e, rows in s["final"].items():
+        res = artefacts.load_beyond_results(f"mlanchor-{e}")
+        assert res.config["n_runs"] == 10_000 and res.config["seed"] == mlanchor.EVAL_SEED
+        groups = seed_groups(res.names)
+        files = [str(root / f"policies/{e}-{n}.npz") for g in mlanchor.GROUPS for n in groups.get(g, [])]
+        assert json.loads(json.dumps(mlanchor._final_rows(res, files))) == rows
+        assert all(len(groups[g]) == 8 for g in mlanchor.GROUPS if g in groups)
+        assert set(mlanchor.CONTROLS) & set(rows) and all(c in rows for g, c in mlanchor.CONTROLS.items() if g in rows)
+    ctm = s["final"]["ctm-ukf"]
+    for g in mlanchor.IMITATION:  # the held-out agreement is the one each file records
+        pol = load_policy(root / f"policies/ctm-ukf-{g}-s3.npz", experiment="ctm-ukf")
+        assert ctm[g]["imitation"]["heldout_accuracy"][3] == pol.metadata["imitation"]["heldout_accuracy"]
+        assert man[f"policies/ctm-ukf-{g}-s3.npz"]["command"].startswith("adaptfilt.imitation.imitate('ctm-ukf'")
+    curve = artefacts.load_beyond_results("mlanchor-ctm-ukf-curve")
+    assert curve.config["n_runs"] == 2000 and curve.config["seed"] == SELECTION_SEED
+    tags = {r["group"]: (learner, int(ep)) for learner, by in s["curve"]["learners"].items() for ep, r in by.items()}
+    assert json.loads(json.dumps(mlanchor._curve_rows(curve, tags))) == s["curve"]
+    assert {ep: r["n_seeds"] for ep, r in s["curve"]["learners"]["adaptive-lik"].items()} == {
+        str(ep): 8 for ep in mlanchor.CURVE_EPISODES["full"]}
+
+
 @pytest.mark.crosscpu
 def test_the_stored_particle_evaluations_rerun():
     """The particle study was evaluated with the numpy form of the filter on a CPU whose numpy ``exp`` is the
@@ -352,7 +388,7 @@ def test_quick_anchor_and_look_studies(tmp_path):
     assert "--anchor greedy --anchor-strength 3 --anchor-kl 0.01 --anchor-shield 1" in pol.metadata["command"]
     look = summary["look"]["ungm-ukf"]
     refs = look["references"]
-    assert set(refs) == {"rollout-H1-S2", "rollout-H2-S2", "twostep-S2"}
+    assert set(refs) == {"rollout-H1-S2", "rollout-H2-S2", "twostep-S2", "rollout-ml-H1-S2", "rollout-best-H1-S2"}
     assert refs["twostep-S2"]["cost"] == refs["rollout-H1-S2"]["cost"]
     assert refs["rollout-H2-S2"]["spent"] > refs["rollout-H1-S2"]["spent"] > look["baselines"]["greedy"]["spent"] == 13
     assert "adaptive-anchored" in look["learned"] and look["n_runs"] == 40
@@ -363,6 +399,85 @@ def test_quick_anchor_and_look_studies(tmp_path):
     md = summary_md(summary)
     assert "How much can looking ahead buy?" in md and "adaptive-anchored" in md
     assert (tmp_path / "beyond" / "figures" / "look-gain.png").stat().st_size > 1000
+
+
+def test_quick_mlanchor_study_and_the_look_parts_it_adds(tmp_path, monkeypatch):
+    """The mlanchor study at toy scale: ML-anchored policies record their anchor and are judged on the anchor
+    study's runs against greedy, ML and their gamma = 0 control; the imitation policies record their held-out
+    agreement with ML; the learning curve is on selection runs. The look study adds the rollouts over ML and
+    over the better of both, and the mlanchor groups against every reference; run again with one more part,
+    it computes that part only and takes the others, bit for bit, from its stored evaluation."""
+    import dataclasses
+
+    from adaptfilt.experiments import look as look_mod
+    from adaptfilt.experiments.beyond import run, summary_md
+    from adaptfilt.experiments.studies import mlanchor
+    from adaptfilt.learned import load_policy
+    from adaptfilt.results import Results
+    from adaptfilt.verdicts import margin, verdict
+
+    summary = run(tmp_path, quick=True, workers=1, studies=("mlanchor", "look"), progress=False)
+    root = tmp_path / "beyond"
+    s = summary["mlanchor"]
+    assert s["eval-seed"] == 2 and s["selection-seed"] == 1 and set(s["final"]) == {"ungm-ukf", "ctm-ukf"}
+    res = Results.load(root / "results" / "mlanchor-ctm-ukf")
+    assert res.config["seed"] == 2 and res.config["n_runs"] == 100
+    rows = s["final"]["ctm-ukf"]
+    assert set(mlanchor.GROUPS) - {"adaptive-lik-e1000"} <= set(rows)
+    for g in ("adaptive-mlanchored", "adaptive-mlanchored-raw"):
+        assert rows[g]["verdict"]["below ml"] == verdict("lower", rows[g]["minus_ml"]["cost"])
+        assert "minus_myopic" in rows[g] and "below its gamma = 0 control" in rows[g]["verdict"]
+        for m in ("rmse", "anees"):  # not worse than ML's, with the declared margin around ML's value
+            assert rows[g]["margin_vs_ml"][m] == margin("learned vs ML", m, rows["ml"][m])
+            assert rows[g]["verdict"][f"{m} not worse than ml"] == verdict("not worse", rows[g]["minus_ml"][m],
+                                                                           rows[g]["margin_vs_ml"][m])
+    pol = load_policy(root / "policies" / "ctm-ukf-adaptive-mlanchored-raw-s1.npz", experiment="ctm-ukf")
+    assert "--anchor ml --anchor-strength 3 --anchor-kl 0.01 --anchor-shield 1" in pol.metadata["command"]
+    assert "--cost-transform none" in pol.metadata["command"] and pol.anchor.policy == "ml"
+    im = load_policy(root / "policies" / "ctm-ukf-imitation-lik-s0.npz", experiment="ctm-ukf")
+    assert im.feature_set.name == "paper+circ+cand+lik" and im.anchor is None
+    acc = rows["imitation-lik"]["imitation"]["heldout_accuracy"]
+    assert acc[0] == im.metadata["imitation"]["heldout_accuracy"] and len(acc) == 2
+    man = {f["path"]: f for f in json.loads((root / "manifest.json").read_text())["files"]}
+    assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["command"].startswith("adaptfilt.imitation.imitate('ctm-ukf'")
+    assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["cpu_time_s"] > 0
+    curve = s["curve"]
+    assert curve["seed"] == 1 and set(curve["learners"]) == {"adaptive-lik", "adaptive-mlanchored"}
+    assert list(curve["learners"]["adaptive-lik"]) == ["4", "10"]
+    md = summary_md(summary, studies=("mlanchor",))
+    assert "Imitation of ML's choice" in md and "Learning curve" in md and "| ctm-ukf | adaptive-mlanchored |" in md
+    for f in ("mlanchor-curve.png", "mlanchor-imitation.png"):
+        assert (root / "figures" / f).stat().st_size > 1000
+    # the look study: the other bases and the mlanchor groups on its runs, against every reference
+    look = summary["look"]["ctm-ukf"]
+    assert {"rollout-ml-H1-S2", "rollout-best-H1-S2"} <= set(look["references"])
+    against = look["learned"]["adaptive-mlanchored"]["against"]
+    assert set(against) == {"ml", "rollout-H1-S2", "rollout-ml-H1-S2", "rollout-best-H1-S2"}
+    assert "ctm-ukf: learned groups against ML and the best rollout of each base" in summary_md(summary)
+    before = Results.load(root / "results" / "look-ctm-ukf")
+    assert len(before.config["parts"]) == 5  # base, rollout, over ML, over the better of both, learned
+    # one more part: only it is computed, the rest comes from the stored evaluation as it was
+    monkeypatch.setattr(look_mod, "LOOK_BASES_QUICK", {**look_mod.LOOK_BASES_QUICK,
+                                                       "ctm-ukf": {"ml": ((1, 2), (2, 2)), "best": ((1, 2),)}})
+    computed = []
+    job = look_mod.look_job
+
+    def counting(experiment, spec, *a):
+        computed.append((experiment, spec))
+        return job(experiment, spec, *a)
+
+    monkeypatch.setattr(look_mod, "look_job", counting)
+    summary2 = run(tmp_path, quick=True, workers=1, studies=("look",), progress=False)
+    assert computed == [("ctm-ukf", ("rollout", 2, 2, "ml"))]
+    after = Results.load(root / "results" / "look-ctm-ukf")
+    assert after.names == before.names[:before.names.index("rollout-ml-H1-S2") + 1] + ["rollout-ml-H2-S2"] + \
+        before.names[before.names.index("rollout-ml-H1-S2") + 1:]
+    for n in before.names:
+        a, b = dataclasses.asdict(before[n]), dataclasses.asdict(after[n])
+        for k, v in a.items():
+            if k != "wall_time_s":
+                np.testing.assert_array_equal(np.asarray(b[k]), np.asarray(v), err_msg=f"{n} {k}")
+    assert summary2["look"]["ctm-ukf"]["references"]["rollout-ml-H1-S2"] == look["references"]["rollout-ml-H1-S2"]
 
 
 def test_look_gain_figure_cuts_far_values_at_the_edge():
@@ -397,9 +512,13 @@ def _beyond_policy_commands(root: str, selection: dict) -> dict[str, str]:
     from adaptfilt.experiments.studies import ALL
     from adaptfilt.experiments.study import FULL, Run
 
+    from adaptfilt.experiments.studies import mlanchor
+
     run = Run(Path(root) / "beyond", Path(root), FULL, False, "", journal=None)
-    return {str(Path(o).relative_to(run.out)): t.command for s in ALL if s.NAME not in NOT_STORED
+    made = {str(Path(o).relative_to(run.out)): t.command for s in ALL if s.NAME not in NOT_STORED
             for t in s.policies(run, {"sif-selection": selection}) for o in t.outputs}
+    # the mlanchor study's imitation fits (made before its trainings: a call of adaptfilt.imitation, no --out)
+    return made if "mlanchor" in NOT_STORED else {**made, **mlanchor.imitation_files(run)}
 
 
 def test_a_study_not_stored_yet_has_no_file_in_data_beyond():
@@ -445,6 +564,10 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
     built = {}  # by the root the record names
     for entry in man["files"]:
         rel, cmd = entry["path"], entry["command"]
+        if rel.startswith("policies/") and cmd.startswith("adaptfilt.imitation.imitate("):  # where it is written
+            anywhere = built.setdefault("/any", _beyond_policy_commands("/any", selection))  # is not in the call
+            assert cmd == anywhere[rel], rel
+            continue
         if rel.startswith("policies/"):  # adaptfilt train, or train-gain (one line for a training's snapshots)
             m = re.search(r"^adaptfilt train(?:-gain)? .* --out (/\S+)/beyond/" + re.escape(rel) + "(?: |$)", cmd)
             assert m, (rel, cmd)
@@ -461,7 +584,7 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
         study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(
             rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
         assert study is None or study in studies, rel
-    assert len(man["files"]) == 415 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 352
+    assert len(man["files"]) == 551 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 480
     # and the studies train nothing the manifest lacks
     assert set(next(iter(built.values()))) == {f["path"] for f in man["files"] if f["path"].startswith("policies/")}
 

@@ -45,6 +45,19 @@ def test_observed_blocks_are_what_they_say():
     cand = d.observe("paper+cand")[:, 8:]
     np.testing.assert_array_equal(np.argmin(cand, axis=1), GreedyPolicy().act(d))
     np.testing.assert_allclose(cand, np.log1p(d.candidates()["cost"]).T)
+    # likelihood features: each candidate's log-likelihood less the largest; 0 at ML's choice
+    from adaptfilt.policies import MaxLikelihoodPolicy
+
+    fs = FeatureSet.parse("paper+circ+lik+cand")
+    assert fs.name == "paper+circ+cand+lik" and fs.names(exp.make_model(), exp.grid)[-1] == f"loglik - max[{exp.grid[-1]:g}]"
+    both = d.observe(fs)
+    G = len(exp.grid)
+    np.testing.assert_array_equal(both[:, -2 * G:-G], d.observe("paper+cand")[:, 8:])
+    lik = both[:, -G:]
+    ll = d.candidates()["loglik"].T
+    np.testing.assert_allclose(lik, ll - ll.max(axis=1, keepdims=True), rtol=0, atol=1e-12)
+    assert (lik <= 0).all() and np.array_equal(np.argmax(lik, axis=1), MaxLikelihoodPolicy().act(d))
+    assert not np.array_equal(np.argmax(lik, axis=1), GreedyPolicy().act(d))  # ML is not greedy here
 
 
 def test_time_features_follow_the_ungm_phase():

@@ -36,7 +36,7 @@ SUBLAYERS = {
              "particle_kernels", "files", "style", "costs"),
     "decision": ("paramenv", "features", "policies", "mdp", "particle_env", "toy", "lookahead", "experiment_registry"),
     "evaluation": ("runs", "evaluation", "results", "seed_stats", "verdicts", "plots"),
-    "learning": ("nets", "anchor", "learned", "actor_critic", "gym", "trainers", "distill", "kalmannet", "gainnets"),
+    "learning": ("nets", "anchor", "learned", "actor_critic", "gym", "trainers", "distill", "imitation", "kalmannet", "gainnets"),
 }
 #: What each sub-layer never imports.
 NEVER = {"core": {"decision", "evaluation", "learning"}, "decision": {"evaluation", "learning"},

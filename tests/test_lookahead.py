@@ -47,6 +47,64 @@ def test_rollout_without_horizon_is_greedy_bit_for_bit(name):
     assert d.extra_spent == spent
 
 
+@pytest.mark.parametrize("name", ["ctm-ukf", "ctm-sif-nis"])
+def test_rollout_over_ml_without_horizon_is_ml_bit_for_bit(name):
+    """H = 0 is the base policy: over ML, MaxLikelihoodPolicy's choices, filter and compute exactly."""
+    from adaptfilt.policies import MaxLikelihoodPolicy
+
+    exp = get_experiment(name)
+    env = exp.make_env(n_steps=8)
+    traj = env.truth.simulate(16, 9, rng=np.random.default_rng(2))
+    ref, ref_cost = rollout(env, MaxLikelihoodPolicy(exp.grid), traj=traj)
+    run, cost = rollout(env, RolloutPolicy(exp.grid, horizon=0, samples=3, seed=4, base="ml"), traj=traj)
+    np.testing.assert_array_equal(run.params, ref.params)
+    np.testing.assert_array_equal(cost, ref_cost)
+    np.testing.assert_array_equal(run.mean, ref.mean)
+    np.testing.assert_array_equal(run.info["extra_spent"], ref.info["extra_spent"])
+    greedy, _ = rollout(env, GreedyPolicy(exp.grid), traj=traj)
+    assert not np.array_equal(run.params, greedy.params)  # ML is not greedy here: the comparison can fail
+    best, _ = rollout(env, RolloutPolicy(exp.grid, horizon=0, base="best"), traj=traj)
+    np.testing.assert_array_equal(best.params, greedy.params)  # the better by L_0 is greedy's choice
+    assert RolloutPolicy(exp.grid, horizon=1, base="ml").name == "rollout-ml-H1-S10"
+    assert RolloutPolicy(exp.grid, horizon=2, samples=4, base="best").name == "rollout-best-H2-S4"
+
+
+@pytest.mark.parametrize("name", ["ctm-ukf", "ungm-ukf"])
+def test_rollout_over_ml_follows_mls_choice_in_the_continuation(name):
+    """H = 1 written out by hand, one candidate at a time (as the two-step check): the cost of each
+    continuation's ML choice (argmax of the candidates' log-likelihoods), discounted and averaged; and
+    "best" is, exactly, the smaller of the two bases' estimates, its greedy part rollout over greedy's."""
+    exp = get_experiment(name)
+    env = exp.make_env(n_steps=8)
+    d = _decision(env)
+    S, M, G = 4, d.n_runs, len(exp.grid)
+    pol = RolloutPolicy(exp.grid, horizon=1, samples=S, seed=3, base="ml")
+    q = pol.q(d)
+    model = FilterLookahead(d)
+    L0, Y0 = model.root()
+    noise = model.noise(pol._rng(d, 0), 1, S)[0]
+    want = np.empty((G, M))
+    for g in range(G):
+        C, _, LL = model.expand(model.take(Y0, g * M + np.arange(M)), 1, noise, pol._rng(d, 1, 1, 0), loglik=True)
+        a = np.argmax(LL, axis=0)
+        want[g] = L0[g] + 0.5 * C[a, np.arange(C.shape[1])].reshape(S, M).mean(axis=0)
+    np.testing.assert_allclose(q, want, rtol=1e-12, atol=0)
+    qg = RolloutPolicy(exp.grid, horizon=1, samples=S, seed=3).q(d)
+    assert not np.array_equal(q, qg)  # another base, another estimate
+    for H in (1, 2):
+        qg, qm = (RolloutPolicy(exp.grid, horizon=H, samples=S, seed=3, base=b).q(d) for b in ("greedy", "ml"))
+        np.testing.assert_array_equal(RolloutPolicy(exp.grid, horizon=H, samples=S, seed=3, base="best").q(d),
+                                      np.minimum(qg, qm))
+
+
+def test_an_ml_base_needs_the_candidates_likelihoods():
+    env = TrapEnv(n_steps=3)
+    with pytest.raises(ValueError, match="log-likelihoods"):
+        RolloutPolicy(env.grid, horizon=1, base="ml").act(env.reset(n_runs=2, rng=0))
+    with pytest.raises(ValueError, match="base policy"):
+        RolloutPolicy(env.grid, base="median")
+
+
 # ---------------------------------------------------------- the toy optimum
 def _trap_optimum(T, c1, gamma):
     """Optimal action in the *good* state at each step, by backward induction (ties: action 0)."""
@@ -197,6 +255,11 @@ def test_compute_charged_is_the_documented_count(name):
     d = _decision(env, M=5, steps=3)
     TwoStepPolicy(exp.grid, samples=S).act(d)
     assert d.extra_spent == expected[1]
+    # over ML the same; the better of both runs the continuation's later steps once per base
+    for base, extra in (("ml", 0.0), ("best", G * S * (H - 1) * (p + c))):
+        d = _decision(env, M=5, steps=3)
+        RolloutPolicy(exp.grid, horizon=H, samples=S, base=base).act(d)
+        assert d.extra_spent == expected[H] + extra, base
 
 
 def test_evaluate_charges_and_pairs_the_lookahead():

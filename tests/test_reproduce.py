@@ -168,14 +168,15 @@ def test_beyond_report_only_judges_the_stored_studies_again_byte_for_byte(tmp_pa
 
 
 def test_data_is_small():
-    """The reproduction (about 31 MB: 96 policies, five evaluations at M = 10^4) and the eight studies beyond
-    the paper (about 73 MB, stored without per-run arrays; the anchored and look-ahead studies added 12 MB,
+    """The reproduction (about 31 MB: 96 policies, five evaluations at M = 10^4) and the nine studies beyond
+    the paper (about 90 MB, stored without per-run arrays; the anchored and look-ahead studies added 12 MB,
     the particle study 8 MB: 32 policies and four evaluations of 51 policies each; the gain study 39 MB: 192
     policies, KalmanNet's CTM snapshots holding 20,293 weights each, and eight evaluations of up to 50 policies
-    with their bootstrap replicates) stay small enough to clone."""
+    with their bootstrap replicates; the mlanchor study 15 MB: 128 policies and three evaluations, the learning
+    curve's of 100 policies) stay small enough to clone."""
     total = sum(p.stat().st_size for p in DATA.rglob("*") if p.is_file())
     beyond = sum(p.stat().st_size for p in (DATA / "beyond").rglob("*") if p.is_file())
-    assert total < 115e6 and beyond < 80e6
+    assert total < 130e6 and beyond < 95e6
 
 
 def _digest(root) -> dict:

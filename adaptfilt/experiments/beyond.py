@@ -1,4 +1,4 @@
-r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain]``.
+r"""Beyond the paper: ``adaptfilt beyond --out DIR [--quick] [--studies cand,sif,ood,raw,anchor,look,particles,gain,mlanchor]``.
 
 Studies the paper leaves open, each at the seed level (8 training seeds, paired runs), written
 into ``DIR/beyond/`` with their own manifest entries (``DIR/beyond/manifest.json``).
@@ -7,7 +7,8 @@ Each study is one file of :mod:`adaptfilt.experiments.studies` (its docstring sa
 ``cand`` (a candidate-aware information state), ``sif`` (SIF policies and divergence: a repair penalty, a safe
 action set), ``ood`` (out of distribution and retuning), ``raw`` (training on the untransformed cost),
 ``anchor`` (policies anchored on greedy), ``look`` (the look-ahead references), ``particles`` (the particle
-count), ``gain`` (the learned kappa against KalmanNet's learned gain). Each declares what it trains, what it evaluates, its rows, tables and figures
+count), ``gain`` (the learned kappa against KalmanNet's learned gain), ``mlanchor`` (the CTM's open question:
+learners anchored on maximum likelihood, imitation of it, the learning curve). Each declares what it trains, what it evaluates, its rows, tables and figures
 (:class:`adaptfilt.experiments.study.Study`); :func:`run` is the loop over the chosen ones.
 
 Every training and evaluation is a job of :func:`adaptfilt.experiments.sweep.run_jobs` (local pool or
@@ -39,7 +40,8 @@ JOURNAL = "journal.jsonl"
 STUDY_TITLES = {"cand": "a candidate-aware information state", "sif": "SIF policies and divergence",
                 "ood": "out of distribution and retuning", "raw": "training on the untransformed cost",
                 "anchor": "policies anchored on greedy", "look": "the look-ahead references",
-                "particles": "the particle count", "gain": "the learned kappa against KalmanNet's learned gain"}
+                "particles": "the particle count", "gain": "the learned kappa against KalmanNet's learned gain",
+                "mlanchor": "learners anchored on ML, imitation of ML, the CTM's learning curve"}
 STUDIES = tuple(STUDY_TITLES)
 
 

@@ -162,9 +162,9 @@ def divergence(res, names: list[str]) -> dict:
     return {"divergent_runs": k, "n_runs": n, "divergent_rate": rate, "divergent_rate_ci": [lo, hi]}
 
 
-def study_rows(study: str, res, selection: dict | None = None) -> dict:
-    """A study's summary rows for one experiment's evaluation ``res``: each learned group of
-    :data:`GROUPS` (IQM over seeds with two-level intervals, differences to greedy and the default,
+def study_rows(study: str, res, selection: dict | None = None, groups: Sequence[str] = GROUPS) -> dict:
+    """A study's summary rows for one experiment's evaluation ``res``: each learned group of ``groups``
+    (default :data:`GROUPS`; IQM over seeds with two-level intervals, differences to greedy and the default,
     divergence, compute, seeds below greedy alone) and the references (greedy, default, ML, the
     cheapest constant: among the ``selection``'s safe set in the SIF study)."""
     from adaptfilt.seed_stats import aggregate, difference, seed_groups
@@ -173,7 +173,7 @@ def study_rows(study: str, res, selection: dict | None = None) -> dict:
     # exact group names: "adaptive-s3" is a seed of "adaptive", "adaptive-safe-s3" is not (a prefix test
     # once merged the safe policies into the reproduction's "adaptive" row of the SIF study)
     seeds = seed_groups(res.names)
-    groups = {g: seeds.get(g, []) for g in GROUPS}
+    groups = {g: seeds.get(g, []) for g in (*GROUPS, *groups)}
     metrics = ("cost", "cost_charged", "objective", "rmse", "anees")
     for g, members in groups.items():
         if not members:

@@ -3,13 +3,13 @@ r"""The studies of ``adaptfilt beyond``, one file each, named by its ``--studies
 """
 from __future__ import annotations
 
-from adaptfilt.experiments.studies import anchor, cand, gain, look, ood, particles, raw, sif
+from adaptfilt.experiments.studies import anchor, cand, gain, look, mlanchor, ood, particles, raw, sif
 
 #: Every study, in the order the driver runs their phases and writes their summaries and tables: the
-#: learned-group studies, then those that show what the others trained (look), then the retuning (ood), then
-#: the learned gain beside the learned kappa (gain).
-ALL = (cand, sif, raw, anchor, particles, look, ood, gain)
+#: learned-group studies (mlanchor after anchor, whose recipe it takes), then those that show what the others
+#: trained (look), then the retuning (ood), then the learned gain beside the learned kappa (gain).
+ALL = (cand, sif, raw, anchor, mlanchor, particles, look, ood, gain)
 #: By name.
 BY_NAME = {s.NAME: s for s in ALL}
 
-__all__ = ["ALL", "BY_NAME", "anchor", "cand", "gain", "look", "ood", "particles", "raw", "sif"]
+__all__ = ["ALL", "BY_NAME", "anchor", "cand", "gain", "look", "mlanchor", "ood", "particles", "raw", "sif"]
