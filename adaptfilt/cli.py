@@ -5,14 +5,18 @@ Sub-commands (their names and flags are a contract the course, the README and
 
     adaptfilt experiments
     adaptfilt evaluate NAME --runs M --seed S --out DIR [--policy FILE ...] [--horizon T] [--chunk-size C]
-    adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--parallel B]
-                         [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--anchor greedy|ml
-                         [--anchor-strength C] [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--resume]
+    adaptfilt train NAME [--algo faithful|batched|fast|a2c|ppo] [--gamma G] [--episodes N] [--snapshots E1,E2,...]
+                         [--parallel B] [--seed S | --seeds 0-7] [--features SPEC] [--horizon T] [--lr LR]
+                         [--n-epochs K] [--truth q=4,r=1|forcing=10] [--anchor greedy|ml [--anchor-strength C]
+                         [--anchor-kl BETA] [--anchor-shield D]] --out FILE [--out FILE ...] [--resume]
                          [--workers N] [--cluster ADDRESS]
-    adaptfilt train-gain NAME [--arch kalmannet] [--loss supervised|unsupervised] [--epochs N] [--snapshots E1,E2,...]
-                         [--seed S] [--truth q=4,r=1] [--horizon T] [--train-runs N] [--val-runs N] [--batch-size B]
-                         [--lr LR] [--weight-decay W] [--clip C] [--tbptt L] [--feature-norm l2|none|scale]
-                         [--on-diverged raise|restore|stop] --out FILE [--out FILE ...]
+    adaptfilt train-gain NAME [--arch kalmannet|kalmannet-arch1] [--hidden-mult M] [--loss supervised|unsupervised]
+                         [--epochs N [--snapshots E1,E2,...] | --steps S [--snapshot-steps S1,S2,...]] [--seed S]
+                         [--truth q=4,r=1|forcing=10] [--horizon T] [--train-runs N] [--val-runs N] [--batch-size B]
+                         [--fresh batch|epoch] [--val-every K] [--lr LR] [--weight-decay W] [--clip C] [--tbptt L]
+                         [--feature-norm l2|none|scale] [--clamp auto]
+                         [--on-diverged raise|restore|stop|restart [--restarts N] [--patience P]]
+                         [--model-grad jacobian|finite-difference|detach] --out FILE [--out FILE ...]
     adaptfilt floor --runs M --seed S [--horizon T] [--eval-runs M] --out FILE
     adaptfilt reconcile --runs M --seed S [--horizon T] --out FILE
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
@@ -98,7 +102,8 @@ def _train_spec(args: argparse.Namespace, seed: int, out: str):
     anchor = None if args.anchor is None else (args.anchor, args.anchor_strength, args.anchor_kl, args.anchor_shield)
     return TrainSpec(args.name, args.gamma, args.episodes, seed, out, algo=args.algo, features=args.features,
                      repair_penalty=args.repair_penalty, horizon=args.horizon, actions=args.actions,
-                     cost_transform=args.cost_transform, anchor=anchor, parallel=args.parallel)
+                     cost_transform=args.cost_transform, anchor=anchor, parallel=args.parallel, lr=args.lr,
+                     n_epochs=args.n_epochs, truth=args.truth, snapshots=args.snapshots)
 
 
 def train_job(args: argparse.Namespace, seed: int, out: str) -> str:
@@ -112,6 +117,16 @@ def _train(args: argparse.Namespace) -> int:
         raise ValueError("--anchor-strength, --anchor-kl and --anchor-shield set the anchor: give --anchor greedy (or ml) too")
     if args.anchor is not None and args.algo not in ("fast", "a2c", "ppo"):
         raise ValueError(f"--anchor needs an SB3 trainer (--algo fast, a2c or ppo), not {args.algo}")
+    if args.snapshots is not None:  # one file per snapshot, written by one training
+        if args.seeds is not None or args.resume:
+            raise ValueError("--snapshots writes the files of one training: not with --seeds or --resume")
+        spec = _train_spec(args, args.seed, tuple(args.out))
+        spec.run(progress=not args.no_progress)
+        print("wrote " + ", ".join(spec.outputs))
+        return 0
+    if len(args.out) != 1:
+        raise ValueError(f"{len(args.out)} --out for one policy: several only with --snapshots, one each")
+    args.out = args.out[0]
     if args.seeds is None:
         try:
             train_job(args, args.seed, args.out)
@@ -208,17 +223,23 @@ def _beyond(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_gain(args: argparse.Namespace) -> int:
+def gain_spec(args: argparse.Namespace):
+    """The training ``adaptfilt train-gain`` runs: its command line (recorded in every file) is
+    :attr:`~adaptfilt.experiments.jobs.GainSpec.command`, the one author of it."""
     from adaptfilt.experiments.jobs import GainSpec
 
-    snaps = args.snapshots
-    if snaps is not None and max(snaps) > args.epochs:
-        raise ValueError(f"--snapshots {','.join(map(str, snaps))}: epochs up to --epochs {args.epochs}")
-    spec = GainSpec(args.name, args.loss, args.epochs, args.seed, tuple(args.out), snapshots=snaps, arch=args.arch,
-                    truth=args.truth, horizon=args.horizon, train_runs=args.train_runs, val_runs=args.val_runs,
-                    batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, clip=args.clip,
-                    tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged,
-                    model_grad=args.model_grad)
+    epochs = args.epochs if args.epochs is not None or args.steps is not None else 30
+    return GainSpec(args.name, args.loss, epochs, args.seed, tuple(args.out), snapshots=args.snapshots,
+                    arch=args.arch, truth=args.truth, horizon=args.horizon, train_runs=args.train_runs,
+                    val_runs=args.val_runs, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
+                    clip=args.clip, tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged,
+                    model_grad=args.model_grad, steps=args.steps, snapshot_steps=args.snapshot_steps,
+                    hidden_mult=args.hidden_mult, fresh=args.fresh, val_every=args.val_every, clamp=args.clamp,
+                    restarts=args.restarts, patience=args.patience)
+
+
+def _train_gain(args: argparse.Namespace) -> int:
+    spec = gain_spec(args)
     spec.run(progress=not args.no_progress)
     print("wrote " + ", ".join(spec.outputs))
     return 0
@@ -310,19 +331,28 @@ _positive = _float_in(0.0, closed=False)
 _gamma = _float_in(0.0, 1.0, name="the discount gamma")
 
 
-def _epochs(text: str) -> tuple[int, ...]:
-    """``"3,8,25"`` -> (3, 8, 25): increasing epoch counts >= 1."""
-    try:
-        vals = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated epochs, e.g. 3,8,25; got {text!r}") from None
-    if min(vals) < 1 or list(vals) != sorted(set(vals)):
-        raise argparse.ArgumentTypeError(f"expected increasing epochs >= 1, e.g. 3,8,25; got {text!r}")
-    return vals
+def _counts(what: str):
+    """A parser of ``"400,1200,3600"`` -> (400, 1200, 3600): increasing counts >= 1 of ``what``."""
+    def parse(text: str) -> tuple[int, ...]:
+        try:
+            vals = tuple(int(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, e.g. 400,1200; got {text!r}") from None
+        if min(vals) < 1 or list(vals) != sorted(set(vals)):
+            raise argparse.ArgumentTypeError(f"expected increasing {what} >= 1, e.g. 400,1200; got {text!r}")
+        return vals
+
+    parse.__name__ = what
+    return parse
+
+
+#: ``"3,8,25"`` -> (3, 8, 25): increasing epoch counts >= 1.
+_epochs = _counts("epochs")
 
 
 def _truth(text: str) -> str:
-    """A truth that differs from the model (``q=4``, ``q=1,r=0.25``), in its one written form (``q=4,r=1``)."""
+    """A truth that differs from the model (``q=4``, ``q=1,r=0.25``, ``forcing=10``), in its one written form
+    (``q=4,r=1``)."""
     from adaptfilt.experiment_registry import parse_truth, truth_words
 
     try:
@@ -485,6 +515,9 @@ def _add_train(sub) -> None:
     p.add_argument("--gamma", type=_gamma, default=0.5, help="discount factor in [0, 1) (0 = myopic)")
     p.add_argument("--episodes", type=_int_at_least(1), default=1000,
                    help="training budget N_MC in episodes of T steps (default 1000)")
+    p.add_argument("--snapshots", type=_counts("episode counts"), default=None,
+                   help="episode counts at which to keep the policy, e.g. 400,1200,3600, one --out each (a snapshot "
+                        "is bit for bit the policy of a training of that many episodes; fast/a2c/ppo only)")
     p.add_argument("--parallel", type=_int_at_least(1), default=None,
                    help="batched: episodes per update (default 50); fast/a2c/ppo: runs per batch (default 256/64/16)")
     g = p.add_mutually_exclusive_group()
@@ -501,6 +534,14 @@ def _add_train(sub) -> None:
                         "experiment's grid holding its default; fast/a2c/ppo only)")
     p.add_argument("--cost-transform", choices=("log1p", "none"), default="log1p",
                    help="reward -log(1 + L) (default, the paper's) or -L (none: the mean cost itself)")
+    p.add_argument("--lr", type=_positive, default=None,
+                   help="the SB3 learner's learning rate (default: the mode's; fast: 0.002)")
+    p.add_argument("--n-epochs", type=_int_at_least(1), default=None,
+                   help="PPO's epochs per rollout (default: the mode's; fast: 5)")
+    p.add_argument("--truth", type=_truth, default=None,
+                   help="train on episodes of a truth that differs from the model, e.g. q=4 (process noise Q x 4) "
+                        "or forcing=10 (UNGM's forcing amplitude); the filter keeps the nominal model "
+                        "(fast/a2c/ppo only)")
     from adaptfilt.anchor import ANCHORS, DEFAULT_KL, DEFAULT_STRENGTH
 
     p.add_argument("--anchor", choices=ANCHORS, default=None,
@@ -513,7 +554,8 @@ def _add_train(sub) -> None:
     p.add_argument("--anchor-shield", type=_nonnegative, default=None,
                    help="never choose a value whose one-step log(1 + L) exceeds greedy's by more than this "
                         "(default 1; 0: no shield; needs --anchor)")
-    p.add_argument("--out", required=True, type=_out_file, help="policy file to write")
+    p.add_argument("--out", required=True, action="append", type=_out_file,
+                   help="policy file to write (one per snapshot, in their order, with --snapshots)")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint next to --out")
     p.add_argument("--workers", type=_int_at_least(1), default=None,
                    help="local processes for --seeds (default: every core)")
@@ -523,7 +565,7 @@ def _add_train(sub) -> None:
 
 
 def _add_train_gain(sub) -> None:
-    from adaptfilt.experiments.jobs import GAIN_ARCHS, GAIN_FEATURE_NORMS, GainSpec
+    from adaptfilt.experiments.jobs import GAIN_ARCHS, GAIN_FEATURE_NORMS, GAIN_ON_DIVERGED, GainSpec
     from adaptfilt.kalmannet import MODEL_GRADS
 
     d = GainSpec.__dataclass_fields__
@@ -532,14 +574,27 @@ def _add_train_gain(sub) -> None:
                                    "adaptfilt.kalmannet) on trajectories of an experiment's model; every option "
                                    "is recorded in the command line each file keeps.")
     p.add_argument("name", type=_experiment, help="experiment name (its model), see `adaptfilt experiments`")
-    p.add_argument("--arch", choices=GAIN_ARCHS, default=d["arch"].default, help="the learned-gain architecture")
+    p.add_argument("--arch", choices=tuple(GAIN_ARCHS), default=d["arch"].default,
+                   help="the learned-gain architecture: kalmannet (KalmanNet's architecture 2, the default) or "
+                        "kalmannet-arch1 (architecture 1)")
+    p.add_argument("--hidden-mult", type=_int_at_least(1), default=None,
+                   help="architecture 2: width multiplier of its GRUs and FC2's hidden layer (default: the paper's "
+                        "widths)")
     p.add_argument("--loss", choices=("supervised", "unsupervised"), default="supervised",
                    help="supervised: squared error against the true state (default); unsupervised: squared error "
                         "of the predicted measurement (needs no true state)")
-    p.add_argument("--epochs", type=_int_at_least(1), default=30, help="passes over the training set (default 30)")
-    p.add_argument("--snapshots", type=_epochs, default=None,
-                   help="epochs at which to keep the filter, e.g. 3,8,25, one --out each (a snapshot is bit for "
-                        "bit the filter of a training that stopped there; default: the trained filter only)")
+    budget = p.add_mutually_exclusive_group()
+    budget.add_argument("--epochs", type=_int_at_least(1), default=None,
+                        help="passes over the training set (default 30)")
+    budget.add_argument("--steps", type=_int_at_least(1), default=None,
+                        help="a budget in optimiser steps instead of epochs (all attempts together)")
+    snaps = p.add_mutually_exclusive_group()
+    snaps.add_argument("--snapshots", type=_epochs, default=None,
+                       help="epochs at which to keep the filter, e.g. 3,8,25, one --out each (a snapshot is bit for "
+                            "bit the filter of a training that stopped there; default: the trained filter only)")
+    snaps.add_argument("--snapshot-steps", type=_counts("optimiser steps"), default=None,
+                       help="optimiser steps (multiples of --val-every, up to --steps) at which to keep the filter, "
+                            "one --out each")
     p.add_argument("--seed", type=_int_at_least(0), default=0,
                    help="weights, minibatch order and the trajectories (default 0)")
     p.add_argument("--truth", type=_truth, default=None,
@@ -552,6 +607,10 @@ def _add_train_gain(sub) -> None:
                    help=f"validation trajectories, the best filter on them kept (default {d['val_runs'].default})")
     p.add_argument("--batch-size", type=_int_at_least(1), default=d["batch_size"].default,
                    help=f"trajectories per optimiser step (default {d['batch_size'].default})")
+    p.add_argument("--fresh", choices=("batch", "epoch"), default=None,
+                   help="draw new training trajectories every minibatch or every epoch (default: one fixed set)")
+    p.add_argument("--val-every", type=_int_at_least(1), default=None,
+                   help="validate every K optimiser steps (default: once per epoch)")
     p.add_argument("--lr", type=_positive, default=d["lr"].default, help=f"Adam's learning rate (default {d['lr'].default:g})")
     p.add_argument("--weight-decay", type=_nonnegative, default=d["weight_decay"].default,
                    help=f"Adam's weight decay (default {d['weight_decay'].default:g})")
@@ -560,9 +619,17 @@ def _add_train_gain(sub) -> None:
                    help="truncated back-propagation through time: windows of this many steps (default: whole runs)")
     p.add_argument("--feature-norm", choices=GAIN_FEATURE_NORMS, default=d["feature_norm"].default,
                    help=f"scaling of the network's inputs (default {d['feature_norm'].default})")
-    p.add_argument("--on-diverged", choices=("raise", "restore", "stop"), default=d["on_diverged"].default,
+    p.add_argument("--clamp", choices=("auto",), default=None,
+                   help="auto: clamp the state estimate to the model's range widened by a quarter (default: none)")
+    p.add_argument("--on-diverged", choices=GAIN_ON_DIVERGED, default=d["on_diverged"].default,
                    help="a non-finite loss: raise (default), restore the best weights at half the learning rate, "
-                        "or that and stop after 5 such restores, keeping the best weights")
+                        "or that and stop after 5 such restores, keeping the best weights; restart: the restart "
+                        "rule (adaptfilt.kalmannet), with --restarts and --patience")
+    p.add_argument("--restarts", type=_int_at_least(0), default=0,
+                   help="the restart rule: at most this many restarts from new weights (default 0)")
+    p.add_argument("--patience", type=_int_at_least(1), default=None,
+                   help="the restart rule: abandon an attempt none of whose validations in its first P optimiser "
+                        "steps beats its initial network (default: only divergence abandons)")
     p.add_argument("--model-grad", choices=MODEL_GRADS, default=d["model_grad"].default,
                    help="how the loss's gradient passes through f and h: jacobian (the model's torch forms, "
                         f"default {d['model_grad'].default}), finite-difference (the numpy path with "

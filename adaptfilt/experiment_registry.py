@@ -73,7 +73,8 @@ from adaptfilt.policies import FixedPolicy, GreedyPolicy, MaxLikelihoodPolicy, d
 __all__ = ["Experiment", "EnvFactory", "RuleParameter", "ParticleCount", "Target", "resolve", "EXPERIMENTS",
            "VARIANTS", "PARTICLE_EXPERIMENTS", "SIF_FORMS", "get_experiment", "describe_experiments",
            "UNGM_KAPPA_GRID", "CTM_KAPPA_GRID", "SIF_ITER_GRID", "PARTICLE_PRICES", "ESS_TARGETS", "KLD_BIN_SCALES",
-           "SIF_EXPERIMENTS", "scaled_truth", "parse_truth", "truth_words"]
+           "SIF_EXPERIMENTS", "scaled_truth", "parse_truth", "truth_words", "truth_model",
+           "NLL_WEIGHTS"]
 
 UNGM_KAPPA_GRID = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 3000.0, 10000.0)
 CTM_KAPPA_GRID = (-3.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
@@ -362,11 +363,13 @@ def scaled_truth(model: StateSpaceModel, q: float = 1.0, r: float = 1.0) -> Stat
 
 
 def parse_truth(text: str) -> dict[str, float]:
-    """The keyword arguments of :func:`scaled_truth` written as ``q=4`` or ``q=1,r=0.25`` (what
-    ``adaptfilt train-gain --truth`` takes); ValueError naming what is wrong.
+    """The keyword arguments of :func:`truth_model` written as ``q=4``, ``q=1,r=0.25`` or ``forcing=10`` (what
+    ``adaptfilt train-gain --truth`` and ``adaptfilt train --truth`` take): ``q`` and ``r`` scale the noise
+    covariances, ``forcing`` is UNGM's forcing amplitude (a truth whose dynamics differ); ValueError naming what
+    is wrong.
 
-    >>> parse_truth("q=4"), truth_words(**parse_truth("r=0.5,q=2"))
-    ({'q': 4.0, 'r': 1.0}, 'q=2,r=0.5')
+    >>> parse_truth("q=4"), truth_words(**parse_truth("r=0.5,q=2")), truth_words(**parse_truth("forcing=10"))
+    ({'q': 4.0, 'r': 1.0}, 'q=2,r=0.5', 'q=1,r=1,forcing=10')
     """
     out = {"q": 1.0, "r": 1.0}
     for part in str(text).split(","):
@@ -375,16 +378,41 @@ def parse_truth(text: str) -> dict[str, float]:
             v = float(value)
         except ValueError:
             v = float("nan")
-        if not eq or key.strip() not in out or not (0 < v < float("inf")):
+        key = key.strip()
+        ok = 0 < v < float("inf") if key in ("q", "r") else key == "forcing" and abs(v) < float("inf")
+        if not eq or not ok:
             raise ValueError(f"a truth is written q=FACTOR,r=FACTOR (scales of the noise covariances Q and R, "
-                             f"finite and > 0), e.g. q=4; got {text!r}")
-        out[key.strip()] = v
+                             f"finite and > 0) and, on UNGM, forcing=AMPLITUDE (finite), e.g. q=4; got {text!r}")
+        out[key] = v
     return out
 
 
-def truth_words(q: float = 1.0, r: float = 1.0) -> str:
-    """The one written form of a truth (:func:`parse_truth` reads it back): ``q=4,r=1``."""
-    return f"q={q:g},r={r:g}"
+def truth_words(q: float = 1.0, r: float = 1.0, forcing: float | None = None) -> str:
+    """The one written form of a truth (:func:`parse_truth` reads it back): ``q=4,r=1``, ``q=1,r=1,forcing=10``."""
+    return f"q={q:g},r={r:g}" + ("" if forcing is None else f",forcing={forcing:g}")
+
+
+def truth_model(model: StateSpaceModel, text: str) -> StateSpaceModel:
+    """The truth that ``text`` (:func:`parse_truth`) makes of ``model``: its noise covariances scaled
+    (:func:`scaled_truth`) and, with ``forcing``, UNGM's forcing term ``forcing cos(0.05 k)`` in place of the
+    model's (the same prior, noises and horizon): a truth whose dynamics differ from the model a filter keeps.
+    ValueError for a forcing on another model.
+
+    >>> truth_model(ungm(), "forcing=10,q=4").description
+    'ungm, forcing 10 cos(0.05k), Q x4, R x1'
+    >>> float(truth_model(ungm(), "forcing=10").f(np.zeros((1, 1)), 0)[0, 0])
+    10.0
+    """
+    kw = parse_truth(text)
+    forcing = kw.pop("forcing", None)
+    if forcing is None:
+        return scaled_truth(model, **kw)
+    if model.name != "ungm" or model.nx != 1:
+        raise ValueError(f"forcing= is UNGM's forcing amplitude; model {model.name!r} has none")
+    dyn = ungm(Q=float(model.Q[0, 0]), R=float(model.R[0, 0]), P0=float(model.P0[0, 0]), n_steps=model.n_steps,
+               forcing=forcing)
+    t = scaled_truth(replace(model, f=dyn.f, f_torch=dyn.f_torch), **kw)
+    return replace(t, description=f"{model.name}, forcing {forcing:g} cos(0.05k), Q x{kw['q']:g}, R x{kw['r']:g}")
 
 
 def get_experiment(name: str) -> Experiment:

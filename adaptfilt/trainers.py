@@ -128,7 +128,7 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
               max_seconds: float | None = None, repair_penalty: float = 0.0,
               actions: Sequence[float] | None = None, cost_transform: str = "log1p",
               normalize_reward: bool = False, anchor=None, max_cpu_s: float | None = None,
-              snapshots: Sequence[int] = ()):
+              snapshots: Sequence[int] = (), truth: str | None = None):
     """Train a policy with a Stable-Baselines3 algorithm on a named experiment or an environment.
 
     ``experiment``: a name (``"ungm-ukf"``), an :class:`~adaptfilt.experiment_registry.Experiment`
@@ -153,6 +153,9 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
     ``actions``: the grid values the policy may choose, a subset of the experiment's
     grid holding its default (a *safe action set*: e.g. no SIF iteration count that
     can diverge); the policy still acts in the full experiment (named experiments only).
+    ``truth``: the training episodes are simulated from this truth (:func:`adaptfilt.experiment_registry.truth_model`
+    words, e.g. ``"q=4,r=1"`` or ``"forcing=10"``) while the filter keeps the experiment's model: a learner
+    trained on data of the true system (named experiments only; recorded in the metadata as ``truth``).
     ``cost_transform``: the reward is ``-log(1 + L)`` (``"log1p"``, the default; the paper trains on ``L`` itself) or ``-L`` (``"none"``:
     the mean cost itself, whose rare large steps the log flattens). ``normalize_reward``: the learner
     sees the reward divided by a running estimate of the return's spread (SB3's ``VecNormalize``,
@@ -181,8 +184,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
         raise ValueError(f"snapshots must be episode counts in 1..episodes={episodes}, got {list(snapshots)}")
     if snaps and any(callable(config.kwargs.get(k)) for k in ("learning_rate", "clip_range")):
         raise ValueError("snapshots need a constant learning rate and clip range (a schedule depends on the total)")
-    if actions is not None:  # the experiment's environment with its grid cut to the actions, built once
-        experiment, features, n_steps = _restricted(experiment, actions, seed, n_steps, features)
+    if actions is not None or truth is not None:  # the experiment's environment with its grid cut or its truth
+        experiment, features, n_steps = _variant(experiment, seed, n_steps, features, actions, truth)
     target = resolve(experiment, seed, n_steps)  # an environment's horizon is its own
     label, features = target.label, features or target.features or "paper"
     anchor = _anchor(anchor)
@@ -217,6 +220,8 @@ def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 
             meta["repair_penalty"] = float(repair_penalty)
         if normalize_reward:
             meta["normalize_reward"] = True
+        if truth is not None:
+            meta["truth"] = str(truth)
         pol = to_learned_policy(m, venv, gamma=gamma, name=name, metadata=meta)
         pol.curve = {"train_cost": c}  # wall time lives in the manifest, not in the (byte-identical) file
         return pol
@@ -284,17 +289,20 @@ def _anchor(anchor):
     raise ValueError(f"anchor must be None, a name ('greedy', 'ml') or an Anchor, got {anchor!r}")
 
 
-def _restricted(experiment, actions: Sequence[float], seed: int, n_steps: int | None, features: str | None):
-    """``(env, features, None)``: the experiment's environment with its grid cut to ``actions`` (ValueError
+def _variant(experiment, seed: int, n_steps: int | None, features: str | None, actions: Sequence[float] | None,
+             truth: str | None):
+    """``(env, features, None)``: the experiment's environment with its grid cut to ``actions`` and its
+    trajectories simulated from ``truth`` (:func:`~adaptfilt.experiment_registry.truth_model`'s words; ValueError
     naming what is wrong), the features the experiment recommends unless given; the horizon is the env's."""
-    from adaptfilt.experiment_registry import Experiment, Target, get_experiment
+    from adaptfilt.experiment_registry import Experiment, Target, get_experiment, truth_model
 
     exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
     exp = exp.experiment if isinstance(exp, Target) else exp
     if not isinstance(exp, Experiment):
-        raise ValueError("actions= restricts a named experiment's grid; for an environment of your own, "
-                         "build it with the grid you want")
-    return exp.make_env(seed=seed, n_steps=n_steps, grid=actions), features or exp.features, None
+        raise ValueError("actions= and truth= make a variant of a named experiment; for an environment of your own, "
+                         "build it with the grid and truth you want")
+    t = None if truth is None else truth_model(exp.make_model(), truth)
+    return exp.make_env(seed=seed, n_steps=n_steps, grid=actions, truth=t), features or exp.features, None
 
 
 def _frac(c: np.ndarray, last: int) -> float:
@@ -353,7 +361,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
                  resume: bool = False, sb3: dict[str, Any] | None = None, name: str | None = None,
                  repair_penalty: float = 0.0, actions: Sequence[float] | None = None,
                  cost_transform: str = "log1p", anchor: str | None = None, anchor_strength: float | None = None,
-                 anchor_kl: float | None = None, anchor_shield: float | None = None):
+                 anchor_kl: float | None = None, anchor_shield: float | None = None, truth: str | None = None,
+                 snapshots: Sequence[int] = ()):
     """Train one policy with ``algo`` (see :data:`ALGOS`); write it to ``out`` when given.
 
     ``experiment``: a name, an :class:`~adaptfilt.experiment_registry.Experiment` or an
@@ -370,6 +379,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     before training (:mod:`adaptfilt.anchor`); recorded in the file's ``anchor`` metadata.
     ``anchor_shield``: mask out candidates whose one-step ``log(1 + L)`` exceeds greedy's by more than it
     (:func:`adaptfilt.anchor.allowed_mask`; default :data:`adaptfilt.anchor.DEFAULT_SHIELD`, 0: no shield).
+    ``truth`` and ``snapshots`` (SB3 trainers): :func:`train_sb3`'s (episodes simulated from a truth the filter
+    does not know; the policy kept at several episode counts of one training, ``pol.snapshots``).
 
     >>> import adaptfilt as af                                        # doctest: +SKIP
     >>> env = af.mdp.FilterEnv(af.UKF(my_model), grid, af.mdp.Cost("nis"))   # doctest: +SKIP
@@ -395,6 +406,8 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
             raise ValueError("actions= (a restricted grid) needs an SB3 trainer (fast, a2c or ppo)")
         if spec is not None:
             raise ValueError("anchor= (a residual policy over greedy or ML) needs an SB3 trainer (fast, a2c or ppo)")
+        if truth is not None or len(snapshots):
+            raise ValueError("truth= and snapshots= need an SB3 trainer (fast, a2c or ppo)")
 
         B = 1 if algo == "faithful" else (parallel or 50)
         if algo == "faithful" and parallel not in (None, 1):
@@ -421,7 +434,7 @@ def train_policy(experiment, algo: str = "faithful", gamma: float = 0.5, episode
     cfg = SB3Config(base.algo, parallel or base.n_envs, kwargs)
     pol = train_sb3(experiment, gamma, episodes, seed, cfg, features=features, n_steps=n_steps, progress=progress,
                     command=command, name=name, repair_penalty=repair_penalty, actions=actions,
-                    cost_transform=cost_transform, anchor=spec)
+                    cost_transform=cost_transform, anchor=spec, truth=truth, snapshots=snapshots)
     if out is not None:
         pol.save(out)
     return pol

@@ -127,6 +127,13 @@ def test_train_gain_on_a_truth_trains_on_its_trajectories(tmp_path):
     (["--truth", "f=2", "--out", "a.npz"], "got 'f=2'"),
     (["--arch", "gru", "--out", "a.npz"], "argument --arch: invalid choice"),
     (["--lr", "0", "--out", "a.npz"], "argument --lr: must be a finite number > 0, got 0"),
+    (["--steps", "4", "--snapshot-steps", "2,4", "--out", "a.npz", "--out", "b.npz"], "multiples of --val-every"),
+    (["--steps", "4", "--epochs", "2", "--out", "a.npz"], "not allowed with argument"),
+    (["--steps", "4", "--val-every", "2", "--snapshot-steps", "2,6", "--out", "a.npz", "--out", "b.npz"],
+     "optimiser steps up to --steps 4"),
+    (["--restarts", "2", "--out", "a.npz"], "give --on-diverged restart"),
+    (["--arch", "kalmannet-arch1", "--hidden-mult", "2", "--out", "a.npz"], "hidden_mult widens architecture 2"),
+    (["--truth", "forcing=inf", "--out", "a.npz"], "forcing=AMPLITUDE"),
 ])
 def test_train_gain_usage_errors_are_one_line(capsys, tmp_path, monkeypatch, args, expect):
     monkeypatch.chdir(tmp_path)
@@ -174,3 +181,84 @@ def test_a_recorded_train_gain_line_reads_back_the_same_numbers():
                     val_runs=args.val_runs, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
                     clip=args.clip, tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged)
     assert back == spec and "--lr 0.0012345678" in spec.command and "--clip 0.5" in spec.command
+
+
+def test_a_train_gain_line_with_every_option_of_the_gain_study_reads_back_the_same_spec():
+    """The options the gain study's trainings use (architecture 1, a width, budgets and snapshots in optimiser
+    steps, fresh trajectories, validation every k steps, the clamp, the restart rule, a truth with other dynamics)
+    are written out and read back, and the options left out are those whose value is the feature's absence."""
+    from adaptfilt.cli import gain_spec
+    from adaptfilt.experiments.jobs import GainSpec
+
+    for spec in (GainSpec("ungm-ukf", "supervised", None, 5, ("a.npz", "b.npz"), arch="kalmannet-arch1", steps=50,
+                          snapshot_steps=(25, 50), truth="q=1,r=1,forcing=10", horizon=30, train_runs=100,
+                          val_runs=100, batch_size=100, fresh="batch", val_every=25, lr=3e-3, clip=10.0, tbptt=20,
+                          clamp="auto", on_diverged="restart", restarts=2, patience=200),
+                 GainSpec("ctm-ukf", "unsupervised", 4, 1, ("c.npz",), hidden_mult=8, fresh="epoch",
+                          on_diverged="restart", restarts=1)):
+        back = gain_spec(build_parser().parse_args(shlex.split(spec.command)[1:]))
+        assert back == spec, (back, spec)
+    words = spec.command.split()
+    assert "--hidden-mult" in words and "--patience" not in words and "--clamp" not in words
+    old = GainSpec("ungm-ukf", "supervised", 3, 0, ("x.npz",))
+    assert old.command == ("adaptfilt train-gain ungm-ukf --arch kalmannet --loss supervised --epochs 3 --seed 0 "
+                           "--train-runs 100 --val-runs 50 --batch-size 20 --lr 0.001 --weight-decay 0.0001 "
+                           "--feature-norm scale --on-diverged raise --model-grad jacobian --out x.npz")
+
+
+def test_train_gain_in_optimiser_steps_writes_the_step_snapshots_of_train_kalmannet(tmp_path):
+    """``--steps --snapshot-steps`` with fresh trajectories, architecture 1 and a truth whose forcing differs: the
+    files hold the step snapshots of ``train_kalmannet`` called with that recipe and that truth (weights bit for
+    bit), the filter keeping the nominal model."""
+    from adaptfilt.experiment_registry import get_experiment, truth_model
+    from adaptfilt.kalmannet import load_kalmannet, train_kalmannet
+
+    outs = [str(tmp_path / "s2.npz"), str(tmp_path / "s4.npz")]
+    args = ["--arch", "kalmannet-arch1", "--steps", "4", "--snapshot-steps", "2,4", "--horizon", "8", "--train-runs",
+            "4", "--val-runs", "2", "--batch-size", "4", "--fresh", "batch", "--val-every", "2", "--tbptt", "4",
+            "--clamp", "auto", "--on-diverged", "restart", "--restarts", "1", "--truth", "forcing=10", "--no-progress"]
+    main(["train-gain", "ungm-ukf", "--seed", "2", *args, "--out", outs[0], "--out", outs[1]])
+    model = get_experiment("ungm-ukf").make_model()
+    ref = train_kalmannet(model, loss="supervised", n_steps=8, epochs=None, max_steps=4, snapshot_steps=(2, 4),
+                          seed=2, progress=False, n_train=4, n_val=2, batch_size=4, fresh="batch", val_every=2,
+                          tbptt=4, clamp="auto", on_diverged="restart", restarts=1, arch=1, feature_norm="scale",
+                          truth=truth_model(model, "forcing=10"))
+    for s, f in zip((2, 4), outs):
+        got = load_kalmannet(f, model)
+        for a, b in zip(_weights(got), _weights(ref.snapshot(step=s))):
+            np.testing.assert_array_equal(a, b)
+        assert got.history["optimiser_steps"] == s and got.options["arch"] == 1
+        assert got.history["truth"] == "ungm, forcing 10 cos(0.05k), Q x1, R x1"
+        assert got.model.description == model.description
+
+
+def test_a_forcing_truth_on_a_model_without_one_is_one_line(capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        main(["train-gain", "ctm-ukf", "--truth", "forcing=3", "--epochs", "1", "--out", str(tmp_path / "a.npz")])
+    err = capsys.readouterr().err.splitlines()
+    assert e.value.code == 2 and len(err) == 1 and "model 'ctm' has none" in err[0], err
+
+
+def test_train_with_snapshots_writes_each_shorter_training_and_reads_back(tmp_path):
+    """``adaptfilt train --snapshots E1,E2 --out A --out B`` with the PPO recipe's overrides and a truth: each file
+    holds the weights of a training of that many episodes (the same command without snapshots), its metadata the
+    command that wrote it and the truth; the command line reads back the same spec."""
+    from adaptfilt.cli import _train_spec
+    from adaptfilt.learned import load_policy
+
+    outs = [str(tmp_path / "e40.npz"), str(tmp_path / "e200.npz")]
+    common = ["ungm-ukf", "--algo", "fast", "--parallel", "8", "--horizon", "10", "--lr", "0.001", "--n-epochs",
+              "2", "--truth", "q=4", "--no-progress"]
+    main(["train", *common, "--episodes", "200", "--snapshots", "40,200", "--out", outs[0], "--out", outs[1]])
+    short = str(tmp_path / "short.npz")
+    main(["train", *common, "--episodes", "40", "--out", short])
+    a, b = load_policy(outs[0], experiment="ungm-ukf"), load_policy(short, experiment="ungm-ukf")
+    assert a.metadata["episodes"] == 40 and a.metadata["truth"] == "q=4,r=1"
+    assert a.metadata["trainer"]["kwargs"]["learning_rate"] == 0.001 and a.metadata["trainer"]["kwargs"]["n_epochs"] == 2
+    assert "--snapshots 40,200" in a.metadata["command"] and "--snapshots" not in b.metadata["command"]
+    (xa, _), (xb, _) = a.to_arrays(), b.to_arrays()
+    assert sorted(xa) == sorted(xb)
+    for k in xa:
+        np.testing.assert_array_equal(xa[k], xb[k])
+    spec = _train_spec(build_parser().parse_args(shlex.split(a.metadata["command"])[1:]), 0, tuple(outs))
+    assert spec.command == a.metadata["command"]

@@ -82,13 +82,17 @@ class TrainSpec:
     ``out`` is where the file is written; ``recorded_out`` what the command says instead (the reproduction
     records ``data/policies/...`` wherever it writes, so that its files are the same in any folder).
     ``anchor``: ``(policy, strength, KL weight, shield)``, a None value left to the trainer's default (and out
-    of the command)."""
+    of the command). The SB3 trainers' recipe may be overridden (``lr``, ``n_epochs``: PPO's learning rate and
+    epochs per rollout); ``truth`` (:func:`adaptfilt.experiment_registry.truth_model`'s words) trains on episodes
+    of a truth the filter does not know; ``snapshots``: episode counts at which the policy is kept
+    (:func:`adaptfilt.trainers.train_sb3`: each bit for bit the policy of a training of that many episodes),
+    ``out`` then a tuple of files, one per snapshot in their order."""
 
     experiment: str
     gamma: float
     episodes: int
     seed: int
-    out: str
+    out: str | tuple[str, ...]
     algo: str = "fast"
     features: str | None = None
     repair_penalty: float = 0.0
@@ -98,6 +102,27 @@ class TrainSpec:
     anchor: tuple[str, float | None, float | None, float | None] | None = None
     recorded_out: str | None = None
     parallel: int | None = None
+    lr: float | None = None
+    n_epochs: int | None = None
+    truth: str | None = None
+    snapshots: tuple[int, ...] | None = None
+
+    def __post_init__(self):
+        n = 1 if self.snapshots is None else len(self.snapshots)
+        outs = (self.out,) if isinstance(self.out, (str, Path)) else tuple(self.out)
+        if len(outs) != n or (self.snapshots is None and not isinstance(self.out, (str, Path))):
+            raise ValueError(f"{n} file{'s' if n > 1 else ''} to write (one per snapshot), "
+                             f"got {len(outs)} --out: {', '.join(map(str, outs))}")
+        if self.snapshots is not None and (list(self.snapshots) != sorted(set(self.snapshots))
+                                           or self.snapshots[0] < 1 or self.snapshots[-1] > self.episodes):
+            raise ValueError(f"snapshots must be increasing episode counts in 1..{self.episodes}, got "
+                             f"{list(self.snapshots)}")
+        if self.snapshots is not None and self.recorded_out is not None:
+            raise ValueError("recorded_out names one file: not with snapshots")
+        if (self.lr is not None or self.n_epochs is not None or self.truth is not None or self.snapshots) \
+                and self.algo not in ("fast", "ppo", "a2c"):
+            raise ValueError(f"--lr, --n-epochs, --truth and --snapshots need an SB3 trainer (fast, a2c or ppo), "
+                             f"not {self.algo}")
 
     @property
     def command(self) -> str:
@@ -108,14 +133,17 @@ class TrainSpec:
             policy, strength, kl, shield = self.anchor
             anchor = (f" --anchor {policy}" + _flag("anchor-strength", strength, "g") + _flag("anchor-kl", kl, "g")
                       + _flag("anchor-shield", shield, "g"))
+        snaps = "" if self.snapshots is None else " --snapshots " + ",".join(str(e) for e in self.snapshots)
+        outs = "".join(f" --out {o}" for o in self.outputs) if self.snapshots else f" --out {self.recorded_out or self.out}"
         return (f"adaptfilt train {self.experiment} --algo {self.algo} --gamma {self.gamma:g} "
-                f"--episodes {self.episodes}" + _flag("parallel", self.parallel) + f" --seed {self.seed}"
+                f"--episodes {self.episodes}{snaps}" + _flag("parallel", self.parallel) + f" --seed {self.seed}"
                 + (f" --features {self.features}" if self.features else "")
                 + (f" --repair-penalty {self.repair_penalty:g}" if self.repair_penalty else "")
                 + (f" --horizon {self.horizon}" if self.horizon else "")
                 + (" --actions " + ",".join(f"{v:g}" for v in self.actions) if self.actions else "")
                 + (f" --cost-transform {self.cost_transform}" if self.cost_transform != "log1p" else "")
-                + anchor + f" --out {self.recorded_out or self.out}")
+                + ("" if self.lr is None else f" --lr {_exact(self.lr)}") + _flag("n-epochs", self.n_epochs)
+                + _flag("truth", self.truth) + anchor + outs)
 
     @property
     def key(self) -> tuple[str, int]:
@@ -124,49 +152,73 @@ class TrainSpec:
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return (str(self.out),)
+        return (str(self.out),) if isinstance(self.out, (str, Path)) else tuple(str(o) for o in self.out)
 
     def run(self, progress: bool = False, resume: bool = False) -> dict[str, dict]:
-        """Train into ``out``; its wall and CPU time and its command. ``resume``: from the checkpoint next to
-        ``out`` (the paper-faithful and batched learners write one)."""
+        """Train into ``out``; its wall and CPU time and its command (with snapshots: each snapshot into its
+        file, its CPU time that spent up to it). ``resume``: from the checkpoint next to ``out`` (the
+        paper-faithful and batched learners write one)."""
         from adaptfilt.trainers import train_policy
 
         t0, c0 = time.perf_counter(), time.process_time()
         kw = dict(zip(("anchor", "anchor_strength", "anchor_kl", "anchor_shield"), self.anchor)) if self.anchor else {}
-        train_policy(self.experiment, self.algo, self.gamma, self.episodes, self.seed, parallel=self.parallel,
-                     n_steps=self.horizon, progress=progress, out=self.out, command=self.command,
-                     features=self.features, repair_penalty=self.repair_penalty, actions=self.actions,
-                     cost_transform=self.cost_transform, resume=resume, **kw)
-        return {str(self.out): {"command": self.command, "wall_time_s": time.perf_counter() - t0,
-                                "cpu_time_s": time.process_time() - c0}}
+        sb3 = {k: v for k, v in (("learning_rate", self.lr), ("n_epochs", self.n_epochs)) if v is not None}
+        if sb3:
+            kw["sb3"] = sb3
+        if self.truth is not None:
+            kw["truth"] = self.truth
+        pol = train_policy(self.experiment, self.algo, self.gamma, self.episodes, self.seed, parallel=self.parallel,
+                           n_steps=self.horizon, progress=progress, out=None if self.snapshots else self.out,
+                           command=self.command, features=self.features, repair_penalty=self.repair_penalty,
+                           actions=self.actions, cost_transform=self.cost_transform, resume=resume,
+                           snapshots=self.snapshots or (), **kw)
+        if not self.snapshots:
+            return {str(self.out): {"command": self.command, "wall_time_s": time.perf_counter() - t0,
+                                    "cpu_time_s": time.process_time() - c0}}
+        out = {}
+        for e, path in zip(self.snapshots, self.outputs):
+            snap = pol.snapshots[e]
+            snap.save(path)
+            out[path] = {"command": self.command, "wall_time_s": None, "cpu_time_s": float(snap.cpu_s)}
+        return out
 
 
-#: The learned-gain architectures ``adaptfilt train-gain --arch`` knows: KalmanNet's architecture 2
-#: (:mod:`adaptfilt.kalmannet`).
-GAIN_ARCHS = ("kalmannet",)
+#: The learned-gain architectures ``adaptfilt train-gain --arch`` knows and KalmanNet's architecture number of each
+#: (:mod:`adaptfilt.kalmannet`, :mod:`adaptfilt.gainnets`): ``kalmannet`` is architecture 2 (the library's default,
+#: the name files recorded before architecture 1 was offered), ``kalmannet-arch1`` architecture 1.
+GAIN_ARCHS = {"kalmannet": 2, "kalmannet-arch1": 1}
 #: KalmanNet's input scalings (:data:`adaptfilt.kalmannet.FEATURE_NORMS`, named here so that the command line
 #: offers them without importing torch).
 GAIN_FEATURE_NORMS = ("l2", "none", "scale")
+#: What a non-finite loss does (:func:`adaptfilt.kalmannet.train_kalmannet`'s ``on_diverged``).
+GAIN_ON_DIVERGED = ("raise", "restore", "stop", "restart")
 
 
 @dataclass(frozen=True)
 class GainSpec:
     """One learned-gain training: the arguments of ``adaptfilt train-gain`` (a :class:`Training`).
 
-    A filter with a learned gain (``arch``, :data:`GAIN_ARCHS`) for ``experiment``'s model, trained on
-    ``loss`` (``"supervised"``: the squared error against the true state; ``"unsupervised"``: the predicted
-    measurement's) for ``epochs`` epochs from ``seed``, on ``train_runs`` training and ``val_runs`` validation
-    trajectories of ``horizon`` steps (None: the model's), simulated from the model itself or, with ``truth``
-    (:func:`adaptfilt.experiment_registry.parse_truth`, e.g. ``"q=4,r=1"``), from a truth that differs from it
-    (the filter keeps the nominal model). ``snapshots``: the epochs at which the filter is kept, one file of
-    ``outs`` each, in order (a snapshot is bit for bit the filter of a training that stopped there: one
-    training serves a budget curve); None: one file, the trained filter. The rest is the recipe of
-    :func:`adaptfilt.kalmannet.train_kalmannet`, written out in full in the command (no default of the
-    library is relied on)."""
+    A filter with a learned gain (``arch``, :data:`GAIN_ARCHS`; ``hidden_mult``: architecture 2's width
+    multiplier of its GRUs and FC2, None: the paper's widths) for ``experiment``'s model, trained on ``loss``
+    (``"supervised"``: the squared error against the true state; ``"unsupervised"``: the predicted
+    measurement's) from ``seed``, for ``epochs`` epochs or, with ``epochs=None``, ``steps`` optimiser steps, on
+    ``train_runs`` training trajectories (per epoch; ``fresh="batch"`` or ``"epoch"``: new ones each minibatch or
+    epoch) and ``val_runs`` validation trajectories (validated every ``val_every`` optimiser steps, None: once
+    per epoch) of ``horizon`` steps (None: the model's), simulated from the model itself or, with ``truth``
+    (:func:`adaptfilt.experiment_registry.truth_model`'s words, e.g. ``"q=4,r=1"`` or ``"forcing=10"``), from a
+    truth that differs from it (the filter keeps the nominal model). ``snapshots`` (epochs) or
+    ``snapshot_steps`` (optimiser steps, multiples of ``val_every``): where the filter is kept, one file of
+    ``outs`` each, in order (a snapshot is bit for bit the filter of a training that stopped there: one training
+    serves a budget curve); neither: one file, the trained filter. ``clamp="auto"``: the state estimate clamped
+    to the model's range; ``on_diverged="restart"`` with ``restarts`` and ``patience``: the restart rule. The rest
+    is the recipe of :func:`adaptfilt.kalmannet.train_kalmannet`, written out in the command; an option left
+    out of it is one whose value is the absence of that feature (no clip, whole-sequence back-propagation, a
+    fixed training set, per-epoch validation, no clamp, the paper's widths, no restarts), as files recorded
+    before those options existed say."""
 
     experiment: str
     loss: str
-    epochs: int
+    epochs: int | None
     seed: int
     outs: tuple[str, ...]
     snapshots: tuple[int, ...] | None = None
@@ -183,15 +235,48 @@ class GainSpec:
     feature_norm: str = "scale"
     on_diverged: str = "raise"
     model_grad: str = "jacobian"
+    steps: int | None = None
+    snapshot_steps: tuple[int, ...] | None = None
+    hidden_mult: int | None = None
+    fresh: str | None = None
+    val_every: int | None = None
+    clamp: str | None = None
+    restarts: int = 0
+    patience: int | None = None
 
     def __post_init__(self):
-        from adaptfilt.kalmannet import MODEL_GRADS
+        from adaptfilt.kalmannet import FRESH, MODEL_GRADS
 
         if self.model_grad not in MODEL_GRADS:
             raise ValueError(f"unknown model_grad {self.model_grad!r}; known: {', '.join(MODEL_GRADS)}")
         if self.arch not in GAIN_ARCHS:
             raise ValueError(f"unknown learned-gain architecture {self.arch!r}; known: {', '.join(GAIN_ARCHS)}")
-        n = 1 if self.snapshots is None else len(self.snapshots)
+        if self.hidden_mult is not None and GAIN_ARCHS[self.arch] != 2:
+            raise ValueError(f"hidden_mult widens architecture 2 (--arch kalmannet), not {self.arch}")
+        if (self.epochs is None) == (self.steps is None):
+            raise ValueError("a learned-gain training's budget is either epochs or optimiser steps (--steps), "
+                             f"got epochs={self.epochs}, steps={self.steps}")
+        if self.snapshots is not None and self.snapshot_steps is not None:
+            raise ValueError("snapshots are epochs or optimiser steps (--snapshot-steps), not both")
+        if self.snapshots is not None and (self.epochs is None or max(self.snapshots) > self.epochs):
+            raise ValueError(f"--snapshots {','.join(map(str, self.snapshots))}: epochs up to --epochs {self.epochs}")
+        if self.snapshot_steps is not None:
+            if self.steps is None or max(self.snapshot_steps) > self.steps:
+                raise ValueError(f"--snapshot-steps {','.join(map(str, self.snapshot_steps))}: optimiser steps up to "
+                                 f"--steps {self.steps}")
+            if self.val_every is None or any(s % self.val_every for s in self.snapshot_steps):
+                raise ValueError(f"--snapshot-steps must be multiples of --val-every {self.val_every}, got "
+                                 f"{','.join(map(str, self.snapshot_steps))}")
+        if self.fresh not in FRESH:
+            raise ValueError(f"unknown fresh {self.fresh!r}; known: batch, epoch")
+        if self.clamp not in (None, "auto"):
+            raise ValueError(f"clamp is 'auto' or None, got {self.clamp!r}")
+        if self.on_diverged not in GAIN_ON_DIVERGED:
+            raise ValueError(f"unknown on_diverged {self.on_diverged!r}; known: {', '.join(GAIN_ON_DIVERGED)}")
+        if (self.restarts or self.patience is not None) and self.on_diverged != "restart":
+            raise ValueError("--restarts and --patience belong to the restart rule: give --on-diverged restart")
+        snaps = self.snapshots if self.snapshots is not None else self.snapshot_steps
+        n = 1 if snaps is None else len(snaps)
         if len(self.outs) != n:
             raise ValueError(f"{n} file{'s' if n > 1 else ''} to write (one per snapshot), "
                              f"got {len(self.outs)} --out: {', '.join(map(str, self.outs))}")
@@ -199,14 +284,21 @@ class GainSpec:
     @property
     def command(self) -> str:
         """The ``adaptfilt train-gain`` line that makes these files (every file of the training records it)."""
-        snaps = "" if self.snapshots is None else " --snapshots " + ",".join(str(e) for e in self.snapshots)
-        return (f"adaptfilt train-gain {self.experiment} --arch {self.arch} --loss {self.loss} "
-                f"--epochs {self.epochs}{snaps} --seed {self.seed}" + _flag("truth", self.truth)
+        def listed(name, values):
+            return "" if values is None else f" --{name} " + ",".join(str(v) for v in values)
+
+        budget = f"--epochs {self.epochs}" if self.epochs is not None else f"--steps {self.steps}"
+        restart = (f" --restarts {self.restarts}" + _flag("patience", self.patience)
+                   if self.on_diverged == "restart" else "")
+        return (f"adaptfilt train-gain {self.experiment} --arch {self.arch}" + _flag("hidden-mult", self.hidden_mult)
+                + f" --loss {self.loss} {budget}" + listed("snapshots", self.snapshots)
+                + listed("snapshot-steps", self.snapshot_steps) + f" --seed {self.seed}" + _flag("truth", self.truth)
                 + _flag("horizon", self.horizon) + f" --train-runs {self.train_runs} --val-runs {self.val_runs} "
-                f"--batch-size {self.batch_size} --lr {_exact(self.lr)} --weight-decay {_exact(self.weight_decay)}"
+                f"--batch-size {self.batch_size}" + _flag("fresh", self.fresh) + _flag("val-every", self.val_every)
+                + f" --lr {_exact(self.lr)} --weight-decay {_exact(self.weight_decay)}"
                 + ("" if self.clip is None else f" --clip {_exact(self.clip)}") + _flag("tbptt", self.tbptt)
-                + f" --feature-norm {self.feature_norm} --on-diverged {self.on_diverged}"
-                + f" --model-grad {self.model_grad}"
+                + f" --feature-norm {self.feature_norm}" + _flag("clamp", self.clamp)
+                + f" --on-diverged {self.on_diverged}{restart} --model-grad {self.model_grad}"
                 + "".join(f" --out {o}" for o in self.outs))
 
     @property
@@ -217,28 +309,38 @@ class GainSpec:
     def outputs(self) -> tuple[str, ...]:
         return tuple(str(o) for o in self.outs)
 
-    def run(self, progress: bool = False) -> dict[str, dict]:
-        """Train once, to ``epochs``, and write each snapshot (or the filter) to its file; per file its
-        command and its training CPU-s up to it (the file's own ``history["cpu_s"]``)."""
-        import numpy as np
-
-        from adaptfilt.experiment_registry import get_experiment, parse_truth, scaled_truth
+    def train(self, progress: bool = False):
+        """The training itself: :func:`adaptfilt.kalmannet.train_kalmannet` with this recipe (the trained
+        filter, its snapshots kept)."""
+        from adaptfilt.experiment_registry import get_experiment, truth_model
         from adaptfilt.kalmannet import train_kalmannet
 
         model = get_experiment(self.experiment).make_model()
-        T = self.horizon or model.n_steps
-        data = {}
-        if self.truth is not None:  # the generators train_kalmannet draws its own trajectories from
-            truth = scaled_truth(model, **parse_truth(self.truth))
-            data = {"train": truth.simulate(self.train_runs, T, rng=np.random.default_rng([self.seed, 0])),
-                    "val": truth.simulate(self.val_runs, T, rng=np.random.default_rng([self.seed, 1]))}
-        knet = train_kalmannet(model, loss=self.loss, n_steps=T, epochs=self.epochs, seed=self.seed,
-                               progress=progress, snapshots=self.snapshots or (), n_train=self.train_runs,
-                               n_val=self.val_runs, batch_size=self.batch_size, lr=self.lr,
+        options = {} if self.hidden_mult is None else {"hidden_mult": self.hidden_mult}
+        if self.clamp is not None:
+            options["clamp"] = self.clamp
+        if self.on_diverged == "restart":
+            options.update(restarts=self.restarts, patience=self.patience)
+        return train_kalmannet(model, loss=self.loss, n_steps=self.horizon or model.n_steps, epochs=self.epochs,
+                               seed=self.seed, progress=progress, snapshots=self.snapshots or (),
+                               n_train=self.train_runs, n_val=self.val_runs, batch_size=self.batch_size, lr=self.lr,
                                weight_decay=self.weight_decay, clip=self.clip, tbptt=self.tbptt,
                                feature_norm=self.feature_norm, on_diverged=self.on_diverged,
-                               model_grad=self.model_grad, **data)
-        filters = [knet] if self.snapshots is None else [knet.snapshot(e) for e in self.snapshots]
+                               model_grad=self.model_grad, arch=GAIN_ARCHS[self.arch], fresh=self.fresh,
+                               val_every=self.val_every, max_steps=self.steps,
+                               snapshot_steps=self.snapshot_steps or (),
+                               truth=None if self.truth is None else truth_model(model, self.truth), **options)
+
+    def run(self, progress: bool = False) -> dict[str, dict]:
+        """Train once and write each snapshot (or the filter) to its file; per file its command and its
+        training CPU-s up to it (the file's own ``history["cpu_s"]``)."""
+        knet = self.train(progress)
+        if self.snapshots is not None:
+            filters = [knet.snapshot(e) for e in self.snapshots]
+        elif self.snapshot_steps is not None:
+            filters = [knet.snapshot(step=s) for s in self.snapshot_steps]
+        else:
+            filters = [knet]
         out = {}
         for f, path in zip(filters, self.outputs):
             f.save(path)
