@@ -352,3 +352,22 @@ def test_kalmannet_trains_on_a_truths_trajectories_and_keeps_the_model():
     assert b.model is model
     with pytest.raises(ValueError, match="truth must be a StateSpaceModel with the model's dimensions"):
         train_kalmannet(model, truth=af.models.coordinated_turn(), **kw)
+
+
+def test_the_full_scale_is_sized_to_about_five_hours_and_its_units_meet_the_targets():
+    """The full scale's work units give each budget its target CPU-s by the calibration (within 10 %, or one
+    rollout / 25 optimiser steps at the smallest budgets), and the whole run, trainings and evaluations, is
+    estimated at no more than about 5 hours of one worker."""
+    from adaptfilt.experiments.studies.gain import CALIBRATION, FULL, TARGET_CPU_S, estimate
+
+    for e, eps in FULL.kappa_episodes.items():
+        c = CALIBRATION["kappa"][e]
+        for t, n in zip(TARGET_CPU_S[e], eps):
+            assert abs(c["setup_cpu_s"] + n * c["cpu_s_per_episode"] - t) <= max(0.1 * t, 10 * c["cpu_s_per_episode"])
+    for (e, arch), steps in FULL.knet_steps.items():
+        rate = CALIBRATION["knet"][(e, arch)]["cpu_s_per_step"]
+        for t, n in zip(TARGET_CPU_S[e], steps):
+            assert n % 25 == 0 and abs(n * rate - t) <= max(0.1 * t, 12.5 * rate)
+    size = estimate()
+    assert size["hours_one_worker"] <= 5.1 and size["total_cpu_s"] == sum(
+        v["train_cpu_s"] + v["eval_cpu_s"] for k, v in size.items() if isinstance(v, dict))

@@ -55,7 +55,7 @@ best one in hindsight is the bar), greedy and ML (the NIS cost), the bootstrap p
 (:attr:`GainScale.floor_runs` runs, with the truth's own model): the nominal regime at every budget of every
 arm, a mismatched truth at the supervised arms' 45 CPU-s budget (trained on the nominal model or on the
 truth) and every main arm's top budget (unseen). The top budgets under the nominal model are evaluated again
-on :attr:`GainScale.eval_runs` runs (10^4, the reproduction's seed 0): the final table. KalmanNet and the
+on :attr:`GainScale.eval_runs` runs (5000, the reproduction's seed 0): the final table. KalmanNet and the
 particle filter are filters (:class:`~adaptfilt.filters.Filter`) evaluated beside the policies by the same
 :func:`~adaptfilt.evaluation.evaluate` (``filters=``), on the same runs and bootstrap resamples: every
 difference is paired.
@@ -71,7 +71,11 @@ arms' pairs (:data:`EXTRA_PAIRS`); under a mismatched truth the trained-on-the-t
 whose end is infinite (a seed with a diverged run in a resample) is unbounded on that side
 (:func:`adaptfilt.metrics.percentile_ci`), never NaN.
 
-**Size** (:data:`SIZE`): estimated before the run from the calibrated per-unit costs.
+**Size** (:func:`estimate`, before the run, from the calibrated per-unit costs and the measured evaluation costs
+:data:`EVAL_US`): all of it would take about 7.2 hours of one worker (25,800 CPU-s); sized to about 5 (18,300):
+the measurement-only arms of both models and the consistency arm train to 45 CPU-s (:data:`TOP`; the curve past
+45 CPU-s is the supervised arms'), the final table on 5000 runs, the floor on 100. The supervised arms' budgets
+beyond 200 CPU-s on UNGM cost 4800 of those CPU-s.
 """
 from __future__ import annotations
 
@@ -100,10 +104,10 @@ ARM_NAMES = tuple(a for a, _, _ in ARMS)
 LOSS = {"gain-unsup": "unsupervised", "gain-sup": "supervised"}
 #: Target training CPU-s of the budgets, per model (per policy).
 TARGET_CPU_S = {"ungm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0), "ctm-ukf": (5.0, 15.0, 45.0, 200.0)}
-#: The budget (1-based) each arm trains to where it is not the model's last (the measurement-only arms on
-#: UNGM: the size of the run, :data:`SIZE`), and the extra arms'.
-TOP = {("ungm-ukf", "kappa-nis"): 4, ("ungm-ukf", "gain-unsup"): 4, ("ungm-ukf", "gain-sup-arch2"): 4,
-       ("ungm-ukf", "kappa-sqnll"): 4}
+#: The budget (1-based) each arm trains to where it is not the model's last (the size of the run, :func:`estimate`:
+#: the measurement-only arms and the consistency arm to 45 CPU-s, architecture 2's supervised arm to 200).
+TOP = {("ungm-ukf", "kappa-nis"): 3, ("ungm-ukf", "gain-unsup"): 3, ("ungm-ukf", "gain-sup-arch2"): 4,
+       ("ungm-ukf", "kappa-sqnll"): 3, ("ctm-ukf", "kappa-nis"): 3, ("ctm-ukf", "gain-unsup"): 3}
 #: The KalmanNet architecture of the gain arms per model: the one with the lower selection RMSE in its tuning
 #: (:data:`adaptfilt.kalmannet.RECIPE_TUNING`).
 ARCH = {"ungm-ukf": 1, "ctm-ukf": 2}
@@ -153,11 +157,31 @@ KAPPA_TUNING: dict = {
 #: 100, 45 CPU-s, on the selection runs: ``w: (RMSE, ANEES)``. Rule (declared before): the weight with the
 #: lowest ANEES among those whose RMSE is within 5 % of ``w = 0``'s (the smallest weight if none is).
 CONSISTENCY_TUNING: dict = {}
-#: Measured CPU-s per work unit of the chosen recipes (seed 0, this machine beside other work): KalmanNet per
-#: optimiser step (per model and architecture) and the kappa learner's set-up and per-episode CPU-s (per model).
-CALIBRATION: dict = {}
-#: The run's estimated size (process CPU-s) from :data:`CALIBRATION`, before it.
-SIZE: dict = {}
+#: Measured CPU-s per work unit of the chosen recipes (``benchmarks/tune_gain_study.py --calibrate``: one training
+#: of seed 0 to about 60 process CPU-s under ``nice -n 19`` on this 2-core machine beside other work, its CPU-s at
+#: every rollout or validation fitted by a line): the kappa learner's CPU-s per episode and its set-up in a warm
+#: process (the first rollout of a fresh process costs about 2.6 CPU-s more: imports' first calls), KalmanNet's
+#: CPU-s per optimiser step (its fit's intercept is within a step of 0). ``provisional``: not measured yet, the
+#: value used meanwhile and where it comes from.
+CALIBRATION: dict = {
+    "kappa": {"ungm-ukf": {"setup_cpu_s": 0.4, "cpu_s_per_episode": 0.01261, "lr": 5e-4, "n_epochs": 5,
+                           "points": "33 episodes 3.06 CPU-s (cold), 4588 episodes 60.0"},
+              "ctm-ukf": {"setup_cpu_s": 0.4, "cpu_s_per_episode": 0.00345, "lr": 1e-3, "n_epochs": 5,
+                          "points": "110 episodes 0.79 CPU-s (warm), 17368 episodes 60.2"}},
+    "knet": {("ungm-ukf", 1): {"cpu_s_per_step": 0.0362, "points": "25 steps 0.95 CPU-s, 1650 steps 59.8"},
+             ("ungm-ukf", 2): {"cpu_s_per_step": 0.0373, "provisional": "RECIPE_TUNING's 45.2 CPU-s / 1212 steps"},
+             ("ctm-ukf", 2): {"cpu_s_per_step": 0.060, "provisional": "UNGM's architecture 1 rate x 1.11 / 0.67 "
+                                                                      "(bench_kalmannet: PPO transitions per "
+                                                                      "trajectory-step, CTM arch. 2 / UNGM)"}},
+}
+#: Measured evaluation costs, process CPU microseconds per run-step (one torch thread, this 2-core machine beside
+#: other work): a kappa policy, KalmanNet per architecture (2000 runs, the recipes' clamp), the UKF's references
+#: together (default, the 13 or 12 update-only constants, ML, greedy), the particle filter, the anchored learner
+#: (the stored study's evaluations at 10^4 runs, data/beyond/summary.json ``us_per_step``); the point-mass floor
+#: in CPU-s per UNGM run of 500 steps (20 runs: 26.5 CPU-s).
+EVAL_US = {"ungm-ukf": {"kappa": 0.72, "gain1": 2.32, "gain2": 0.60, "refs": 8.2, "bpf": 66.3, "anchored": 2.45},
+           "ctm-ukf": {"kappa": 2.5, "gain1": 39.0, "gain2": 3.9, "refs": 40.0, "bpf": 224.0, "anchored": 12.4}}
+FLOOR_CPU_S_PER_RUN = 1.32
 #: What must be measured before the full scale may run (declared before any evaluation run is touched); the
 #: full scale refuses to start while anything is pending (:func:`scale_of`). Until then the CTM's KalmanNet
 #: recipe is UNGM's (:data:`PROVISIONAL_KNET`) and the budgets' work units are those of the tuning's rates.
@@ -198,10 +222,23 @@ class GainScale:
 
 
 #: The full scale: work units from :data:`CALIBRATION` for :data:`TARGET_CPU_S`.
-FULL = GainScale("full", tuple(range(8)), None, 10_000, 2000, 200, PF_PARTICLES,
-                 {"ungm-ukf": (400, 1200, 3600, 16000, 40000), "ctm-ukf": (100, 2500, 10000, 48000)},
-                 {("ungm-ukf", 1): (125, 400, 1225, 5450, 13600), ("ungm-ukf", 2): (125, 400, 1200, 5350),
-                  ("ctm-ukf", 2): (75, 250, 750, 3350)})
+def work_units(experiment: str, kind: str, arch: int | None = None) -> tuple[int, ...]:
+    """The work units that meet :data:`TARGET_CPU_S` by :data:`CALIBRATION`: the kappa learner's episodes (set-up
+    plus episodes times their CPU-s, to the nearest 10) or KalmanNet's optimiser steps (to the nearest multiple of
+    the recipe's 25 between validations, at least 25)."""
+    if kind == "kappa":
+        c = CALIBRATION["kappa"][experiment]
+        return tuple(max(10, int(round((t - c["setup_cpu_s"]) / c["cpu_s_per_episode"], -1)))
+                     for t in TARGET_CPU_S[experiment])
+    rate = CALIBRATION["knet"][(experiment, arch)]["cpu_s_per_step"]
+    return tuple(max(25, 25 * int(round(t / rate / 25))) for t in TARGET_CPU_S[experiment])
+
+
+#: The full scale (sized to about 5 hours on one worker, :func:`estimate`): 8 seeds, the curves on 2000 runs, the
+#: top budgets under the nominal model again on 5000, the floor on 100; work units from :data:`CALIBRATION`.
+FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
+                 {e: work_units(e, "kappa") for e in ("ungm-ukf", "ctm-ukf")},
+                 {k: work_units(k[0], "gain", k[1]) for k in (("ungm-ukf", 1), ("ungm-ukf", 2), ("ctm-ukf", 2))})
 #: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to five
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
@@ -222,6 +259,32 @@ def scale_of(run: Run) -> GainScale:
 def budgets(experiment: str) -> range:
     """The budgets (1-based) of ``experiment``'s curve."""
     return range(1, 1 + len(TARGET_CPU_S[experiment]))
+
+
+def estimate(scale: GainScale | None = None) -> dict:
+    """The run's size in process CPU-s before it: trainings (each arm and seed trains once to its top budget,
+    whose CPU-s is its target by the calibration) and evaluations (:data:`EVAL_US` per run-step of every policy
+    and filter of every part, :data:`FLOOR_CPU_S_PER_RUN`), per model, with the total in hours on one worker."""
+    from adaptfilt.experiment_registry import get_experiment
+
+    sc = scale or FULL
+    out = {}
+    for e in MODELS:
+        T = sc.n_steps or get_experiment(e).make_model().n_steps
+        us, n = EVAL_US[e], len(sc.seeds)
+        train = sum(n * TARGET_CPU_S[e][s["top"] - 1] for s in arms_of(e).values())
+        ev = 0.0
+        for regime in MODEL_REGIMES[e]:
+            for final in ((False, True) if regime == "nominal" else (False,)):
+                steps = (sc.eval_runs if final else sc.curve_runs) * T * 1e-6
+                per = us["refs"] + us["bpf"] + (us["anchored"] * n if final else 0.0)
+                for a, (kind, bs) in evaluated(e, regime, final).items():
+                    arch = arms_of(e)[a]["arch"]
+                    per += n * len(bs) * (us["kappa"] if kind == "kappa" else us[f"gain{arch}"])
+                ev += per * steps + (FLOOR_CPU_S_PER_RUN * sc.floor_runs * T / 500 if e == "ungm-ukf" else 0.0)
+        out[e] = {"train_cpu_s": round(train), "eval_cpu_s": round(ev)}
+    total = sum(v["train_cpu_s"] + v["eval_cpu_s"] for v in out.values())
+    return {**out, "total_cpu_s": total, "hours_one_worker": round(total / 3600, 2)}
 
 
 def top(experiment: str, arm: str) -> int:
