@@ -160,12 +160,12 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
     for f in man["files"]:
         assert sha256(root / "beyond" / f["path"]) == f["sha256"] and f["command"]
         cmds[f["path"]] = f["command"]
-    k = cmds["policies/ungm-ukf-gain-sup-b3-s1.npz"]
+    k = cmds["policies/gain-ungm-ukf-gain-sup-b3-s1.npz"]
     assert k.startswith("adaptfilt train-gain ungm-ukf --arch kalmannet-arch1 ") and "--snapshot-steps 2,4,6,8,10" in k
-    assert k == cmds["policies/ungm-ukf-gain-sup-b5-s1.npz"]  # one training, a file per budget
-    p = cmds["policies/ungm-ukf-kappa-sqerr-b2-s0.npz"]
+    assert k == cmds["policies/gain-ungm-ukf-gain-sup-b5-s1.npz"]  # one training, a file per budget
+    p = cmds["policies/gain-ungm-ukf-kappa-sqerr-b2-s0.npz"]
     assert p.startswith("adaptfilt train ungm-ukf-sqerr --algo fast ") and "--snapshots 20,45,70,95,120" in p
-    assert "--truth q=1,r=1,forcing=10" in cmds["policies/ungm-ukf-gain-sup-on-forcing10-b3-s0.npz"]
+    assert "--truth q=1,r=1,forcing=10" in cmds["policies/gain-ungm-ukf-gain-sup-on-forcing10-b3-s0.npz"]
     for fig in ("gain-budget.png", "gain-mismatch.png"):
         assert (root / "beyond" / "figures" / fig).stat().st_size > 1000
     md = summary_md(summary, ("gain",))
@@ -371,3 +371,21 @@ def test_the_full_scale_is_sized_to_about_five_hours_and_its_units_meet_the_targ
     size = estimate()
     assert size["hours_one_worker"] <= 5.1 and size["total_cpu_s"] == sum(
         v["train_cpu_s"] + v["eval_cpu_s"] for k, v in size.items() if isinstance(v, dict))
+
+
+def test_report_only_judges_the_quick_studys_verdicts_again_from_its_evaluations(quick, tmp_path):
+    """``adaptfilt beyond --report-only`` on a copy of the quick run: a stale verdict word and a stale "stops
+    improving" are judged again from the stored evaluations, giving back the run's own summary."""
+    import shutil
+
+    from adaptfilt.experiments.beyond import report_only
+
+    root, reference = quick
+    shutil.copytree(root / "beyond", tmp_path / "beyond")
+    stale = json.loads((tmp_path / "beyond" / "summary.json").read_text())
+    m = stale["gain"]["models"]["ungm-ukf"]["nominal"]
+    m["verdicts"][0]["lower"] = "stale"
+    m["stops_improving"]["gain-sup"]["stops_at"] = 99
+    (tmp_path / "beyond" / "summary.json").write_text(json.dumps(stale, indent=1) + "\n")
+    out = report_only(tmp_path, progress=False)
+    assert out["gain"] == json.loads(json.dumps(reference["gain"]))

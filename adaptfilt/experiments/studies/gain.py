@@ -169,7 +169,7 @@ CALIBRATION: dict = {
               "ctm-ukf": {"setup_cpu_s": 0.4, "cpu_s_per_episode": 0.00345, "lr": 1e-3, "n_epochs": 5,
                           "points": "110 episodes 0.79 CPU-s (warm), 17368 episodes 60.2"}},
     "knet": {("ungm-ukf", 1): {"cpu_s_per_step": 0.0362, "points": "25 steps 0.95 CPU-s, 1650 steps 59.8"},
-             ("ungm-ukf", 2): {"cpu_s_per_step": 0.0373, "provisional": "RECIPE_TUNING's 45.2 CPU-s / 1212 steps"},
+             ("ungm-ukf", 2): {"cpu_s_per_step": 0.0419, "points": "25 steps 1.12 CPU-s, 1425 steps 59.7"},
              ("ctm-ukf", 2): {"cpu_s_per_step": 0.060, "provisional": "UNGM's architecture 1 rate x 1.11 / 0.67 "
                                                                       "(bench_kalmannet: PPO transitions per "
                                                                       "trajectory-step, CTM arch. 2 / UNGM)"}},
@@ -299,8 +299,10 @@ def policy_name(arm: str, budget: int, seed: int) -> str:
 
 
 def policy_rel(experiment: str, arm: str, budget: int, seed: int) -> str:
-    """Where a policy of the study lives in ``DIR/beyond``."""
-    return f"policies/{experiment}-{policy_name(arm, budget, seed)}.npz"
+    """Where a policy of the study lives in ``DIR/beyond``: ``policies/gain-<experiment>-<arm>-b<budget>-s<seed>.npz``
+    (the study's prefix: no name of the study this one replaced, whose CTM kappa files the mlanchor study's
+    learning curve reads, is written over)."""
+    return f"policies/{NAME}-{experiment}-{policy_name(arm, budget, seed)}.npz"
 
 
 def truth_arm(arm: str, regime: str) -> str:
@@ -433,7 +435,7 @@ def evaluated(experiment: str, regime: str, final: bool = False) -> dict[str, tu
 
 def _files(root: Path, experiment: str, regime: str, kind: str, final: bool) -> dict[str, str]:
     """``{policy name: file}`` of the evaluated arms of ``kind`` under ``regime``."""
-    seeds = sorted({int(p.stem.rsplit("-s", 1)[1]) for p in root.glob(f"policies/{experiment}-*-b*-s*.npz")})
+    seeds = sorted({int(p.stem.rsplit("-s", 1)[1]) for p in root.glob(f"policies/{NAME}-{experiment}-*-b*-s*.npz")})
     out = {}
     for a, (k, bs) in evaluated(experiment, regime, final).items():
         if k == kind:
@@ -793,6 +795,24 @@ def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
             run.save(f"gain-{e}-{regime}-final", final, drop=COMPACT)
         out["models"].setdefault(e, {})[regime] = entry
     return {NAME: out}
+
+
+def rejudge(g: dict, out: Path) -> dict:
+    """The study's summary ``g`` with every verdict and where each arm stops improving judged again by the one
+    rule from the evaluations ``out`` holds (``results/gain-<model>-<regime>`` and ``-final``): what
+    ``adaptfilt beyond --report-only`` does, nothing trained or evaluated."""
+    from adaptfilt.results import Results
+
+    seeds = (FULL if g["scale"] == FULL.name else QUICK).seeds
+    for e, regimes in g["models"].items():
+        for r, m in regimes.items():
+            curve = Results.load(out / f"results/gain-{e}-{r}")
+            m["verdicts"] = verdicts(curve, e, r, seeds)
+            if r == "nominal":
+                m["stops_improving"] = stops_improving(curve, e, seeds)
+                final = Results.load(out / f"results/gain-{e}-{r}-final")
+                m["final_verdicts"] = [v for v in verdicts(final, e, r, seeds) if v["budget"] == top(e, v["a"])]
+    return g
 
 
 def _jsonable(d):
