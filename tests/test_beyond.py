@@ -422,8 +422,9 @@ def test_quick_mlanchor_study_and_the_look_parts_it_adds(tmp_path, monkeypatch):
     assert s["eval-seed"] == 2 and s["selection-seed"] == 1 and set(s["final"]) == {"ungm-ukf", "ctm-ukf"}
     res = Results.load(root / "results" / "mlanchor-ctm-ukf")
     assert res.config["seed"] == 2 and res.config["n_runs"] == 100
+    assert {"myopic-lik-e10-s0", "myopic-lik-e10-s1"} <= set(res.names)  # the lik learner's control, merged
     rows = s["final"]["ctm-ukf"]
-    assert set(mlanchor.GROUPS) - {"adaptive-lik-e1000"} <= set(rows)
+    assert set(mlanchor.GROUPS) - {"adaptive-lik-e1000", "myopic-lik-e1000"} <= set(rows)  # the main budget: 1000
     for g in ("adaptive-mlanchored", "adaptive-mlanchored-raw"):
         assert rows[g]["verdict"]["below ml"] == verdict("lower", rows[g]["minus_ml"]["cost"])
         assert "minus_myopic" in rows[g] and "below its gamma = 0 control" in rows[g]["verdict"]
@@ -584,7 +585,7 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
         study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(
             rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
         assert study is None or study in studies, rel
-    assert len(man["files"]) == 551 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 480
+    assert len(man["files"]) == 559 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 488
     # and the studies train nothing the manifest lacks
     assert set(next(iter(built.values()))) == {f["path"] for f in man["files"] if f["path"].startswith("policies/")}
 

@@ -10,6 +10,8 @@ otherwise: strength 3, KL weight 0.01, shield 1, the candidate-aware state, the 
 8 seeds): ``adaptive-mlanchored`` (gamma = 0.5) and its control ``myopic-mlanchored`` (gamma = 0, all else
 equal: what of any gain is looking ahead) on UNGM-UKF and CTM-UKF; on the CTM also trained on the
 untransformed cost ``L`` (``-raw``, both gammas), the mean of which is what the verdicts judge.
+The likelihood-aware learner of part 3 at the main budget (``adaptive-lik-e1000``) gets its gamma = 0 control
+too (``myopic-lik-e1000``, :data:`LIK_CONTROL`), evaluated on the same runs.
 
 **Objectives probed and not adopted** (declared here before the evaluation runs were touched):
 ``benchmarks/bench_mlanchor_objective.py`` trained the ML-anchored learner on the CTM (gamma = 0.5,
@@ -69,7 +71,8 @@ KINDS = (("adaptive-mlanchored", 0.5, "log1p", tuple(CAND_EXPERIMENTS)),
          ("adaptive-mlanchored-raw", 0.5, "none", ("ctm-ukf",)),
          ("myopic-mlanchored-raw", 0.0, "none", ("ctm-ukf",)))
 #: The gamma = 0.5 groups and their gamma = 0 controls.
-CONTROLS = {"adaptive-mlanchored": "myopic-mlanchored", "adaptive-mlanchored-raw": "myopic-mlanchored-raw"}
+CONTROLS = {"adaptive-mlanchored": "myopic-mlanchored", "adaptive-mlanchored-raw": "myopic-mlanchored-raw",
+            "adaptive-lik-e1000": "myopic-lik-e1000"}
 #: The imitation fits: group -> the information state (CTM).
 IMITATION = {"imitation-paper": "paper+circ", "imitation-cand": "paper+circ+cand", "imitation-lik": "paper+circ+cand+lik"}
 #: Runs of ML's trajectories per fit (the last 20 % held out) and epochs, per scale.
@@ -92,7 +95,10 @@ LOOK_GROUPS = ("adaptive-mlanchored", "myopic-mlanchored", "adaptive-mlanchored-
 #: and ANEES "not worse" than ML's.
 NOT_WORSE_THAN_ML = "learned vs ML"
 #: The learned groups of the final evaluation, in table order.
-GROUPS = tuple(k for k, *_ in KINDS) + tuple(IMITATION) + ("adaptive-lik-e1000",)
+GROUPS = tuple(k for k, *_ in KINDS) + tuple(IMITATION) + ("adaptive-lik-e1000", "myopic-lik-e1000")
+#: The likelihood-aware learner's gamma = 0 control (at the main budget): evaluated as a part of its own on the
+#: final evaluation's runs (the same seed: the same runs and resamples) and merged into it.
+LIK_CONTROL = "myopic-lik"
 
 
 def _size(run: Run) -> str:
@@ -177,6 +183,8 @@ def policies(run: Run, summary: dict) -> list[TrainSpec]:
                 out.append(TrainSpec(e, g, sc.episodes, s, str(run.out / f"policies/{e}-{kind}-s{s}.npz"),
                                      features=CAND_EXPERIMENTS[e], horizon=sc.n_steps, cost_transform=transform,
                                      anchor=ANCHOR))
+    out += [TrainSpec("ctm-ukf", 0.0, sc.episodes, s, str(run.out / _curve_rel(LIK_CONTROL, sc.episodes, s)),
+                      features=LIK_FEATURES, horizon=sc.n_steps) for s in sc.seeds]
     for ep in CURVE_EPISODES[_size(run)]:
         for s in sc.seeds:
             out.append(TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / _curve_rel("adaptive-lik", ep, s)),
@@ -210,11 +218,15 @@ def curve_files(run: Run) -> dict[str, tuple[str, int, list[str]]]:
 def evaluations(run: Run, summary: dict, trained: list[TrainSpec]) -> list[EvalSpec]:
     """The final evaluation per experiment (10^4 runs of :data:`EVAL_SEED`) and the learning curve (CTM, selection
     runs)."""
-    specs = []
+    specs, control = [], f"{LIK_CONTROL}-e{run.scale.episodes}"
     for e in CAND_EXPERIMENTS:
-        files = [str(run.out / f"policies/{e}-{g}-s{s}.npz") for g in GROUPS for s in run.scale.seeds]
+        files = [str(run.out / f"policies/{e}-{g}-s{s}.npz") for g in GROUPS if g != control for s in run.scale.seeds]
         files = [f for f in files if Path(f).exists()]  # the study's own: trained (or fitted) before this phase
         specs.append(evaluation(NAME, e, files, run.scale, ("default", "ml", "greedy"), EVAL_SEED))
+    # the likelihood-aware learner's gamma = 0 control: its own job on the same runs, merged into the CTM's
+    files = [str(run.out / _curve_rel(LIK_CONTROL, run.scale.episodes, s)) for s in run.scale.seeds]
+    spec = evaluation(NAME, "ctm-ukf", [f for f in files if Path(f).exists()], run.scale, ("ml",), EVAL_SEED)
+    specs.append(dataclasses.replace(spec, tag="control"))
     curve = curve_files(run)
     scale = dataclasses.replace(run.scale, eval_runs=CURVE_RUNS[_size(run)])
     spec = evaluation(NAME, "ctm-ukf", [f for _, _, fs in curve.values() for f in fs], scale,
@@ -283,11 +295,20 @@ def _curve_rows(res, groups: dict) -> dict:
 
 
 def rows(run: Run, summary: dict, specs: list[EvalSpec], values: list) -> dict:
+    from adaptfilt.results import Results
+
     final, curve = {}, None
+    control = {s.experiment: (s, v) for s, v in zip(specs, values) if s.tag == "control"}
     for spec, res in zip(specs, values):
+        if spec.tag == "control":
+            continue
         if spec.tag is None:
+            files = spec.args[1]
+            if spec.experiment in control:  # the same runs: the merge is exact
+                cspec, cres = control[spec.experiment]
+                res, files = Results.merge([res, cres]), files + cspec.args[1]
             run.save(f"{NAME}-{spec.experiment}", res, drop=COMPACT)
-            final[spec.experiment] = _final_rows(res, spec.args[1])
+            final[spec.experiment] = _final_rows(res, files)
         else:
             run.save(f"{NAME}-{spec.experiment}-curve", res, drop=COMPACT)
             curve = _curve_rows(res, spec.tag)
