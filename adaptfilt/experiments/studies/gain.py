@@ -170,9 +170,10 @@ CALIBRATION: dict = {
                           "points": "110 episodes 0.79 CPU-s (warm), 17368 episodes 60.2"}},
     "knet": {("ungm-ukf", 1): {"cpu_s_per_step": 0.0362, "points": "25 steps 0.95 CPU-s, 1650 steps 59.8"},
              ("ungm-ukf", 2): {"cpu_s_per_step": 0.0419, "points": "25 steps 1.12 CPU-s, 1425 steps 59.7"},
-             ("ctm-ukf", 2): {"cpu_s_per_step": 0.060, "provisional": "UNGM's architecture 1 rate x 1.11 / 0.67 "
-                                                                      "(bench_kalmannet: PPO transitions per "
-                                                                      "trajectory-step, CTM arch. 2 / UNGM)"}},
+             ("ctm-ukf", 2): {"cpu_s_per_step": 0.0623, "points": "25 steps 1.83 CPU-s, 975 steps 59.9",
+                              "provisional": "UNGM's recipe (the CTM's KalmanNet tuning is PENDING)"},
+             ("ctm-ukf", 1): {"cpu_s_per_step": 0.1924, "points": "25 steps 5.48 CPU-s, 300 steps 58.6",
+                              "provisional": "UNGM's recipe (the CTM's KalmanNet tuning is PENDING)"}},
 }
 #: Measured evaluation costs, process CPU microseconds per run-step (one torch thread, this 2-core machine beside
 #: other work): a kappa policy, KalmanNet per architecture (2000 runs, the recipes' clamp), the UKF's references
@@ -180,7 +181,7 @@ CALIBRATION: dict = {
 #: (the stored study's evaluations at 10^4 runs, data/beyond/summary.json ``us_per_step``); the point-mass floor
 #: in CPU-s per UNGM run of 500 steps (20 runs: 26.5 CPU-s).
 EVAL_US = {"ungm-ukf": {"kappa": 0.72, "gain1": 2.32, "gain2": 0.60, "refs": 8.2, "bpf": 66.3, "anchored": 2.45},
-           "ctm-ukf": {"kappa": 2.5, "gain1": 39.0, "gain2": 3.9, "refs": 40.0, "bpf": 224.0, "anchored": 12.4}}
+           "ctm-ukf": {"kappa": 2.5, "gain1": 31.2, "gain2": 3.9, "refs": 40.0, "bpf": 224.0, "anchored": 12.4}}
 FLOOR_CPU_S_PER_RUN = 1.32
 #: What must be measured before the full scale may run (declared before any evaluation run is touched); the
 #: full scale refuses to start while anything is pending (:func:`scale_of`). Until then the CTM's KalmanNet
@@ -190,7 +191,8 @@ PENDING = (
     "grid's edge (benchmarks/tune_gain_study.py --only kappa; --extend kappa:ungm:0.00025)",
     "KalmanNet's tuning on the CTM, both architectures (benchmarks/tune_gain_study.py --only knet)",
     "the consistency weight (benchmarks/tune_gain_study.py --consistency 0.0005,5)",
-    "the calibration of the chosen recipes, CPU-s per work unit (benchmarks/tune_gain_study.py --calibrate ...)",
+    "the calibration of the CTM's chosen recipes where they differ from the provisional ones (kappa: lr 1e-3, 5 "
+    "epochs; KalmanNet: lr 3e-3, windows of 20), CPU-s per work unit (benchmarks/tune_gain_study.py --calibrate)",
 )
 #: KalmanNet's recipe on a model whose tuning is pending: UNGM's, per architecture (the quick scale's only).
 PROVISIONAL_KNET = {"ctm": "ungm"}
@@ -238,7 +240,7 @@ def work_units(experiment: str, kind: str, arch: int | None = None) -> tuple[int
 #: top budgets under the nominal model again on 5000, the floor on 100; work units from :data:`CALIBRATION`.
 FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
                  {e: work_units(e, "kappa") for e in ("ungm-ukf", "ctm-ukf")},
-                 {k: work_units(k[0], "gain", k[1]) for k in (("ungm-ukf", 1), ("ungm-ukf", 2), ("ctm-ukf", 2))})
+                 {k: work_units(k[0], "gain", k[1]) for k in CALIBRATION["knet"]})
 #: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to five
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
