@@ -17,6 +17,8 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--feature-norm l2|none|scale] [--clamp auto]
                          [--on-diverged raise|restore|stop|restart [--restarts N] [--patience P]]
                          [--model-grad jacobian|finite-difference|detach] --out FILE [--out FILE ...]
+    adaptfilt imitate NAME --features SPEC [--seed S] [--runs M] [--epochs N] [--teacher ml|greedy] [--horizon T]
+                      [--holdout F] [--lr LR] [--batch-size B] --out FILE
     adaptfilt floor --runs M --seed S [--horizon T] [--eval-runs M] --out FILE
     adaptfilt reconcile --runs M --seed S [--horizon T] --out FILE
     adaptfilt reproduce --out DIR [--scale quick|medium|full] [--retrain] [--faithful] [--workers N] [--cluster ADDRESS]
@@ -28,7 +30,8 @@ Sub-commands (their names and flags are a contract the course, the README and
     adaptfilt book --out DIR
     adaptfilt --version
 
-``train-gain`` trains a filter with a learned gain (KalmanNet); ``floor`` and ``reconcile`` are the
+``train-gain`` trains a filter with a learned gain (KalmanNet); ``imitate`` fits the learner's actor network
+to a teacher rule's choices by supervised learning (:mod:`adaptfilt.imitation`); ``floor`` and ``reconcile`` are the
 reproduction's reference stages of those names (the point-mass Bayes floor on UNGM, the CTM variants), each
 writing the JSON that ``adaptfilt reproduce`` writes into ``DIR/results``.
 
@@ -474,8 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"adaptfilt {__version__}")
     sub = parser.add_subparsers(dest="cmd", required=True)
-    for add in (_add_experiments, _add_evaluate, _add_train, _add_train_gain, _add_floor, _add_reconcile,
-                _add_reproduce, _add_beyond, _add_book):
+    for add in (_add_experiments, _add_evaluate, _add_train, _add_train_gain, _add_imitate, _add_floor,
+                _add_reconcile, _add_reproduce, _add_beyond, _add_book):
         add(sub)
     return parser
 
@@ -639,6 +642,42 @@ def _add_train_gain(sub) -> None:
                    help="file to write (.npz); one per snapshot, in their order, with --snapshots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_train_gain)
+
+
+def _add_imitate(sub) -> None:
+    from adaptfilt.imitation import TEACHERS
+
+    p = sub.add_parser("imitate", help="fit the learner's actor network to a rule's choices (supervised imitation)",
+                       description="Fit the learner's actor network by cross-entropy to the choices a teacher rule "
+                                   "(ML, greedy) makes on the states it visits itself (adaptfilt.imitation); the "
+                                   "command line is recorded in the policy file.")
+    p.add_argument("name", type=_experiment, help="experiment name (its model and grid), see `adaptfilt experiments`")
+    p.add_argument("--features", type=_features, required=True, help="the network's inputs, e.g. paper+circ+cand+lik")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="the teacher's runs, weights and minibatches")
+    p.add_argument("--runs", type=_int_at_least(2, " (a fitting and a held-out part)"), default=2000,
+                   help="the teacher's runs (default 2000)")
+    p.add_argument("--epochs", type=_int_at_least(1), default=30, help="passes over the fitting part (default 30)")
+    p.add_argument("--teacher", choices=TEACHERS, default="ml", help="the rule imitated (default ml)")
+    p.add_argument("--horizon", type=_int_at_least(1), default=None, help="time steps (default: the model's)")
+    p.add_argument("--holdout", type=_float_in(0.0, 1.0, closed=False, name="--holdout"), default=0.2,
+                   help="share of the runs held out for the accuracy (default 0.2)")
+    p.add_argument("--lr", type=_positive, default=1e-3, help="Adam's learning rate (default 0.001)")
+    p.add_argument("--batch-size", type=_int_at_least(1), default=1024, help="steps per minibatch (default 1024)")
+    p.add_argument("--out", required=True, type=_out_file, help="policy file to write (.npz)")
+    p.set_defaults(func=_imitate)
+
+
+def _imitate(args: argparse.Namespace) -> int:
+    from adaptfilt.imitation import imitate, imitation_command
+
+    opts = dict(runs=args.runs, epochs=args.epochs, teacher=args.teacher, n_steps=args.horizon,
+                holdout=args.holdout, lr=args.lr, batch_size=args.batch_size)
+    pol = imitate(args.name, args.features, args.seed, **opts,
+                  command=imitation_command(args.name, args.features, args.seed, out=args.out, **opts))
+    pol.save(args.out)
+    info = pol.metadata["imitation"]
+    print(f"wrote {args.out} (held-out agreement with {args.teacher}: {info['heldout_accuracy']:.3f})")
+    return 0
 
 
 def _add_floor(sub) -> None:

@@ -79,11 +79,13 @@ def teacher_data(experiment, features: Sequence[str], seed: int = 0, *, runs: in
             "env": env, "experiment": target.name, "teacher": teacher}
 
 
-def imitation_command(experiment: str, features: str, seed: int, *, runs: int, epochs: int, teacher: str = "ml",
-                      n_steps: int | None = None, holdout: float = 0.2, lr: float = 1e-3, batch_size: int = 1024) -> str:
-    """The call that makes an imitation policy, as a manifest records it."""
-    return (f"adaptfilt.imitation.imitate({experiment!r}, {features!r}, seed={seed}, runs={runs}, epochs={epochs}, "
-            f"teacher={teacher!r}, n_steps={n_steps}, holdout={holdout:g}, lr={lr:g}, batch_size={batch_size})")
+def imitation_command(experiment: str, features: str, seed: int, *, runs: int, epochs: int, out: str,
+                      teacher: str = "ml", n_steps: int | None = None, holdout: float = 0.2, lr: float = 1e-3,
+                      batch_size: int = 1024) -> str:
+    """The ``adaptfilt imitate`` line that makes an imitation policy (``out``), as a manifest records it."""
+    return (f"adaptfilt imitate {experiment} --features {features} --seed {seed} --runs {runs} --epochs {epochs} "
+            f"--teacher {teacher}" + ("" if n_steps is None else f" --horizon {n_steps}")
+            + f" --holdout {holdout!r} --lr {lr!r} --batch-size {batch_size} --out {out}")
 
 
 def imitate(experiment, features: str, seed: int = 0, *, runs: int = 2000, epochs: int = 30, teacher: str = "ml",

@@ -229,7 +229,7 @@ def test_committed_mlanchor_study_is_what_its_stored_evaluations_give():
     for g in mlanchor.IMITATION:  # the held-out agreement is the one each file records
         pol = load_policy(root / f"policies/ctm-ukf-{g}-s3.npz", experiment="ctm-ukf")
         assert ctm[g]["imitation"]["heldout_accuracy"][3] == pol.metadata["imitation"]["heldout_accuracy"]
-        assert man[f"policies/ctm-ukf-{g}-s3.npz"]["command"].startswith("adaptfilt.imitation.imitate('ctm-ukf'")
+        assert man[f"policies/ctm-ukf-{g}-s3.npz"]["command"].startswith("adaptfilt imitate ctm-ukf ")
     curve = artefacts.load_beyond_results("mlanchor-ctm-ukf-curve")
     assert curve.config["n_runs"] == 2000 and curve.config["seed"] == SELECTION_SEED
     tags = {r["group"]: (learner, int(ep)) for learner, by in s["curve"]["learners"].items() for ep, r in by.items()}
@@ -440,7 +440,7 @@ def test_quick_mlanchor_study_and_the_look_parts_it_adds(tmp_path, monkeypatch):
     acc = rows["imitation-lik"]["imitation"]["heldout_accuracy"]
     assert acc[0] == im.metadata["imitation"]["heldout_accuracy"] and len(acc) == 2
     man = {f["path"]: f for f in json.loads((root / "manifest.json").read_text())["files"]}
-    assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["command"].startswith("adaptfilt.imitation.imitate('ctm-ukf'")
+    assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["command"].startswith("adaptfilt imitate ctm-ukf ")
     assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["cpu_time_s"] > 0
     curve = s["curve"]
     assert curve["seed"] == 1 and set(curve["learners"]) == {"adaptive-lik", "adaptive-mlanchored"}
@@ -518,7 +518,7 @@ def _beyond_policy_commands(root: str, selection: dict) -> dict[str, str]:
     run = Run(Path(root) / "beyond", Path(root), FULL, False, "", journal=None)
     made = {str(Path(o).relative_to(run.out)): t.command for s in ALL if s.NAME not in NOT_STORED
             for t in s.policies(run, {"sif-selection": selection}) for o in t.outputs}
-    # the mlanchor study's imitation fits (made before its trainings: a call of adaptfilt.imitation, no --out)
+    # the mlanchor study's imitation fits (adaptfilt imitate, made before its trainings)
     return made if "mlanchor" in NOT_STORED else {**made, **mlanchor.imitation_files(run)}
 
 
@@ -565,12 +565,9 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
     built = {}  # by the root the record names
     for entry in man["files"]:
         rel, cmd = entry["path"], entry["command"]
-        if rel.startswith("policies/") and cmd.startswith("adaptfilt.imitation.imitate("):  # where it is written
-            anywhere = built.setdefault("/any", _beyond_policy_commands("/any", selection))  # is not in the call
-            assert cmd == anywhere[rel], rel
-            continue
-        if rel.startswith("policies/"):  # adaptfilt train, or train-gain (one line for a training's snapshots)
-            m = re.search(r"^adaptfilt train(?:-gain)? .* --out (/\S+)/beyond/" + re.escape(rel) + "(?: |$)", cmd)
+        if rel.startswith("policies/"):  # adaptfilt train, imitate, or train-gain (one line for its snapshots)
+            m = re.search(r"^adaptfilt (?:train(?:-gain)?|imitate) .* --out (/\S+)/beyond/" + re.escape(rel) + "(?: |$)",
+                          cmd)
             assert m, (rel, cmd)
             root = m.group(1)
             built.setdefault(root, _beyond_policy_commands(root, selection))

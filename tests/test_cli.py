@@ -31,9 +31,6 @@ def test_every_recorded_command_is_a_command_line_of_the_parser(manifest, tmp_pa
     files = json.loads((ROOT / manifest).read_text())["files"]
     kinds = set()
     for entry in files:
-        if entry["command"].startswith("adaptfilt.imitation.imitate("):
-            _check_imitation_call(entry["command"])  # the mlanchor study's imitation fits: a library call
-            continue
         words = shlex.split(entry["command"])
         assert words[0] == "adaptfilt", entry
         for i, w in enumerate(words[:-1]):
@@ -42,23 +39,40 @@ def test_every_recorded_command_is_a_command_line_of_the_parser(manifest, tmp_pa
         args = parser.parse_args(words[1:])
         kinds.add(args.cmd)
     want = {"train", "evaluate", "reproduce", "floor", "reconcile"} if manifest == "data/manifest.json" else \
-        {"train", "train-gain", "beyond"}
+        {"train", "train-gain", "imitate", "beyond"}
     assert kinds == want
 
 
-def _check_imitation_call(command: str) -> None:
-    """A recorded imitation fit (``adaptfilt.imitation.imitate(...)``, which has no command line): a call whose
-    arguments, all literals, bind to today's signature of :func:`adaptfilt.imitation.imitate`."""
-    import ast
-    import inspect
+# ------------------------------------------------------------------ imitate
+def test_imitate_writes_the_policy_the_studys_shared_fit_makes(tmp_path):
+    """``adaptfilt imitate`` (one feature set, its own teacher runs) writes the network the mlanchor study's job
+    fits for that set on the runs it shares between three sets, weight for weight, and records its line."""
+    from adaptfilt.experiments.studies.mlanchor import IMITATION, imitation_job
+    from adaptfilt.learned import load_policy
 
-    from adaptfilt.imitation import imitate
+    size = dict(runs=4, epochs=2, n_steps=5)
+    paths = {g: str(tmp_path / f"{g}.npz") for g in IMITATION}
+    imitation_job(1, size["runs"], size["epochs"], size["n_steps"], paths, {g: "study" for g in IMITATION})
+    g, fs = sorted(IMITATION.items())[-1]
+    out = str(tmp_path / "one.npz")
+    assert main(["imitate", "ctm-ukf", "--features", fs, "--seed", "1", "--runs", "4", "--epochs", "2",
+                 "--horizon", "5", "--out", out]) == 0
+    one, shared = load_policy(out, experiment="ctm-ukf"), load_policy(paths[g], experiment="ctm-ukf")
+    for a, b in zip(one.actor.parameters(), shared.actor.parameters()):
+        np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+    assert one.metadata["command"] == (f"adaptfilt imitate ctm-ukf --features {fs} --seed 1 --runs 4 --epochs 2 "
+                                       f"--teacher ml --horizon 5 --holdout 0.2 --lr 0.001 --batch-size 1024 --out {out}")
+    words = shlex.split(one.metadata["command"])
+    assert build_parser().parse_args(words[1:]).features == fs
 
-    call = ast.parse(command, mode="eval").body
-    assert isinstance(call, ast.Call) and ast.unparse(call.func) == "adaptfilt.imitation.imitate", command
-    args = [ast.literal_eval(a) for a in call.args]
-    kwargs = {k.arg: ast.literal_eval(k.value) for k in call.keywords}
-    inspect.signature(imitate).bind(*args, **kwargs)
+
+def test_imitate_rejects_bad_values_in_one_line(capsys):
+    for bad, what in ((["--holdout", "1"], "--holdout must be in (0, 1)"), (["--runs", "1"], "integer >= 2"),
+                      (["--features", "nonsense"], "features")):
+        with pytest.raises(SystemExit) as e:
+            main(["imitate", "ctm-ukf", "--features", "paper+circ", *bad, "--out", "x.npz"])
+        err = capsys.readouterr().err.strip()
+        assert e.value.code == 2 and err.startswith("adaptfilt: error:") and what in err and "\n" not in err, err
 
 
 # ------------------------------------------------------------------ train-gain

@@ -114,7 +114,8 @@ def _imitation_commands(run: Run, seed: int) -> dict[str, str]:
     from adaptfilt.imitation import imitation_command
 
     runs, epochs = IMITATION_SIZE[_size(run)]
-    return {g: imitation_command("ctm-ukf", fs, seed, runs=runs, epochs=epochs, n_steps=run.scale.n_steps)
+    return {g: imitation_command("ctm-ukf", fs, seed, runs=runs, epochs=epochs, n_steps=run.scale.n_steps,
+                                 out=str(run.out / imitation_rel("ctm-ukf", g, seed)))
             for g, fs in IMITATION.items()}
 
 
