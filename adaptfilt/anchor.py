@@ -150,12 +150,16 @@ def greedy_index(decision, grid: Sequence[float] | None = None) -> np.ndarray:
     cost = decision.candidates()["cost"]
     if cost is None:
         raise ValueError("an anchor on greedy needs an environment with a cost")
-    cost = np.asarray(cost)
-    if grid is not None:
-        from adaptfilt.policies import grid_indices
+    return np.argmin(_over(np.asarray(cost), decision, grid), axis=0)
 
-        cost = cost[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
-    return np.argmin(cost, axis=0)
+
+def _over(values: np.ndarray, decision, grid: Sequence[float] | None) -> np.ndarray:
+    """The candidates' ``values`` (one row per grid value) restricted to ``grid`` (None: all of them)."""
+    if grid is None:
+        return values
+    from adaptfilt.policies import grid_indices
+
+    return values[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
 
 
 def _onehot(idx: np.ndarray, G: int) -> np.ndarray:
@@ -181,12 +185,7 @@ def anchor_index(decision, policy: str = "greedy", grid: Sequence[float] | None 
     ll = decision.candidates().get("loglik")
     if ll is None:
         raise ValueError("an anchor on ML needs the candidates' log-likelihoods")
-    ll = np.asarray(ll)
-    if grid is not None:
-        from adaptfilt.policies import grid_indices
-
-        ll = ll[grid_indices(np.asarray(grid, dtype=float), decision.grid, "anchored policy")]
-    return np.argmax(ll, axis=0)
+    return np.argmax(_over(np.asarray(ll), decision, grid), axis=0)
 
 
 def anchor_onehot(decision, policy: str = "greedy", grid: Sequence[float] | None = None) -> np.ndarray:

@@ -456,6 +456,18 @@ def test_quick_mlanchor_study_and_the_look_parts_it_adds(tmp_path, monkeypatch):
     assert set(against) == {"ml", "rollout-H1-S2", "rollout-ml-H1-S2", "rollout-best-H1-S2"}
     assert "ctm-ukf: learned groups against ML and the best rollout of each base" in summary_md(summary)
     before = Results.load(root / "results" / "look-ctm-ukf")
+    from adaptfilt.verdicts import verdict
+
+    # every reference against ML on the same runs, judged by the one rule (the rollout over ML is bounded
+    # by ML only with exact expectations over the full horizon: measured, not assumed)
+    for n, row in look["references"].items():
+        assert row["minus_ml"]["cost"] == list(before.paired_difference(n, "ml", "cost")), n
+        assert row["improves_on_ml"] == verdict("lower", row["minus_ml"]["cost"])
+    md = summary_md(summary)
+    assert "ctm-ukf: every look-ahead reference against ML" in md and "| rollout-ml-H1-S2 |" in md
+    from adaptfilt.experiments.look import look_md
+    short = look_md(summary["look"], bases=("greedy",), learned=("adaptive-mlanchored",))
+    assert "rollout-ml-" not in short and "against ML" not in short and "adaptive-mlanchored" in short
     assert len(before.config["parts"]) == 5  # base, rollout, over ML, over the better of both, learned
     # one more part: only it is computed, the rest comes from the stored evaluation as it was
     monkeypatch.setattr(look_mod, "LOOK_BASES_QUICK", {**look_mod.LOOK_BASES_QUICK,

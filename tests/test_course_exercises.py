@@ -232,6 +232,7 @@ def test_kalmannet_step(capsys):
         assert "right" in capsys.readouterr().out
     wrong = [  # the three the readers found accepted (time indices, F1 unwrapped alone, signs) first
         (dict(tf=-1), "f taken at step t - 1"), (dict(th=0), "h taken at step t: "),
+        (dict(tf=-1, th=0), "h taken at step t: "),  # the reader's answer had both: f(x, t - 1), h(x, t)
         (dict(wrap_f1=False), "F1 = z_t - z_prev unwrapped"), (dict(signs=True), "passed as their signs"),
         (dict(wrap=False, wrap_f1=False), "the bearing's differences unwrapped"),
         (dict(first=False), "at t = 0 the prediction is the prior mean"),

@@ -181,6 +181,37 @@ def test_prose_is_at_most_five_thousand_words(stem):
     assert n <= MAX_PROSE_WORDS, f"{stem}: {n} words of prose > {MAX_PROSE_WORDS}: split the chapter or trim it"
 
 
+#: A markdown line that opens with an HTML comment and goes on with text is an HTML block to CommonMark (the
+#: book's renderer and Jupyter's alike): the rest of the line is passed on raw, so its math, emphasis and code
+#: are not rendered. A comment that closes a sentence sits at the end of its line.
+OPENS_WITH_COMMENT = re.compile(r"^\s*(?:<!--.*?-->\s*)+(?!<!--)\S")
+
+
+def lines_opening_with_a_comment(markdown: str) -> list[str]:
+    return [ln.strip() for ln in markdown.splitlines() if OPENS_WITH_COMMENT.match(ln)]
+
+
+def test_the_comment_rule_finds_what_commonmark_renders_raw():
+    assert lines_opening_with_a_comment("is contradicted\n<!-- verdict: lower [1, 2] -> contradicted -->, and $x$")
+    assert lines_opening_with_a_comment("  <!-- a --> <!-- b -->. Trained on $L$")
+    assert not lines_opening_with_a_comment("is contradicted <!-- verdict: lower [1, 2] -> contradicted -->,\nand $x$")
+    assert not lines_opening_with_a_comment("<!-- from 13: 2.505 --> <!-- from 14: 2.529 -->")
+
+
+@pytest.mark.parametrize("stem", CHAPTERS)
+def test_no_markdown_line_opens_with_a_comment_followed_by_text(stem):
+    bad = [f"cell {i}: {ln[:90]!r}" for i, c in enumerate(load(stem)["cells"]) if c["cell_type"] == "markdown"
+           for ln in lines_opening_with_a_comment("".join(c["source"]))]
+    assert not bad, f"{stem}: lines the book shows raw (put the comment at the end of the line before):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("doc", ["README.md", "REPRODUCTION.md", "docs/DEVIATIONS.md", "docs/NOTATION.md",
+                                 "docs/ARCHITECTURE.md", "docs/RUNNING.md"])
+def test_no_line_of_the_documents_opens_with_a_comment_followed_by_text(doc):
+    bad = lines_opening_with_a_comment((ROOT / doc).read_text())
+    assert not bad, f"{doc}: lines rendered raw (put the comment at the end of the line before):\n" + "\n".join(bad)
+
+
 def logical_lines(source: str) -> int:
     """The lines of ``source`` with every bracketed continuation joined to the line it continues."""
     import io

@@ -10,6 +10,7 @@ what a trained network has left to learn.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -19,7 +20,8 @@ from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
            "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains",
-           "final_table", "verdict_table", "curve_lines"]
+           "final_table", "verdict_table", "curve_lines", "stored_gain_policies", "is_initial_network",
+           "training_lines"]
 
 #: The chapter's linear-Gaussian model (scalar): F, H, Q, R, m0, P0.
 LINEAR = dict(F=[[0.9]], H=[[1.0]], Q=[[1.0]], R=[[1.0]], m0=[0.0], P0=[[1.0]])
@@ -232,3 +234,96 @@ def curve_lines(g: Mapping, regime: str = "nominal") -> str:
                 cells.append(f"{cpu:4.1f} CPU-s: {row['rmse']['iqm']:.3g}{stop}")
             lines.append(f"{e:8s} {regime:7s} {a:11s} " + "; ".join(cells))
     return "\n".join(lines)
+
+
+# ------------------------------------------------------- the stored KalmanNets of the study (data/beyond/policies)
+def stored_gain_policies(root=None) -> dict[tuple[str, str, int, int], object]:
+    """The study's stored KalmanNet files, ``beyond/policies/{model}-{arm}-b{budget}-s{seed}.npz`` of ``root``
+    (default: the repository's ``data/``), loaded against their experiment's model:
+    ``{(model, arm, budget, seed): KalmanNet}``, the training history in ``knet.history``."""
+    import re
+
+    from adaptfilt.experiment_registry import get_experiment
+    from adaptfilt.experiments.artefacts import data_dir
+    from adaptfilt.kalmannet import load_kalmannet
+
+    d = (data_dir() if root is None else Path(root)) / "beyond" / "policies"
+    out, models = {}, {}
+    for p in sorted(d.glob("*-gain-*-b*-s*.npz")):
+        e, arm, b, s = re.fullmatch(r"(.+)-(gain-\w+)-b(\d+)-s(\d+)\.npz", p.name).groups()
+        model = models.setdefault(e, get_experiment(e).make_model())
+        out[e, arm, int(b), int(s)] = load_kalmannet(p, model)
+    if not out:
+        raise FileNotFoundError(f"no KalmanNet files of the gain study in {d}: run `adaptfilt beyond --studies gain`")
+    return out
+
+
+def is_initial_network(knet) -> bool:
+    """Whether ``knet`` holds the weights its seed and options start from: a training that never improved
+    on its untrained network on validation and kept it (compared weight for weight with a fresh network)."""
+    import torch
+
+    from adaptfilt.kalmannet import KalmanNet
+
+    fresh = KalmanNet(knet.model, seed=knet.seed, scales=knet.scales, bounds=knet.bounds, **knet.options)
+    mine, theirs = knet.net.state_dict(), fresh.net.state_dict()
+    return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
+
+
+def _seeds(seeds: Sequence[int]) -> str:
+    return f" (seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))})" if len(seeds) else ""
+
+
+def training_lines(knets: Mapping[tuple[str, str, int, int], object], curve: tuple[str, str] = ("ctm-ukf", "gain-sup"),
+                   every: int = 5, order: Sequence[str] = ("ungm-ukf", "ctm-ukf", "gain-unsup", "gain-sup")) -> str:
+    """What the stored KalmanNets' training histories show, as text: the data and optimiser steps they had,
+    per model, arm and budget how many are their untrained initial network (:func:`is_initial_network`),
+    which seeds' last-budget files are one network in both arms, and for ``curve`` (model, arm) at its last
+    budget the epoch of the best validation per seed and the best validation loss so far (median over
+    seeds) every ``every`` epochs. Models and arms are listed in ``order`` (others after them)."""
+    rank = {name: i for i, name in enumerate(order)}
+    keys = sorted(knets, key=lambda k: (rank.get(k[0], len(rank)), k[0], rank.get(k[1], len(rank)), k[1], k[2], k[3]))
+    models = list(dict.fromkeys(k[0] for k in keys))
+    hist = {k: knets[k].history for k in keys}
+    sizes = lambda name: "/".join(map(str, sorted({h[name] for h in hist.values()})))  # noqa: E731
+    lines = [f"every file: {sizes('n_train')} training trajectories per seed (the same at every budget), "
+             f"minibatches of {sizes('batch_size')}"]
+    for e in models:
+        budgets = sorted({k[2] for k in keys if k[0] == e})
+        epochs = [next(hist[k]["epochs"] for k in keys if k[0] == e and k[2] == b) for b in budgets]
+        top = [max(hist[k]["optimiser_steps"] for k in keys if k[0] == e and k[2] == b) for b in budgets]
+        lines.append(f"{e:8s} budgets of {'/'.join(map(str, epochs))} epochs: at most "
+                     f"{'/'.join(map(str, top))} optimiser steps")
+    lines.append("the kept network is its untrained initial one (the same weights), per arm and budget:")
+    for e in models:
+        for arm in dict.fromkeys(k[1] for k in keys if k[0] == e):
+            cells = []
+            for b in dict.fromkeys(k[2] for k in keys if k[:2] == (e, arm)):
+                ks = [k for k in keys if k[:3] == (e, arm, b)]
+                init = [k[3] for k in ks if is_initial_network(knets[k])]
+                cells.append(f"{hist[ks[0]]['epochs']} ep. {len(init)} of {len(ks)}{_seeds(init)}")
+            lines.append(f"  {e:8s} {arm:10s} " + "; ".join(cells))
+        arms = list(dict.fromkeys(k[1] for k in keys if k[0] == e))
+        b = max(k[2] for k in keys if k[0] == e)
+        same = [s for s in sorted({k[3] for k in keys if k[0] == e}) if len(arms) == 2
+                and all((e, a, b, s) in knets for a in arms) and _same_weights(knets[e, arms[0], b, s], knets[e, arms[1], b, s])]
+        if same:
+            lines.append(f"  {e:8s} last budget: one and the same network in both arms{_seeds(same)}")
+    e, arm = curve
+    b = max(k[2] for k in keys if k[:2] == curve)
+    hs = [hist[k] for k in keys if k[:3] == (e, arm, b)]
+    last = sum(h["best_epoch"] == len(h["val_loss"]) - 1 for h in hs)
+    run_min = np.median([np.minimum.accumulate(h["val_loss"]) for h in hs], axis=0)
+    marks = list(range(0, len(run_min), every)) + ([len(run_min) - 1] if (len(run_min) - 1) % every else [])
+    lines.append(f"{e} {arm}, {hs[0]['epochs']} epochs: best validation at epoch "
+                 f"{', '.join(str(h['best_epoch']) for h in hs)} (seeds in order; the last epoch in {last} of "
+                 f"{len(hs)});\n  best validation loss so far (median over seeds) at epoch "
+                 + ", ".join(f"{m}: {run_min[m]:.0f}" for m in marks))
+    return "\n".join(lines)
+
+
+def _same_weights(a, b) -> bool:
+    import torch
+
+    sa, sb = a.net.state_dict(), b.net.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)

@@ -143,6 +143,7 @@ def look_summary(res) -> dict:
     metrics = [cost] + (["cost"] if cost != "cost" else []) + ["rmse", "anees", "objective"]
     out = {"verdict_cost": cost, "n_runs": res.config["n_runs"], "references": {}, "learned": {}, "baselines": {}}
     refs = [n for n in res.names if n.startswith(("rollout-", "twostep-"))]
+    other_bases = any(n.startswith("rollout-") and _parse(n)[1] != "greedy" for n in refs)
     for n in refs + ["greedy", "ml", "default"]:
         if n not in res:
             continue
@@ -151,6 +152,9 @@ def look_summary(res) -> dict:
         row.update(spent=p.spent, divergent_frac=p.divergent_frac)
         if n != "greedy":
             row["minus_greedy"] = {m: list(res.paired_difference(n, "greedy", m)) for m in metrics}
+        if n in refs and other_bases and "ml" in res:
+            # rollout's cost improvement holds over any base: against ML too, the better one-step rule
+            row["minus_ml"] = {m: list(res.paired_difference(n, "ml", m)) for m in metrics}
         (out["references"] if n in refs else out["baselines"])[n] = row
     fixed = res.fixed_names()
     best = min(fixed, key=lambda n: getattr(res[n], cost))
@@ -161,24 +165,31 @@ def look_summary(res) -> dict:
         out["learned"][g] = {"n_seeds": len(names), "spent": float(np.mean([res[n].spent for n in names])),
                              **{m: aggregate(res, names, m).iqm for m in metrics},
                              "minus_greedy": {m: list(difference(res, names, ["greedy"], m)["iqm"]) for m in metrics}}
-        if any(n.startswith("rollout-") and _parse(n)[1] != "greedy" for n in refs):
+        if other_bases:
             # where the other bases ran: each learned group against ML and every reference, on the verdict
             # cost and the objective, with its seed-level verdict ("lower": the interval below 0)
             out["learned"][g]["against"] = _against(res, names, ["ml"] + refs, (cost, "objective"))
     # Bertsekas' cost improvement: rollout on greedy costs no more than greedy (exact expectations, full
     # horizon); here truncated and sampled, so measured: the verdict on "the reference is lower than greedy"
     for n, row in out["references"].items():
-        row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
+        _judge(row, cost)
     return out
 
 
+def _judge(row: dict, cost: str) -> dict:
+    """A reference's verdicts: lower verdict cost than greedy (and than ML where it was compared)."""
+    row["improves_on_greedy"] = verdict("lower", row["minus_greedy"][cost])
+    if "minus_ml" in row:
+        row["improves_on_ml"] = verdict("lower", row["minus_ml"][cost])
+    return row
+
+
 def rejudge(look: dict) -> dict:
-    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` judged again
+    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` (and ``improves_on_ml``) judged again
     by the one rule from its stored interval of the verdict cost's difference to greedy."""
     out = {}
     for e, s in look.items():
-        refs = {n: {**row, "improves_on_greedy": verdict("lower", row["minus_greedy"][s["verdict_cost"]])}
-                for n, row in s["references"].items()}
+        refs = {n: _judge(dict(row), s["verdict_cost"]) for n, row in s["references"].items()}
         out[e] = {**s, "references": refs}
     return out
 
@@ -308,8 +319,11 @@ def plot_look_gain(look: dict, metric: str | None = None, axes=None, ylim: dict 
     return fig
 
 
-def look_md(look: dict) -> str:
-    """The study's table: per experiment, references, baselines and learned groups against greedy."""
+def look_md(look: dict, bases: tuple[str, ...] | None = None, learned: tuple[str, ...] | None = None) -> str:
+    """The study's table: per experiment, references, baselines and learned groups against greedy; then, where
+    other bases ran, every reference and learned group against ML (:func:`_against_md`). ``bases``: only the
+    rollouts over these bases (``("greedy",)``), ``learned``: only these groups; either one leaves out the
+    tables against ML."""
     f = lambda d: f"{d[0]:+.4g} [{d[1]:+.3g}, {d[2]:+.3g}]"  # noqa: E731
     lines = ["**How much can looking ahead buy?** (paired runs; differences to greedy with 95 % intervals: run "
              "level for a single policy, seed level (IQM over seeds, two-level bootstrap) for a learned group; "
@@ -322,6 +336,8 @@ def look_md(look: dict) -> str:
         g = s["baselines"]["greedy"]
         lines.append(f"| {e} (M = {s['n_runs']}) | greedy | {g[c]:.4g} | | | | {g['spent']:.3g} | |")
         for n, row in s["references"].items():
+            if bases is not None and _parse(n)[1] not in bases:
+                continue
             d = row["minus_greedy"]
             lines.append(f"| {e} | {n} | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} | {f(d['anees'])} "
                          f"| {row['spent']:.4g} | {row['improves_on_greedy']} |")
@@ -333,10 +349,12 @@ def look_md(look: dict) -> str:
                 lines.append(f"| {e} | {label} | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} | {f(d['anees'])} "
                              f"| {row['spent']:.3g} | |")
         for n, row in s["learned"].items():
+            if learned is not None and n not in learned:
+                continue
             d = row["minus_greedy"]
             lines.append(f"| {e} | {n} ({row['n_seeds']} seeds) | {row[c]:.4g} | {f(d[c])} | {f(d['rmse'])} "
                          f"| {f(d['anees'])} | {row['spent']:.3g} | |")
-    return "\n".join(lines + _against_md(look)) + "\n"
+    return "\n".join(lines + (_against_md(look) if bases is None and learned is None else [])) + "\n"
 
 
 def best_references(s: dict) -> dict[str, str]:
@@ -358,6 +376,12 @@ def _against_md(look: dict) -> list[str]:
         if not rows:
             continue
         c, refs = s["verdict_cost"], best_references(s)
+        vs_ml = {n: r for n, r in s["references"].items() if "minus_ml" in r}
+        lines += ["", f"**{e}: every look-ahead reference against ML** (M = {s['n_runs']}; paired runs, run-level "
+                  "95 % CI; verdict on the cost, 'confirmed': below ML)", "",
+                  *md_table(["reference", "cost - ml", "RMSE - ml", "lower cost than ML"])]
+        lines += [f"| {n} | {f(r['minus_ml'][c])} | {f(r['minus_ml']['rmse'])} | {r['improves_on_ml']} |"
+                  for n, r in vs_ml.items()]
         cols = ["ml"] + [refs[b] for b in _BASE_COLOURS if b in refs]
         lines += ["", f"**{e}: learned groups against ML and the best rollout of each base** (M = {s['n_runs']}; "
                   "IQM over seeds minus the reference, seed-level 95 % CI; verdict on the cost, 'confirmed': below)", "",
