@@ -58,9 +58,9 @@ def test_design_lines_state_the_studys_settings(quick):
     text = lg.design_lines(g)
     assert text.startswith(f"{len(QUICK.seeds)} training seeds per arm")
     for e, t in TARGET_CPU_S.items():
-        assert f"{e}: budgets b1-b{len(t)} = {'/'.join(f'{x:g}' for x in t)} CPU-s per policy" in text
-        assert f"kappa {'/'.join(map(str, QUICK.kappa_episodes[e]))} episodes" in text
-        assert f"kappa: lr {KAPPA_RECIPES[e]['lr']:g}, {KAPPA_RECIPES[e]['n_epochs']} PPO epochs" in text
+        assert f"{e}: budgets b1-b{len(t)} of {', '.join(f'{x:g}' for x in t)} CPU-s per policy" in text
+        assert f"kappa: {', '.join(map(str, QUICK.kappa_episodes[e]))} episodes" in text
+        assert f"kappa recipe: lr {KAPPA_RECIPES[e]['lr']:g}, {KAPPA_RECIPES[e]['n_epochs']} PPO epochs" in text
     assert "kappa-sqnll b3" in text and "gain-sup-on-q4 b3 (truth q=4,r=1)" in text
     assert "KalmanNet (both architectures) ungm 16, ctm 20" in text  # RECIPE_TUNING: 8 + 8, 10 + 10
     assert f"consistency weight {CONSISTENCY_WEIGHT:g}" in text

@@ -234,11 +234,11 @@ def design_lines(g: Mapping) -> str:
              f"regime, the top budgets again on {g['eval_runs']} (nominal model)"]
     for e, regimes in g["models"].items():
         u = g["units"][e]
-        knet = "; ".join(f"KalmanNet arch. {k[-1]} {'/'.join(map(str, v))} optimiser steps"
-                         for k, v in u.items() if k.startswith("knet_steps"))
-        lines.append(f"{e}: budgets b1-b{len(g['target_cpu_s'][e])} = "
-                     f"{'/'.join(f'{t:g}' for t in g['target_cpu_s'][e])} CPU-s per policy = kappa "
-                     f"{'/'.join(map(str, u['kappa_episodes']))} episodes; {knet}")
+        lines.append(f"{e}: budgets b1-b{len(g['target_cpu_s'][e])} of "
+                     f"{', '.join(f'{t:g}' for t in g['target_cpu_s'][e])} CPU-s per policy, met as")
+        lines.append(f"  kappa: {', '.join(map(str, u['kappa_episodes']))} episodes")
+        lines += [f"  KalmanNet arch. {k[-1]}: {', '.join(map(str, v))} optimiser steps"
+                  for k, v in u.items() if k.startswith("knet_steps")]
         arms = g["arms"][e]
         lines.append("  arms (to budget): " + ", ".join(
             f"{a} b{s['top']}" + (f" (arch. {s['arch']})" if s["kind"] == "gain" else "")
@@ -247,7 +247,8 @@ def design_lines(g: Mapping) -> str:
         if truth:
             lines.append("  trained on the truth's trajectories: " + ", ".join(truth))
         k, n = g["recipes"]["kappa"][e], g["recipes"]["knet"][e]
-        lines.append(f"  kappa: lr {k['lr']:g}, {k['n_epochs']} PPO epochs a rollout | KalmanNet arch. {n['arch']}: "
+        lines.append(f"  kappa recipe: lr {k['lr']:g}, {k['n_epochs']} PPO epochs a rollout")
+        lines.append(f"  KalmanNet recipe (arch. {n['arch']}): "
                      f"lr {n['lr']:g}, windows of {n['tbptt']}, minibatches of {n['batch_size']} fresh "
                      f"trajectories, validated every {n['val_every']} steps, clamp {n['clamp']}, clip {n['clip']:g}, "
                      f"at most {n['restarts']} restarts (patience {n['patience']})")
