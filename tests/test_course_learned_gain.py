@@ -11,7 +11,7 @@ import pytest
 from adaptfilt.course import learned_gain as lg
 from adaptfilt.course.tables import MAX_COLUMNS
 from adaptfilt.kalmannet import KalmanNet, load_kalmannet, train_kalmannet
-from adaptfilt.verdicts import judge
+from adaptfilt.verdicts import judge, verdict
 
 
 @pytest.fixture(scope="module")
@@ -149,7 +149,9 @@ def test_truth_and_consistency_tables_are_the_summarys(quick):
     assert [r[1] for r in cons] == ["kappa-sqerr", "kappa-sqnll"] * 3
     m = g["models"]["ungm-ukf"]["nominal"]["curve"]
     assert cons[1][3] == _iqm(m["kappa-sqnll"]["1"]["anees"]) and cons[0][2] == _iqm(m["kappa-sqerr"]["1"]["rmse"])
-    assert re.search(r"\((\S+)\)$", cons[1][4]) and cons[1][5].endswith(judge("lower", _interval(cons[1][5]))[0])
+    assert cons[1][4].endswith(judge("lower", _interval(cons[1][4]))[0])
+    margin, word = re.search(r"margin (\S+): not worse -> (.+)$", cons[1][5]).groups()
+    assert word == verdict("not worse", _interval(cons[1][5])[1:], float(margin))
 
 
 def test_curves_figure_marks_where_every_arm_stops_and_the_lines_say_the_same(quick):
