@@ -34,7 +34,7 @@ from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
            "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains", "LEARNED_PAIRS", "design_lines",
-           "curve_lines", "plot_curves", "stops_lines", "verdict_table", "kappa_optimiser_steps", "training_table",
+           "curve_lines", "plot_curves", "stops_lines", "verdict_table", "training_table",
            "restart_table", "truth_table", "consistency_table", "final_table", "stored_gain_policies",
            "initial_attempt", "is_initial_network"]
 
@@ -369,30 +369,6 @@ def md_lines(head: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
     return md_table(list(head), [list(map(str, r)) for r in rows])
 
 
-def kappa_optimiser_steps(meta: Mapping) -> int:
-    """The optimiser steps a kappa policy file's PPO training took (its record: ``transitions`` and the trainer's
-    ``n_steps``, ``n_envs``, ``batch_size``, ``n_epochs``): per rollout of ``n_steps x n_envs`` transitions,
-    ``n_epochs`` passes in minibatches of ``batch_size`` (the last one partial), as stable-baselines3's PPO
-    makes them."""
-    kw = meta["trainer"]["kwargs"]
-    rollout = int(kw["n_steps"]) * int(meta["trainer"]["n_envs"])
-    return int(meta["transitions"]) // rollout * int(kw["n_epochs"]) * -(-rollout // int(kw["batch_size"]))
-
-
-def _kappa_steps(e: str, arm: str, b, names: Sequence[str], root) -> list:
-    """Optimiser steps of each seed's kappa policy file in ``root/beyond`` (None where the file is absent)."""
-    from adaptfilt.experiments.artefacts import data_dir
-    from adaptfilt.experiments.studies.gain import policy_rel
-    from adaptfilt.files import read_npz
-
-    d = (data_dir() if root is None else Path(root)) / "beyond"
-    out = []
-    for n in names:
-        p = d / policy_rel(e, arm, int(b), int(n.rsplit("-s", 1)[1]))
-        out.append(kappa_optimiser_steps(read_npz(p, what="policy file")[1]) if p.exists() else None)
-    return out
-
-
 def _trained_rows(g: Mapping):
     """``(model, regime, arm, budget, row)`` of every training the summary reports, once each: the nominal
     curve's arms, and each arm trained on a truth from its regime's curve."""
@@ -404,18 +380,17 @@ def _trained_rows(g: Mapping):
                         yield e, r, a, b, pts[b]
 
 
-def training_table(g: Mapping, root=None) -> str:
+def training_table(g: Mapping) -> str:
     """What each learner had, per model, arm and budget (ranges over seeds): the target and the measured
-    training CPU-s (mean over seeds), the training trajectories it saw (the kappa learner's episodes;
-    KalmanNet's freshly simulated trajectories, restarts included), its optimiser steps (KalmanNet's from its
-    file's history; the kappa learner's from its policy file in ``root/beyond``, default ``data/``), and
-    KalmanNet's restarts and failed trainings (the network kept is an untrained one)."""
+    training CPU-s (mean over seeds), the training trajectories it saw (the kappa learner's episodes trained;
+    KalmanNet's freshly simulated trajectories, restarts included), its optimiser steps, and KalmanNet's
+    restarts and failed trainings (the network kept is an untrained one), as the study records them."""
     head = ["model", "arm, budget", "CPU-s: target, measured", "trajectories seen", "optimiser steps",
             "restarts, failed"]
     rows = []
     for e, r, a, b, row in _trained_rows(g):
         kappa = g["arms"][e][a]["kind"] == "kappa"
-        steps = _kappa_steps(e, a, b, row["names"], root) if kappa else row["units"]
+        steps = row["optimiser_steps"]
         rf = "n/a" if kappa else f"{sum(row['restarts'])}, {row['failed']}"
         rows.append([e, f"{a}, b{b}", f"{g['target_cpu_s'][e][int(b) - 1]:g}, {_cpu(row):.3g}",
                      _spread(row["trajectories_seen"]), _spread(steps), rf])

@@ -582,30 +582,37 @@ def _knet_history(run: Run, rel: str) -> dict:
 
 
 def training_facts(run: Run, experiment: str, arm: str, budget: int, seeds) -> dict:
-    """Per seed: training CPU-s up to the budget, and for KalmanNet the restarts, whether training failed
-    (the network kept is an untrained one), the optimiser steps and the trajectories seen; for kappa the
-    episodes (from its file)."""
-    cpu, restarts, failed, units, seen = [], [], [], [], []
+    """Per seed: training CPU-s up to the budget, the optimiser steps and the training trajectories seen (the
+    kappa learner's episodes trained: whole rollouts, so at least the budget's; KalmanNet's freshly simulated
+    trajectories, restarts included), and for KalmanNet the restarts and which seeds failed to train (the
+    network kept is an untrained one)."""
+    from adaptfilt.files import read_npz
+    from adaptfilt.trainers import sb3_optimiser_steps
+
+    kappa, seeds = arms_of(experiment)[arm]["kind"] == "kappa", list(seeds)
+    cpu, restarts, failed, units, steps, seen = [], [], [], [], [], []
     for s in seeds:
         rel = policy_rel(experiment, arm, budget, s)
         c = _record(run, rel).get("cpu_time_s")
         cpu.append(None if c is None else float(c))
-        if arms_of(experiment)[arm]["kind"] == "gain":
+        if not kappa:
             h = _knet_history(run, rel)
             restarts.append(int(h.get("n_restarts", 0)))
-            failed.append(bool(h.get("failed")))
+            if h.get("failed"):
+                failed.append(int(s))
             units.append(int(h.get("optimiser_steps", 0)))
+            steps.append(units[-1])
             seen.append(int(h.get("trajectories_seen", 0)))
         else:
-            from adaptfilt.files import read_npz
-
             p = run.out / rel
             meta = read_npz(p, what="policy file")[1] if p.exists() else {}
             units.append(int(meta.get("episodes", 0)))
-            seen.append(int(meta.get("episodes", 0)))
-    kappa = arms_of(experiment)[arm]["kind"] == "kappa"
-    return {"train_cpu_s": cpu, "restarts": None if kappa else restarts, "failed": None if kappa else sum(failed),
-            "units": units, "unit": "episodes" if kappa else "optimiser steps", "trajectories_seen": seen}
+            steps.append(sb3_optimiser_steps(meta) if meta else 0)
+            seen.append(int(meta.get("transitions", 0)) // int(meta.get("n_steps", 1)))
+    return {"n_seeds": len(seeds), "train_cpu_s": cpu, "restarts": None if kappa else restarts,
+            "failed": None if kappa else len(failed), "failed_seeds": None if kappa else failed,
+            "units": units, "unit": "episodes" if kappa else "optimiser steps", "optimiser_steps": steps,
+            "trajectories_seen": seen}
 
 
 def arm_row(res, arm: str, budget: int, experiment: str, seeds, facts: dict) -> dict:
