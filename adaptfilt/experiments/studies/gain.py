@@ -24,11 +24,13 @@ filters keep (``<arm>-on-q4``: process noise ``Q x 4``; ``<arm>-on-forcing10``: 
 (robustness to an *unseen* mismatch).
 
 **Each learner at its best, by the same rules** (declared before the study's evaluation runs were touched).
-Both learners train on fresh simulated trajectories (KalmanNet: a new minibatch of 100 every optimiser
-step; the kappa learner: 256 new episodes every rollout), with batches and optimiser steps sized for the
-learner, and each got the same tuning budget on validation runs only (:data:`KAPPA_TUNING`,
-:data:`adaptfilt.kalmannet.RECIPE_TUNING`; ``benchmarks/tune_gain_study.py``): 8 configurations per learner,
-model (and architecture), one training each of seed 100 stopped at 45 CPU-s, scored by the RMSE on 1000
+Both learners train on fresh simulated trajectories (KalmanNet: a new minibatch of 100 for every pass over the
+horizon, one optimiser step per window of it, 25 on UNGM and 3 on the CTM; the kappa learner: 256 new
+episodes at a time, each spanning several rollouts of 64 steps), with batches and optimiser steps sized for the
+learner, and each got a tuning budget of the same kind on selection runs only (:data:`KAPPA_TUNING`,
+:data:`adaptfilt.kalmannet.RECIPE_TUNING`; ``benchmarks/tune_gain_study.py``): a grid of 8 per learner, model
+and architecture, widened by one learning rate where the best lay at its edge (the kappa learner: 10 per
+model; KalmanNet: 8 per architecture on UNGM, 10 on the CTM), one training each of seed 100 stopped at 45 CPU-s, scored by the RMSE on 1000
 selection runs of ``Generator([4848, 1])`` (neither a training's nor an evaluation's); the configuration
 with the lowest RMSE is the recipe. KalmanNet: learning rate x window length of truncated back-propagation
 (:data:`adaptfilt.kalmannet.RECIPES`), both architectures; the architecture with the lower selection RMSE
@@ -40,9 +42,9 @@ measurement-only arms use the same recipes (their own objective was not tuned: a
 units (KalmanNet: optimiser steps; the kappa learner: episodes, trained in whole rollouts of 16,384
 transitions) were set from its measured process CPU-s per unit (:data:`CALIBRATION`: one training of the
 chosen recipe, seed 0, on this 2-core machine beside other work), so that the same seed gives the same
-policy and both families are compared at about the same CPU-s; the measured CPU-s of every policy is
-reported beside its budget (the residual mismatch: the CTM's kappa learner needs about 5.5 CPU-s of set-up
-before its first rollout). Each arm trains **once per seed** to its top budget (:data:`TOP`) and is kept
+policy on the same machine and both families are compared at about the same CPU-s; the measured CPU-s of every policy is
+reported beside its budget (the residual mismatch: the CTM's kappa learner's fit gives 4.46 CPU-s of
+set-up, cold start included, :data:`CALIBRATION`). Each arm trains **once per seed** to its top budget (:data:`TOP`) and is kept
 at every budget on the way (snapshots: :func:`adaptfilt.kalmannet.train_kalmannet`'s ``snapshot_steps``,
 :func:`adaptfilt.trainers.train_sb3`'s ``snapshots``), each snapshot bit for bit the policy of a training
 stopped there: one training gives the curve. Failed KalmanNet trainings (the network kept is an untrained
@@ -677,7 +679,7 @@ def _group(res, arm: str, budget: int, seeds) -> list[str]:
 
 
 def judge_pair(res, na: list[str], nb: list[str], claim: str = "lower", metric: str = "rmse",
-               comparison: str | None = None) -> dict:
+               comparison: str | None = None, paired: bool = False) -> dict:
     """The seed-level difference ``a - b`` of ``metric`` (IQM over seeds [two-level CI]) and the verdict on
     ``claim`` by the one rule (:func:`adaptfilt.verdicts.judge`; "not worse": the margin declared for
     ``comparison`` around b's IQM, none where that IQM is not finite)."""
@@ -685,7 +687,7 @@ def judge_pair(res, na: list[str], nb: list[str], claim: str = "lower", metric: 
     from adaptfilt.verdicts import judge
 
     with np.errstate(invalid="ignore", over="ignore"):
-        d = difference(res, na, nb, metric)["iqm"]
+        d = difference(res, na, nb, metric, paired=paired)["iqm"]
         ref = aggregate(res, nb, metric).iqm
     if claim == "lower":
         word, m = judge("lower", d)
@@ -750,8 +752,9 @@ def verdicts(res, experiment: str, regime: str, seeds) -> list[dict]:
 
 def stops_improving(res, experiment: str, seeds) -> dict[str, dict]:
     """Per arm (nominal regime): the budget at which it stops improving, the first budget whose next budget's
-    RMSE is not confirmed lower (the one rule, margin 0; seeds resampled independently per budget), with the
-    differences; None: still improving at its top budget."""
+    RMSE is not confirmed lower (the one rule, margin 0), with the differences; None: still improving at its
+    top budget. The two budgets are snapshots of the same trainings: seeds are resampled jointly (paired),
+    over the seeds present at both."""
     out = {}
     for arm, spec in arms_of(experiment).items():
         if spec["truth"] is not None:
@@ -759,7 +762,8 @@ def stops_improving(res, experiment: str, seeds) -> dict[str, dict]:
         steps, stop = [], None
         bs = [b for b in spec["budgets"] if _group(res, arm, b, seeds)]
         for b, c in zip(bs, bs[1:]):
-            j = judge_pair(res, _group(res, arm, c, seeds), _group(res, arm, b, seeds))
+            both = [s for s in seeds if _group(res, arm, b, [s]) and _group(res, arm, c, [s])]
+            j = judge_pair(res, _group(res, arm, c, both), _group(res, arm, b, both), paired=True)
             steps.append({"from": b, "to": c, "diff": j["diff"], "lower": j["verdict"]})
             if stop is None and j["verdict"] != "confirmed":
                 stop = b
