@@ -24,11 +24,13 @@ filters keep (``<arm>-on-q4``: process noise ``Q x 4``; ``<arm>-on-forcing10``: 
 (robustness to an *unseen* mismatch).
 
 **Each learner at its best, by the same rules** (declared before the study's evaluation runs were touched).
-Both learners train on fresh simulated trajectories (KalmanNet: a new minibatch of 100 every optimiser
-step; the kappa learner: 256 new episodes every rollout), with batches and optimiser steps sized for the
-learner, and each got the same tuning budget on validation runs only (:data:`KAPPA_TUNING`,
-:data:`adaptfilt.kalmannet.RECIPE_TUNING`; ``benchmarks/tune_gain_study.py``): 8 configurations per learner,
-model (and architecture), one training each of seed 100 stopped at 45 CPU-s, scored by the RMSE on 1000
+Both learners train on fresh simulated trajectories (KalmanNet: a new minibatch of 100 for every pass over the
+horizon, one optimiser step per window of it, 25 on UNGM and 3 on the CTM; the kappa learner: 256 new
+episodes at a time, each spanning several rollouts of 64 steps), with batches and optimiser steps sized for the
+learner, and each got a tuning budget of the same kind on selection runs only (:data:`KAPPA_TUNING`,
+:data:`adaptfilt.kalmannet.RECIPE_TUNING`; ``benchmarks/tune_gain_study.py``): a grid of 8 per learner, model
+and architecture, widened by one learning rate where the best lay at its edge (the kappa learner: 10 per
+model; KalmanNet: 8 per architecture on UNGM, 10 on the CTM), one training each of seed 100 stopped at 45 CPU-s, scored by the RMSE on 1000
 selection runs of ``Generator([4848, 1])`` (neither a training's nor an evaluation's); the configuration
 with the lowest RMSE is the recipe. KalmanNet: learning rate x window length of truncated back-propagation
 (:data:`adaptfilt.kalmannet.RECIPES`), both architectures; the architecture with the lower selection RMSE
@@ -40,9 +42,9 @@ measurement-only arms use the same recipes (their own objective was not tuned: a
 units (KalmanNet: optimiser steps; the kappa learner: episodes, trained in whole rollouts of 16,384
 transitions) were set from its measured process CPU-s per unit (:data:`CALIBRATION`: one training of the
 chosen recipe, seed 0, on this 2-core machine beside other work), so that the same seed gives the same
-policy and both families are compared at about the same CPU-s; the measured CPU-s of every policy is
-reported beside its budget (the residual mismatch: the CTM's kappa learner needs about 5.5 CPU-s of set-up
-before its first rollout). Each arm trains **once per seed** to its top budget (:data:`TOP`) and is kept
+policy on the same machine and both families are compared at about the same CPU-s; the measured CPU-s of every policy is
+reported beside its budget (the residual mismatch: the CTM's kappa learner's fit gives 4.46 CPU-s of
+set-up, cold start included, :data:`CALIBRATION`). Each arm trains **once per seed** to its top budget (:data:`TOP`) and is kept
 at every budget on the way (snapshots: :func:`adaptfilt.kalmannet.train_kalmannet`'s ``snapshot_steps``,
 :func:`adaptfilt.trainers.train_sb3`'s ``snapshots``), each snapshot bit for bit the policy of a training
 stopped there: one training gives the curve. Failed KalmanNet trainings (the network kept is an untrained
@@ -582,30 +584,37 @@ def _knet_history(run: Run, rel: str) -> dict:
 
 
 def training_facts(run: Run, experiment: str, arm: str, budget: int, seeds) -> dict:
-    """Per seed: training CPU-s up to the budget, and for KalmanNet the restarts, whether training failed
-    (the network kept is an untrained one), the optimiser steps and the trajectories seen; for kappa the
-    episodes (from its file)."""
-    cpu, restarts, failed, units, seen = [], [], [], [], []
+    """Per seed: training CPU-s up to the budget, the optimiser steps and the training trajectories seen (the
+    kappa learner's episodes trained: whole rollouts, so at least the budget's; KalmanNet's freshly simulated
+    trajectories, restarts included), and for KalmanNet the restarts and which seeds failed to train (the
+    network kept is an untrained one)."""
+    from adaptfilt.files import read_npz
+    from adaptfilt.trainers import sb3_optimiser_steps
+
+    kappa, seeds = arms_of(experiment)[arm]["kind"] == "kappa", list(seeds)
+    cpu, restarts, failed, units, steps, seen = [], [], [], [], [], []
     for s in seeds:
         rel = policy_rel(experiment, arm, budget, s)
         c = _record(run, rel).get("cpu_time_s")
         cpu.append(None if c is None else float(c))
-        if arms_of(experiment)[arm]["kind"] == "gain":
+        if not kappa:
             h = _knet_history(run, rel)
             restarts.append(int(h.get("n_restarts", 0)))
-            failed.append(bool(h.get("failed")))
+            if h.get("failed"):
+                failed.append(int(s))
             units.append(int(h.get("optimiser_steps", 0)))
+            steps.append(units[-1])
             seen.append(int(h.get("trajectories_seen", 0)))
         else:
-            from adaptfilt.files import read_npz
-
             p = run.out / rel
             meta = read_npz(p, what="policy file")[1] if p.exists() else {}
             units.append(int(meta.get("episodes", 0)))
-            seen.append(int(meta.get("episodes", 0)))
-    kappa = arms_of(experiment)[arm]["kind"] == "kappa"
-    return {"train_cpu_s": cpu, "restarts": None if kappa else restarts, "failed": None if kappa else sum(failed),
-            "units": units, "unit": "episodes" if kappa else "optimiser steps", "trajectories_seen": seen}
+            steps.append(sb3_optimiser_steps(meta) if meta else 0)
+            seen.append(int(meta.get("transitions", 0)) // int(meta.get("n_steps", 1)))
+    return {"n_seeds": len(seeds), "train_cpu_s": cpu, "restarts": None if kappa else restarts,
+            "failed": None if kappa else len(failed), "failed_seeds": None if kappa else failed,
+            "units": units, "unit": "episodes" if kappa else "optimiser steps", "optimiser_steps": steps,
+            "trajectories_seen": seen}
 
 
 def arm_row(res, arm: str, budget: int, experiment: str, seeds, facts: dict) -> dict:
@@ -670,7 +679,7 @@ def _group(res, arm: str, budget: int, seeds) -> list[str]:
 
 
 def judge_pair(res, na: list[str], nb: list[str], claim: str = "lower", metric: str = "rmse",
-               comparison: str | None = None) -> dict:
+               comparison: str | None = None, paired: bool = False) -> dict:
     """The seed-level difference ``a - b`` of ``metric`` (IQM over seeds [two-level CI]) and the verdict on
     ``claim`` by the one rule (:func:`adaptfilt.verdicts.judge`; "not worse": the margin declared for
     ``comparison`` around b's IQM, none where that IQM is not finite)."""
@@ -678,7 +687,7 @@ def judge_pair(res, na: list[str], nb: list[str], claim: str = "lower", metric: 
     from adaptfilt.verdicts import judge
 
     with np.errstate(invalid="ignore", over="ignore"):
-        d = difference(res, na, nb, metric)["iqm"]
+        d = difference(res, na, nb, metric, paired=paired)["iqm"]
         ref = aggregate(res, nb, metric).iqm
     if claim == "lower":
         word, m = judge("lower", d)
@@ -743,8 +752,9 @@ def verdicts(res, experiment: str, regime: str, seeds) -> list[dict]:
 
 def stops_improving(res, experiment: str, seeds) -> dict[str, dict]:
     """Per arm (nominal regime): the budget at which it stops improving, the first budget whose next budget's
-    RMSE is not confirmed lower (the one rule, margin 0; seeds resampled independently per budget), with the
-    differences; None: still improving at its top budget."""
+    RMSE is not confirmed lower (the one rule, margin 0), with the differences; None: still improving at its
+    top budget. The two budgets are snapshots of the same trainings: seeds are resampled jointly (paired),
+    over the seeds present at both."""
     out = {}
     for arm, spec in arms_of(experiment).items():
         if spec["truth"] is not None:
@@ -752,7 +762,8 @@ def stops_improving(res, experiment: str, seeds) -> dict[str, dict]:
         steps, stop = [], None
         bs = [b for b in spec["budgets"] if _group(res, arm, b, seeds)]
         for b, c in zip(bs, bs[1:]):
-            j = judge_pair(res, _group(res, arm, c, seeds), _group(res, arm, b, seeds))
+            both = [s for s in seeds if _group(res, arm, b, [s]) and _group(res, arm, c, [s])]
+            j = judge_pair(res, _group(res, arm, c, both), _group(res, arm, b, both), paired=True)
             steps.append({"from": b, "to": c, "diff": j["diff"], "lower": j["verdict"]})
             if stop is None and j["verdict"] != "confirmed":
                 stop = b

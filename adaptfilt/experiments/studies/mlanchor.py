@@ -175,7 +175,8 @@ def _curve_rel(learner: str, episodes: int, seed: int) -> str:
 
 def policies(run: Run, summary: dict) -> list[TrainSpec]:
     """The anchored groups (:data:`KINDS`) and the learning curve's trainings: the likelihood-aware learner at
-    every budget, the ML-anchored one at every budget but the main one (its main group is that point)."""
+    every budget, the ML-anchored one at every budget but the main one (its main group is that point), and the
+    reproduction's learner at :data:`FIRST_GAIN_STUDY_KAPPA_NIS`."""
     sc = run.scale
     out = []
     for kind, g, transform, exps in KINDS:
@@ -193,6 +194,11 @@ def policies(run: Run, summary: dict) -> list[TrainSpec]:
             if ep != sc.episodes:
                 out.append(TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / _curve_rel("adaptive-mlanchored", ep, s)),
                                      features=CAND_EXPERIMENTS["ctm-ukf"], horizon=sc.n_steps, anchor=ANCHOR))
+    # the reproduction's learner (the fast mode) at the first learned-gain study's CTM budgets, under that study's
+    # file names: made by it, kept as this curve's points when the study that replaced it wrote its own files
+    out += [TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / f"policies/ctm-ukf-kappa-nis-b{b}-s{s}.npz"),
+                      horizon=sc.n_steps)
+            for b, ep in enumerate(FIRST_GAIN_STUDY_KAPPA_NIS[_size(run)], start=1) for s in sc.seeds]
     return out
 
 
