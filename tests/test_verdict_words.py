@@ -151,7 +151,7 @@ def test_the_generated_learned_gain_verdicts_in_reproduction_are_the_studys():
     block = re.search(r"<!-- BEGIN generated: data/beyond/summary.md, the learned-gain verdicts -->\n(.*?)\n"
                       r"<!-- END generated -->", rep, re.S).group(1)
     summary = (ROOT / "data" / "beyond" / "summary.md").read_text(encoding="utf-8")
-    assert block.startswith("**Learn the parameter or learn the gain: seed-level verdicts on RMSE**")
+    assert block.startswith("**Learn the parameter or learn the gain: seed-level verdicts**")
     assert block in summary and block.count("\n| ") > 100
 
 

@@ -261,7 +261,7 @@ def design_lines(g: Mapping) -> str:
     lines.append(f"tuned on selection runs only ({t['kappa']['selection_runs']}), seed {t['kappa']['seed']}, "
                  f"{t['kappa']['budget_cpu_s']:g} CPU-s a configuration: kappa {kappa}; KalmanNet (both "
                  f"architectures) {knet}")
-    lines.append(f"consistency weight: {t['consistency']['chosen']}")
+    lines.append(f"consistency weight {t['consistency']['chosen']}")
     return "\n".join(lines)
 
 
