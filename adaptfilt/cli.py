@@ -772,6 +772,22 @@ def _is_user_error(e: BaseException) -> bool:
     return isinstance(e, USER_ERRORS + (BookBuildError,))
 
 
+@contextlib.contextmanager
+def _console_warnings():
+    """Warnings in one line (:func:`adaptfilt.experiments.sweep.one_line_warning`) while a command runs;
+    a call from Python gets its own format back after it."""
+    import warnings
+
+    from adaptfilt.experiments.sweep import one_line_warning
+
+    before = warnings.formatwarning
+    warnings.formatwarning = one_line_warning
+    try:
+        yield
+    finally:
+        warnings.formatwarning = before
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``adaptfilt ARGS``; a user error exits with status 2 and one line
     ``adaptfilt: error: ...`` on stderr; Ctrl-C or SIGTERM with status 130 or 143 and one line
@@ -784,7 +800,7 @@ def main(argv: list[str] | None = None) -> int:
 
     bound = STOP_SECONDS_DASK if getattr(args, "cluster", None) else STOP_SECONDS
     try:
-        with _stop_on_signals(bound, own_process=argv is None):
+        with _stop_on_signals(bound, own_process=argv is None), _console_warnings():
             return args.func(args)
     except KeyboardInterrupt as e:
         _interrupted(e)

@@ -130,16 +130,26 @@ def aggregate(results, names, metric: str = "rmse", level: float = 0.95, seed: i
     return SeedAggregate(metric, names, vals, float(iqm(vals)), _ci(bi, level), float(vals.mean()), _ci(bm, level), bi, bm)
 
 
-def difference(results, names_a, names_b, metric: str = "rmse", level: float = 0.95, seed: int = 0) -> dict:
+def difference(results, names_a, names_b, metric: str = "rmse", level: float = 0.95, seed: int = 0,
+               paired: bool = False) -> dict:
     """``aggregate(a) - aggregate(b)`` for two seed groups evaluated on the same runs:
-    ``{"iqm": (diff, lo, hi), "mean": (diff, lo, hi), ...}``. Seeds are resampled
-    independently per group, runs jointly (paired)."""
+    ``{"iqm": (diff, lo, hi), "mean": (diff, lo, hi), ...}``. Runs are resampled jointly (paired);
+    seeds independently per group, or, with ``paired`` (``names_a[i]`` and ``names_b[i]`` come from the
+    same training seed, e.g. two snapshots of one training), jointly too: the same seeds drawn for both."""
     va, ba = _boot(results, list(names_a), metric)
     vb, bb = _boot(results, list(names_b), metric)
     if ba.shape[1] != bb.shape[1]:
         raise ValueError("the two groups have different numbers of run-level bootstrap replicates")
     rng = np.random.default_rng([0xD1F, seed])
-    ra, rb = _resample_seeds(ba, rng), _resample_seeds(bb, rng)
+    if paired:
+        if ba.shape[0] != bb.shape[0]:
+            raise ValueError(f"paired seed groups need one policy per seed on both sides, got {ba.shape[0]} "
+                             f"and {bb.shape[0]}")
+        idx = rng.integers(0, ba.shape[0], size=(ba.shape[1], ba.shape[0]))
+        cols = np.arange(ba.shape[1])[:, None]
+        ra, rb = ba[idx, cols], bb[idx, cols]
+    else:
+        ra, rb = _resample_seeds(ba, rng), _resample_seeds(bb, rng)
     with np.errstate(invalid="ignore"):  # inf - inf: both sides diverged in a replicate, undefined (see _ci)
         d_iqm, d_mean = iqm(ra, axis=1) - iqm(rb, axis=1), ra.mean(axis=1) - rb.mean(axis=1)
         point_iqm, point_mean = float(iqm(va) - iqm(vb)), float(va.mean() - vb.mean())

@@ -66,7 +66,8 @@ import numpy as np
 
 from adaptfilt.experiment_registry import resolve
 
-__all__ = ["ALGOS", "SB3Config", "FAST", "A2C_FAST", "PPO_DEFAULTS", "train_policy", "train_sb3", "seed_path"]
+__all__ = ["ALGOS", "SB3Config", "FAST", "A2C_FAST", "PPO_DEFAULTS", "train_policy", "train_sb3", "seed_path",
+           "sb3_optimiser_steps"]
 
 ALGOS = ("faithful", "batched", "fast", "a2c", "ppo")
 
@@ -120,6 +121,23 @@ class _Progress:
                 self.bar.close()
 
         return Bar()
+
+
+def sb3_optimiser_steps(metadata: dict) -> int:
+    """The optimiser steps a :func:`train_sb3` training took, from its policy's metadata (``transitions`` and
+    ``trainer``): per rollout of ``n_steps x n_envs`` transitions, PPO makes ``n_epochs`` passes in minibatches
+    of ``batch_size`` (the last one partial), A2C one step. SB3 trains whole rollouts only.
+
+    >>> sb3_optimiser_steps({"transitions": 3 * 16384, "trainer": FAST.to_dict()})  # 3 x 5 x 8
+    120
+    """
+    tr = metadata["trainer"]
+    kw = tr["kwargs"]
+    rollout = int(kw["n_steps"]) * int(tr["n_envs"])
+    rollouts = int(metadata["transitions"]) // rollout
+    if tr["algo"] == "a2c":
+        return rollouts
+    return rollouts * int(kw["n_epochs"]) * -(-rollout // int(kw["batch_size"]))
 
 
 def train_sb3(experiment, gamma: float = 0.5, episodes: int = 1000, seed: int = 0,

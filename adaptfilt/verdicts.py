@@ -153,6 +153,13 @@ DECLARED_MARGINS: dict[str, DeclaredMargin] = {m.comparison: m for m in (
         "greedy's place",
         "2026-11-28, commit c4a6a14 (the mlanchor study on the one verdict rule), after its trainings, before "
         "its evaluations were read"),
+    DeclaredMargin(
+        "consistent kappa vs squared-error kappa", "not worse", {"rmse": 0.05},
+        "the learned-gain study's consistency arm: a kappa trained on the squared error plus the Gaussian log "
+        "score buys consistency (an ANEES judged 'lower' at margin 0) at no cost in accuracy only with an RMSE "
+        "not worse than the squared-error kappa's; the RMSE margin of 'learned gain vs learned kappa'",
+        "2026-11-28, commit after 924a5dc on the gain-study branch (the study's rewrite), before any of its "
+        "trainings or evaluations"),
 )}
 
 

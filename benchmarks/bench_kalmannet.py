@@ -5,14 +5,15 @@ Run with ``python benchmarks/bench_kalmannet.py`` (``--quick``: a smoke run of a
 thread, one training after another in this process:
 
 * **KalmanNet** (:func:`adaptfilt.kalmannet.train_kalmannet`, both architectures), a training of
-  ``--knet-steps`` optimiser steps with each architecture's UNGM recipe (:data:`adaptfilt.kalmannet.RECIPES`;
-  the CTM has none: the same recipe on it): minibatches of ``--batch`` fresh trajectories of the model's horizon, batched as one tensor
-  per step, truncated back-propagation over windows of ``--window`` steps (one optimiser step per
-  window), validation on ``--n-val`` trajectories every ``--val-every`` steps, the state clamped. The
+  ``--knet-steps`` optimiser steps with each model's and architecture's recipe (:data:`adaptfilt.kalmannet.RECIPES`,
+  the learned-gain study's): minibatches of ``--batch`` fresh trajectories of the model's horizon, batched as one
+  tensor per step, truncated back-propagation over the recipe's windows (``--window`` overrides; one optimiser
+  step per window), validation on ``--n-val`` trajectories every ``--val-every`` steps, the state clamped. The
   whole training is timed (set-up, simulation, validation, the forward and backward passes) and
   divided by the trajectory-steps it back-propagated (``history["trajectory_steps"]``).
-* **The kappa learner**, fast mode (:func:`adaptfilt.trainers.train_policy`, ``algo="fast"``: SB3 PPO
-  over 256 runs of the UKF) on the same model, ``--ppo-episodes`` episodes: the whole training
+* **The kappa learner**, the fast mode (SB3 PPO over 256 runs of the UKF) with the learned-gain study's
+  recipe for the model (:data:`adaptfilt.experiments.studies.gain.KAPPA_RECIPES`: learning rate and PPO epochs),
+  ``--ppo-episodes`` episodes: the whole training
   divided by its transitions (one filter step of one run, with its policy step and its share of the
   updates).
 
@@ -22,26 +23,28 @@ in torch through the model's torch forms (``model_grad="jacobian"``); the row "n
 old path (numpy functions, forward-difference Jacobians) for comparison. The filtering speed of the
 trained networks (no gradients, ``--runs`` runs batched) is printed last.
 
-Measured (2026-12, ``python benchmarks/bench_kalmannet.py``, this 2-core machine shared with other work,
-load about 10; microseconds of process CPU per trajectory-step or transition, ratio to PPO):
+Measured (2026-11-29, ``python benchmarks/bench_kalmannet.py``, this 2-core machine beside the learned-gain
+study's two training workers; microseconds of process CPU per trajectory-step or transition, ratio to PPO):
 
 ======  ============================  =======  ======
 model   training                      us       / PPO
 ======  ============================  =======  ======
-UNGM    kappa, PPO fast mode          29.2
-UNGM    gain, architecture 1          19.4     0.67
-UNGM    gain, architecture 2          19.5     0.67
-UNGM    gain, arch. 2, numpy f, h     22.9     0.79
-CTM     kappa, PPO fast mode          27.1
-CTM     gain, architecture 1          125.6    4.64
-CTM     gain, architecture 2          30.0     1.11
+UNGM    kappa, PPO (study recipe)     23.9
+UNGM    gain, architecture 1          16.4     0.69
+UNGM    gain, architecture 2          16.8     0.70
+UNGM    gain, arch. 2, numpy f, h     17.5     0.73
+CTM     kappa, PPO (study recipe)     35.3
+CTM     gain, architecture 1          105.4    2.99
+CTM     gain, architecture 2          24.7     0.70
 ======  ============================  =======  ======
 
-On UNGM a trajectory-step of KalmanNet's training costs two thirds of a PPO transition. On the CTM
-architecture 1 at the paper's sizes (GRUs of ``10 (m^2 + n^2) = 170`` units over an input layer of
-400: about 470,000 weights against architecture 2's 20,293) is bound by its matrix products, not by
-Python's per-step overhead: 4.6 transitions per trajectory-step. Filtering (no gradients, 2000 runs
-batched): 0.37 (architecture 1) and 1.7 (architecture 2) million run-steps per CPU-s on UNGM.
+On both models a trajectory-step of the study's KalmanNet (architecture 2 on the CTM, both on UNGM) costs
+about 0.7 of a PPO transition of the study's kappa learner (the CTM's PPO runs 10 epochs a rollout). On the
+CTM architecture 1 at the paper's sizes (GRUs of ``10 (m^2 + n^2) = 170`` units over an input layer of
+400: about 470,000 weights against architecture 2's 20,293) is bound by its matrix products: 3.0
+transitions per trajectory-step (the study does not train it: its tuning chose architecture 2). Filtering
+(no gradients, 2000 runs batched): 0.50 (architecture 1) and 2.3 (architecture 2) million run-steps per
+CPU-s on UNGM.
 """
 from __future__ import annotations
 
@@ -54,17 +57,20 @@ import numpy as np
 import torch
 
 import adaptfilt as af
+from adaptfilt.experiments.studies.gain import KAPPA_RECIPES
 from adaptfilt.kalmannet import RECIPES, train_kalmannet
-from adaptfilt.trainers import train_policy
+from adaptfilt.trainers import FAST, SB3Config, train_policy, train_sb3
 
 MODELS = {"ungm": ("ungm-ukf", af.models.ungm), "ctm": ("ctm-ukf", af.models.coordinated_turn)}
 
 
-def knet_cost(model, arch: int, a, **extra) -> tuple[float, dict, object]:
+def knet_cost(key: str, model, arch: int, a, **extra) -> tuple[float, dict, object]:
     """Process CPU-s per back-propagated trajectory-step of one KalmanNet training, its history, the filter."""
     c0 = time.process_time()
-    recipe = dict(RECIPES["ungm"][arch], n_train=a.batch, n_val=a.n_val, batch_size=a.batch, tbptt=a.window,
-                  val_every=a.val_every, **extra)
+    recipe = dict(RECIPES[key][arch], n_train=a.batch, n_val=a.n_val, batch_size=a.batch, val_every=a.val_every,
+                  **extra)
+    if a.window:
+        recipe["tbptt"] = a.window
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a short training may fail or restart: the cost is what counts
         knet = train_kalmannet(model, n_steps=a.steps or model.n_steps, max_steps=a.knet_steps, seed=0, progress=False,
@@ -74,9 +80,11 @@ def knet_cost(model, arch: int, a, **extra) -> tuple[float, dict, object]:
 
 
 def ppo_cost(experiment: str, a) -> tuple[float, int]:
-    """Process CPU-s per transition of one fast-mode training of the kappa learner, and its transitions."""
+    """Process CPU-s per transition of one training of the kappa learner (the study's recipe), and its transitions."""
+    r = KAPPA_RECIPES[experiment]
+    cfg = SB3Config("ppo", FAST.n_envs, {**FAST.kwargs, "learning_rate": r["lr"], "n_epochs": r["n_epochs"]})
     c0 = time.process_time()
-    pol = train_policy(experiment, "fast", episodes=a.ppo_episodes, seed=0, progress=False, n_steps=a.steps)
+    pol = train_sb3(experiment, 0.5, a.ppo_episodes, 0, cfg, progress=False, n_steps=a.steps)
     cpu = time.process_time() - c0
     n = int(pol.metadata["transitions"])
     return cpu / n, n
@@ -88,7 +96,7 @@ def main() -> None:
     r = RECIPES["ungm"][1]
     ap.add_argument("--knet-steps", type=int, default=500, help="KalmanNet optimiser steps per training")
     ap.add_argument("--batch", type=int, default=r["batch_size"])
-    ap.add_argument("--window", type=int, default=r["tbptt"])
+    ap.add_argument("--window", type=int, default=None, help="window length (default: each recipe's)")
     ap.add_argument("--n-val", type=int, default=r["n_val"])
     ap.add_argument("--val-every", type=int, default=r["val_every"])
     ap.add_argument("--ppo-episodes", type=int, default=400)
@@ -101,7 +109,7 @@ def main() -> None:
     torch.set_num_threads(1)
     print(f"{platform.processor() or platform.machine()}, torch {torch.__version__}, one thread; process CPU-s")
     print(f"KalmanNet: {a.knet_steps} optimiser steps, minibatches of {a.batch} fresh trajectories, windows of "
-          f"{a.window}, validation on {a.n_val} every {a.val_every} steps; PPO fast mode: {a.ppo_episodes} episodes")
+          f"{a.window or 'the recipe'}, validation on {a.n_val} every {a.val_every} steps; PPO fast mode: {a.ppo_episodes} episodes")
     # warm-up (torch's first calls allocate and dispatch-cache; SB3's imports): not timed
     train_kalmannet(af.models.ungm(), n_train=4, n_val=2, n_steps=20, epochs=1, batch_size=4, seed=0, progress=False)
     train_policy("ungm-ukf", "fast", episodes=1, seed=0, progress=False, n_steps=20)
@@ -110,12 +118,12 @@ def main() -> None:
         experiment, make = MODELS[key]
         model = make()
         ppo, n_tr = ppo_cost(experiment, a)
-        rows.append((key, "kappa, PPO fast mode", ppo, n_tr, "", ""))
+        rows.append((key, "kappa, PPO (study recipe)", ppo, n_tr, "", ""))
         cases = [(1, {}, "gain, architecture 1"), (2, {}, "gain, architecture 2")]
         if key == "ungm":
             cases.append((2, {"model_grad": "finite-difference"}, "gain, arch. 2, numpy f, h"))
         for arch, extra, label in cases:
-            c, h, knet = knet_cost(model, arch, a, **extra)
+            c, h, knet = knet_cost(key, model, arch, a, **extra)
             ratios[key, label] = c / ppo
             z = model.simulate(a.runs, a.steps or model.n_steps, rng=123).z
             t0 = time.process_time()

@@ -443,8 +443,11 @@ def test_quick_mlanchor_study_and_the_look_parts_it_adds(tmp_path, monkeypatch):
     assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["command"].startswith("adaptfilt imitate ctm-ukf ")
     assert man["policies/ctm-ukf-imitation-lik-s0.npz"]["cpu_time_s"] > 0
     curve = s["curve"]
-    assert curve["seed"] == 1 and set(curve["learners"]) == {"adaptive-lik", "adaptive-mlanchored"}
+    assert curve["seed"] == 1 and set(curve["learners"]) == {"adaptive-lik", "adaptive-mlanchored", "adaptive"}
     assert list(curve["learners"]["adaptive-lik"]) == ["4", "10"]
+    # the reproduction's learner at the first learned-gain study's budgets: trained by this study now
+    assert "4" in curve["learners"]["adaptive"]
+    assert man["policies/ctm-ukf-kappa-nis-b2-s1.npz"]["command"].startswith("adaptfilt train ctm-ukf --algo fast ")
     md = summary_md(summary, studies=("mlanchor",))
     assert "Imitation of ML's choice" in md and "Learning curve" in md and "| ctm-ukf | adaptive-mlanchored |" in md
     for f in ("mlanchor-curve.png", "mlanchor-imitation.png"):
@@ -594,7 +597,7 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
         study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(
             rel.split("/")[-1], rel.split("/")[1].split("-")[0] if "/" in rel else None)
         assert study is None or study in studies, rel
-    assert len(man["files"]) == 559 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 488
+    assert len(man["files"]) == 718 and len([f for f in man["files"] if f["path"].startswith("policies/")]) == 648
     # and the studies train nothing the manifest lacks
     assert set(next(iter(built.values()))) == {f["path"] for f in man["files"] if f["path"].startswith("policies/")}
 

@@ -8,14 +8,15 @@ at 1c71d9d, whose ``metrics.percentile_ci`` gives infinite ends where replicates
 
 * ``reference``: the learned-gain study's reference part (the bootstrap particle filter on the
   evaluation's runs, the point-mass floor) for both models and both regimes;
-* ``gain``: its learned-gain parts: KalmanNet trained at quick scale, evaluated alone (``gain``) and
-  beside the default and every constant kappa on the same runs (``curve``);
+* ``gain``: its learned-gain parts: KalmanNet trained at quick scale by the study's recipe (``adaptfilt
+  train-gain`` in optimiser steps), its last snapshot evaluated alone (``gain``) and its three snapshots
+  together (``curve``);
 * ``particles``: the particle study's reference rows (``bpf-N`` at every count of the grid, charged two
   prices) on UNGM and the CTM, and its floor;
 * ``floors``: the reproduction's UNGM floor (``references.ungm_floor``) and the course's floor per step.
 
-The ``gain`` fixture changes, legitimately, when KalmanNet's training changes (what it learns in three
-epochs is other weights). Then regenerate it, and only it, with one command, and say why in the commit::
+The ``gain`` fixture changes, legitimately, when KalmanNet's training or the study's recipe changes (what it
+learns in six optimiser steps is other weights). Then regenerate it, and only it, with one command, and say why in the commit::
 
     python tests/test_filter_guard.py --write gain
 
@@ -64,29 +65,29 @@ def machine() -> dict:
 def _reference() -> dict:
     from adaptfilt.experiments.studies.gain import QUICK, evaluate_part
 
-    return {f"{e} {r}": evaluate_part(e, r, "reference", {}, {}, QUICK)
+    return {f"{e} {r}": evaluate_part(e, r, "reference", {}, QUICK)
             for e in ("ungm-ukf", "ctm-ukf") for r in ("nominal", "q4")}
 
 
 def _gain() -> dict:
-    from adaptfilt.experiment_registry import get_experiment
-    from adaptfilt.experiments.studies.gain import KNET, QUICK, evaluate_part
-    from adaptfilt.kalmannet import train_kalmannet
+    from adaptfilt.experiments.studies.gain import ARCH, QUICK, evaluate_part, knet_recipe
+    from adaptfilt.experiments.jobs import GainSpec
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for e, loss, arm, seed in (("ungm-ukf", "supervised", "gain-sup", 0), ("ctm-ukf", "unsupervised", "gain-unsup", 1)):
-            epochs = QUICK.knet_epochs[e]
-            knet = train_kalmannet(get_experiment(e).make_model(), loss=loss, n_steps=QUICK.n_steps, epochs=epochs[-1],
-                                   seed=seed, progress=False, snapshots=epochs, **{**KNET, **QUICK.knet})
-            files = {}
-            for b, ep in enumerate(epochs, start=1):
-                files[f"{arm}-b{b}-s{seed}"] = f"{tmp}/{e}-{arm}-b{b}-s{seed}.npz"
-                knet.snapshot(ep).save(files[f"{arm}-b{b}-s{seed}"])
+            k, steps = knet_recipe(e, ARCH[e], QUICK), QUICK.knet_steps[(e, ARCH[e])][:3]
+            files = {f"{arm}-b{b}-s{seed}": f"{tmp}/{e}-{arm}-b{b}-s{seed}.npz" for b in (1, 2, 3)}
+            GainSpec(e, loss, None, seed, tuple(files.values()), arch={1: "kalmannet-arch1", 2: "kalmannet"}[ARCH[e]],
+                     steps=steps[-1], snapshot_steps=steps, horizon=QUICK.n_steps, train_runs=k["n_train"],
+                     val_runs=k["n_val"], batch_size=k["batch_size"], lr=k["lr"], weight_decay=k["weight_decay"],
+                     clip=k["clip"], tbptt=k["tbptt"], feature_norm=k["feature_norm"], on_diverged=k["on_diverged"],
+                     fresh=k["fresh"], val_every=k["val_every"], clamp=k["clamp"], restarts=k["restarts"],
+                     patience=k["patience"]).run()
             last = dict(list(files.items())[-1:])
             for r in ("nominal", "q4"):
-                out[f"{e} {r} gain"] = evaluate_part(e, r, "gain", {}, last, QUICK)
-                out[f"{e} {r} curve"] = evaluate_part(e, r, "curve", {}, files, QUICK)
+                out[f"{e} {r} gain"] = evaluate_part(e, r, "gain", last, QUICK)
+                out[f"{e} {r} curve"] = evaluate_part(e, r, "gain", files, QUICK)
     return out
 
 

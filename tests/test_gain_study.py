@@ -109,74 +109,94 @@ def quick(tmp_path_factory):
 
 
 def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
+    """Every arm of :func:`arms_of` at each of its budgets under the nominal model, the mismatched truths with the
+    arms trained on them, the references, the verdicts of every pair at every budget, where each arm stops
+    improving; each file listed in the manifest with the one ``adaptfilt train``/``train-gain`` line of its
+    training (one training per arm and seed, kept at its budgets)."""
     from adaptfilt.experiments.beyond import summary_md
     from adaptfilt.experiments.reproduce import sha256
-    from adaptfilt.experiments.studies.gain import ARM_NAMES, MODELS, QUICK, REGIMES, TARGET_CPU_S
+    from adaptfilt.experiments.studies.gain import (ARM_NAMES, MODEL_REGIMES, MODELS, PAIRS, QUICK, arms_of,
+                                                    evaluated, policy_rel)
+    from adaptfilt.files import read_npz
 
     root, summary = quick
     g = summary["gain"]
     assert set(g["models"]) == set(MODELS)
     for e in MODELS:
-        assert set(g["models"][e]) == set(REGIMES)
-        for r in REGIMES:
+        assert set(g["models"][e]) == set(MODEL_REGIMES[e])
+        for r in MODEL_REGIMES[e]:
             m = g["models"][e][r]
-            assert set(m["final"]) == set(ARM_NAMES) == set(m["curve"])
-            for a in ARM_NAMES:
-                assert set(m["curve"][a]) == {str(b) for b in range(1, len(TARGET_CPU_S) + 1)}
-                row = m["final"][a]
-                assert row["rmse"]["n_seeds"] == len(QUICK.seeds)
-                assert all(c is not None and c > 0 for c in row["train_cpu_s"])
-                if a.startswith("gain"):  # plain KalmanNet: no covariance, no NIS cost, said so
-                    assert row["anees"] is None and row["cost"] is None and row["divergent_nees_rule"] is None
-                    assert row["covariance"] is False
-                else:
-                    assert row["anees"]["n_seeds"] == len(QUICK.seeds) and row["cost"] is not None
+            want = evaluated(e, r)
+            assert set(m["curve"]) == set(want)
+            for a, (kind, bs) in want.items():
+                assert set(m["curve"][a]) == {str(b) for b in bs}
+                for b, row in m["curve"][a].items():
+                    assert row["rmse"]["n_seeds"] == len(QUICK.seeds)
+                    assert all(c is not None and c > 0 for c in row["train_cpu_s"])
+                    if kind == "gain":  # plain KalmanNet: no covariance, no NIS cost, said so; restarts counted
+                        assert row["anees"] is None and row["cost"] is None and row["covariance"] is False
+                        assert len(row["restarts"]) == len(QUICK.seeds) and row["failed"] == sum(
+                            bool(read_npz(root / "beyond" / policy_rel(e, a, int(b), s))[1]["history"]["failed"])
+                            for s in QUICK.seeds)  # a failed training (an untrained network kept) is counted
+                        assert row["unit"] == "optimiser steps"
+                    else:
+                        assert row["anees"]["n_seeds"] == len(QUICK.seeds) and row["unit"] == "episodes"
             assert {"default", "best fixed", "ml", "greedy", f"bpf-{QUICK.pf_particles[e]}"} <= set(m["references"])
             assert (m["floor"]["rmse"] is not None) == (e == "ungm-ukf")
-            pairs = {(v["a"], v["b"].split(" (")[0], v["budget"]) for v in m["verdicts"]}
-            for b in range(1, len(TARGET_CPU_S) + 1):
-                assert {("gain-sup", "kappa-sqerr", b), ("gain-unsup", "kappa-nis", b),
-                        ("kappa-sqerr", "kappa-nis", b), ("gain-sup", "gain-unsup", b)} <= pairs
-                assert all((a, ref, b) in pairs for a in ARM_NAMES for ref in ("default", "best fixed"))
+            if r == "nominal":
+                assert set(m["final"]) == set(evaluated(e, r, final=True))
+                assert set(m["stops_improving"]) == {a for a, s in arms_of(e).items() if s["truth"] is None}
+                pairs = {(v["a"], v["b"].split(" (")[0], v["budget"]) for v in m["verdicts"]}
+                for a, b, _ in PAIRS:
+                    both = set(arms_of(e)[a]["budgets"]) & (set(arms_of(e)[b]["budgets"]) if b in ARM_NAMES
+                                                            else set(arms_of(e)[a]["budgets"]))
+                    assert all((a, b, x) in pairs for x in both), (a, b)
+            else:  # the arms trained on this truth, judged against the same learner trained on the model
+                on = [a for a in m["curve"] if "-on-" in a]
+                assert bool(on) == (e == "ungm-ukf")
+                assert all(any(v["a"] == a and v["b"] == a.split("-on-")[0] for v in m["verdicts"]) for a in on)
     man = json.loads((root / "beyond" / "manifest.json").read_text())
+    cmds = {}
     for f in man["files"]:
         assert sha256(root / "beyond" / f["path"]) == f["sha256"] and f["command"]
-    assert any(f["path"].endswith("ungm-ukf-gain-sup-b3-s1.npz") and f["command"].startswith("adaptfilt train-gain ")
-               for f in man["files"])
-    assert (root / "beyond" / "figures" / "gain-budget.png").exists()
+        cmds[f["path"]] = f["command"]
+    k = cmds["policies/gain-ungm-ukf-gain-sup-b3-s1.npz"]
+    assert k.startswith("adaptfilt train-gain ungm-ukf --arch kalmannet-arch1 ") and "--snapshot-steps 2,4,6,8,10" in k
+    assert k == cmds["policies/gain-ungm-ukf-gain-sup-b5-s1.npz"]  # one training, a file per budget
+    p = cmds["policies/gain-ungm-ukf-kappa-sqerr-b2-s0.npz"]
+    assert p.startswith("adaptfilt train ungm-ukf-sqerr --algo fast ") and "--snapshots 20,45,70,95,120" in p
+    assert "--truth q=1,r=1,forcing=10" in cmds["policies/gain-ungm-ukf-gain-sup-on-forcing10-b3-s0.npz"]
+    for fig in ("gain-budget.png", "gain-mismatch.png"):
+        assert (root / "beyond" / "figures" / fig).stat().st_size > 1000
     md = summary_md(summary, ("gain",))
-    assert "| ungm-ukf | q4 | gain-sup b3" in md and "what is learned" in md
+    assert "| ungm-ukf | q4 | gain-sup-on-q4 b3" in md and "what is learned" in md and "stops improving" in md
 
 
 def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):
     """The stored evaluation's default is a direct UKF run on the trajectories the study's KalmanNet entries
-    were computed on, run for run; and the KalmanNet entry is the file's filter on those runs."""
+    were computed on, run for run (under the nominal model and a truth whose forcing differs); and the KalmanNet
+    entry is the file's filter on those runs."""
     import adaptfilt as af
     from adaptfilt.experiment_registry import get_experiment
     from adaptfilt.experiments.studies.gain import QUICK, _env, evaluate_part, policy_rel
     from adaptfilt.kalmannet import load_kalmannet
+    from adaptfilt.results import Results
     from adaptfilt.runs import TRAJ_SEED_KEY
 
     root, _ = quick
     e = "ungm-ukf"
-    for regime in ("nominal", "q4"):
+    for regime in ("nominal", "forcing10"):
         env = _env(e, regime, QUICK)
-        traj = env.truth.simulate(QUICK.eval_runs, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
+        traj = env.truth.simulate(QUICK.curve_runs, env.n_steps, rng=np.random.default_rng([TRAJ_SEED_KEY, 0]))
         f = str(root / "beyond" / policy_rel(e, "gain-sup", 3, 0))
-        gains = {"gain-sup-b3-s0": f}
-        kappa = {}
-        ukf_part = evaluate_part(e, regime, "ukf", kappa, {}, QUICK)
-        gain_part = evaluate_part(e, regime, "gain", kappa, gains, QUICK)
-        ukf = af.UKF(get_experiment(e).make_model())
-        run = ukf.run(traj.z)
+        ukf_part = evaluate_part(e, regime, "ukf", {}, QUICK)
+        gain_part = evaluate_part(e, regime, "gain", {"gain-sup-b3-s0": f}, QUICK)
+        run = af.UKF(get_experiment(e).make_model()).run(traj.z)
         direct = np.sqrt(((run.mean - traj.x) ** 2).sum(-1).mean(axis=1))
         np.testing.assert_allclose(ukf_part["default"].run_rmse, direct, rtol=1e-12)
         knet = load_kalmannet(f, env.model).run(traj.z)
         want = np.sqrt(((knet.mean - traj.x) ** 2).sum(-1).mean(axis=1))
         np.testing.assert_array_equal(gain_part["gain-sup-b3-s0"].run_rmse, want)
-        # the study merged them into one Results: its bootstrap replicates share the runs' resamples
-        from adaptfilt.results import Results
-
         both = Results.merge([ukf_part, gain_part])
         d, lo, hi = both.paired_difference("gain-sup-b3-s0", "default", "rmse")
         assert lo <= d <= hi and np.isnan(both["gain-sup-b3-s0"].anees)
@@ -207,8 +227,7 @@ def test_quick_gain_study_resumes_from_its_journal(quick, tmp_path, monkeypatch)
     with pytest.raises(BaseException):
         run(tmp_path, quick=True, workers=1, studies=("gain",), progress=False)
     assert len(done) == 4 and (tmp_path / "beyond" / "journal.jsonl").exists()
-    # the manifest listed every kappa policy and KalmanNet file: the jobs were evaluations
-    assert not [k for k in done if "adaptfilt train" in k or "kalmannet" in k]
+    assert not [k for k in done if "adaptfilt train" in k]  # every training listed in the manifest: reused
     ran = []
 
     def record(self, *a, **kw):
@@ -218,14 +237,51 @@ def test_quick_gain_study_resumes_from_its_journal(quick, tmp_path, monkeypatch)
     monkeypatch.setattr(Journal, "add", record)
     summary = run(tmp_path, quick=True, workers=1, studies=("gain",), progress=False)
     assert ran and not set(done) & set(ran)  # the four finished jobs were taken from the journal
-    assert not (tmp_path / "beyond" / "journal.jsonl").exists()  # finished: the journal is removed
+    assert not (tmp_path / "beyond" / "journal.jsonl").exists()
     g, h = summary["gain"]["models"], reference["gain"]["models"]
     for e in g:  # same runs, same policies: the same numbers
         for r in g[e]:
             assert g[e][r]["verdicts"] == h[e][r]["verdicts"]
-            for a in g[e][r]["final"]:
-                assert g[e][r]["final"][a]["rmse"] == h[e][r]["final"][a]["rmse"]
-                assert g[e][r]["final"][a]["train_cpu_s"] == h[e][r]["final"][a]["train_cpu_s"]
+            for a in g[e][r]["curve"]:
+                for b, row in g[e][r]["curve"][a].items():  # all but the measured microseconds per step
+                    assert {k: v for k, v in row.items() if k != "us_per_step"} == \
+                        {k: v for k, v in h[e][r]["curve"][a][b].items() if k != "us_per_step"}
+
+
+def test_the_full_scale_waits_for_its_tuning_and_calibration(tmp_path, capsys, monkeypatch):
+    """While a tuning or calibration is pending, ``adaptfilt beyond --studies gain`` at full scale stops before
+    any work with one line naming what is pending; the quick scale runs (the test suite's)."""
+    from adaptfilt.cli import main
+    from adaptfilt.experiments.studies import gain
+
+    monkeypatch.setattr(gain, "PENDING", ("the CTM's tuning (a stand-in)",))
+    with pytest.raises(SystemExit) as e:
+        main(["beyond", "--out", str(tmp_path), "--studies", "gain", "--no-progress"])
+    err = capsys.readouterr().err.splitlines()
+    assert e.value.code == 2 and len(err) == 1 and "waits for its tuning and calibration" in err[0], err
+    assert not list((tmp_path / "beyond" / "policies").glob("*.npz")) if (tmp_path / "beyond").exists() else True
+
+
+def test_kappa_and_kalmannet_trainings_are_the_commands_the_study_records(tmp_path):
+    """Each training of the study (quick scale) read back from its command line is the same spec: the recipe,
+    the snapshots at every budget, the truth, written out in full."""
+    import shlex
+    from pathlib import Path
+
+    from adaptfilt.cli import _train_spec, build_parser, gain_spec
+    from adaptfilt.experiments.jobs import GainSpec
+    from adaptfilt.experiments.study import QUICK as BEYOND_QUICK
+    from adaptfilt.experiments.study import Run
+    from adaptfilt.experiments.studies.gain import policies
+
+    run = Run(Path(tmp_path) / "beyond", Path(tmp_path), BEYOND_QUICK, True, "", journal=None)
+    specs = policies(run, {})
+    assert {type(s).__name__ for s in specs} == {"TrainSpec", "GainSpec"}
+    for spec in specs:
+        args = build_parser().parse_args(shlex.split(spec.command)[1:])
+        back = gain_spec(args) if isinstance(spec, GainSpec) else _train_spec(args, args.seed, tuple(args.out)
+                                                                               if spec.snapshots else args.out[0])
+        assert back.command == spec.command
 
 
 def test_nll_cost_adds_the_gaussian_log_score_and_is_smallest_at_the_true_covariance():
@@ -295,3 +351,40 @@ def test_kalmannet_trains_on_a_truths_trajectories_and_keeps_the_model():
     assert b.model is model
     with pytest.raises(ValueError, match="truth must be a StateSpaceModel with the model's dimensions"):
         train_kalmannet(model, truth=af.models.coordinated_turn(), **kw)
+
+
+def test_the_full_scale_is_sized_to_about_five_hours_and_its_units_meet_the_targets():
+    """The full scale's work units give each budget its target CPU-s by the calibration (within 10 %, or one
+    rollout / 25 optimiser steps at the smallest budgets), and the whole run, trainings and evaluations, is
+    estimated at no more than about 5 hours of one worker."""
+    from adaptfilt.experiments.studies.gain import CALIBRATION, FULL, TARGET_CPU_S, estimate
+
+    for e, eps in FULL.kappa_episodes.items():
+        c = CALIBRATION["kappa"][e]
+        for t, n in zip(TARGET_CPU_S[e], eps):
+            assert abs(c["setup_cpu_s"] + n * c["cpu_s_per_episode"] - t) <= max(0.1 * t, 10 * c["cpu_s_per_episode"])
+    for (e, arch), steps in FULL.knet_steps.items():
+        rate = CALIBRATION["knet"][(e, arch)]["cpu_s_per_step"]
+        for t, n in zip(TARGET_CPU_S[e], steps):
+            assert n % 25 == 0 and abs(n * rate - t) <= max(0.1 * t, 12.5 * rate)
+    size = estimate()
+    assert size["hours_one_worker"] <= 5.1 and size["total_cpu_s"] == sum(
+        v["train_cpu_s"] + v["eval_cpu_s"] for k, v in size.items() if isinstance(v, dict))
+
+
+def test_report_only_judges_the_quick_studys_verdicts_again_from_its_evaluations(quick, tmp_path):
+    """``adaptfilt beyond --report-only`` on a copy of the quick run: a stale verdict word and a stale "stops
+    improving" are judged again from the stored evaluations, giving back the run's own summary."""
+    import shutil
+
+    from adaptfilt.experiments.beyond import report_only
+
+    root, reference = quick
+    shutil.copytree(root / "beyond", tmp_path / "beyond")
+    stale = json.loads((tmp_path / "beyond" / "summary.json").read_text())
+    m = stale["gain"]["models"]["ungm-ukf"]["nominal"]
+    m["verdicts"][0]["lower"] = "stale"
+    m["stops_improving"]["gain-sup"]["stops_at"] = 99
+    (tmp_path / "beyond" / "summary.json").write_text(json.dumps(stale, indent=1) + "\n")
+    out = report_only(tmp_path, progress=False)
+    assert out["gain"] == json.loads(json.dumps(reference["gain"]))

@@ -513,5 +513,5 @@ def test_benchmark_quick_runs_and_prints_the_ratio(capsys, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["bench_kalmannet.py", "--quick", "--models", "ungm"])
     bench.main()
     out = capsys.readouterr().out
-    assert "kappa, PPO fast mode" in out and "gain, architecture 1" in out
+    assert "kappa, PPO (study recipe)" in out and "gain, architecture 1" in out
     assert "ungm: gain, architecture 2: a trajectory-step of training costs" in out

@@ -78,3 +78,21 @@ def test_seed_groups_and_errors():
         aggregate(res, ["a-s0"], "nees")
     with pytest.raises(ValueError, match="no policies"):
         aggregate(res, [], "rmse")
+
+
+def test_paired_seeds_judge_two_snapshots_of_the_same_trainings():
+    """Two snapshots of the same eight trainings, the later one better by 0.05 on every seed while the seeds
+    spread by 1: paired seeds (the same seeds drawn on both sides) confirm the improvement, independent
+    resampling of the seeds drowns it in their spread; the same networks on both sides give exactly 0."""
+    v = np.random.default_rng(4).normal(3.0, 1.0, 8)
+    res = fake_results({**{f"late-s{i}": x - 0.05 for i, x in enumerate(v)}, **{f"early-s{i}": x for i, x in enumerate(v)}},
+                       run_sd=0.0)
+    late, early = [f"late-s{i}" for i in range(8)], [f"early-s{i}" for i in range(8)]
+    paired = difference(res, late, early, "rmse", paired=True)["iqm"]
+    assert paired[1] == pytest.approx(-0.05) and paired[2] == pytest.approx(-0.05)
+    assert verdict("lower", paired) == "confirmed"
+    assert verdict("lower", difference(res, late, early, "rmse")["iqm"]) == "not confirmed"
+    same = difference(res, early, early, "rmse", paired=True)["iqm"]
+    assert same == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="one policy per seed on both sides"):
+        difference(res, late, early[:7], "rmse", paired=True)

@@ -103,3 +103,28 @@ def test_ctrl_c_cancels_the_jobs_on_a_shared_dask_cluster():
             time.sleep(0.05)
         assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
         assert client.status == "running" and run_jobs(sleeping_job, [(7,)], cluster=client, progress=False) == [7]
+
+
+def test_a_workers_warning_reaches_the_console_in_one_line(capfd):
+    """A job's warning is printed by the worker as ``adaptfilt: warning: ...``, not in Python's two-line
+    format with our source line under it."""
+    import warnings
+
+    from adaptfilt.experiments.sweep import run_jobs
+
+    msg = ("attempt 0 has not beaten\n its initial network", RuntimeWarning)
+    run_jobs(warnings.warn, [msg, msg], workers=2, progress=False)  # two jobs: a pool, not this process
+    err = capfd.readouterr().err
+    assert "adaptfilt: warning: attempt 0 has not beaten its initial network\n" in err
+    assert "RuntimeWarning" not in err and "sweep.py" not in err
+
+
+def test_the_command_line_formats_warnings_in_one_line_and_gives_the_format_back():
+    import warnings
+
+    from adaptfilt import cli
+
+    before = warnings.formatwarning
+    with cli._console_warnings():
+        assert warnings.formatwarning("x", RuntimeWarning, "f.py", 1) == "adaptfilt: warning: x\n"
+    assert warnings.formatwarning is before

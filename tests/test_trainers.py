@@ -159,3 +159,20 @@ def test_a_cpu_budget_stops_training_after_that_many_cpu_seconds():
     c0 = time.process_time()
     pol = train_sb3("ungm-ukf", 0.5, 10 ** 6, 0, cfg, n_steps=20, progress=False, max_cpu_s=1.0)
     assert 1.0 <= pol.cpu_s <= time.process_time() - c0 and pol.metadata["transitions"] < 10 ** 6 * 20
+
+
+def test_sb3_optimiser_steps_counts_the_steps_the_optimiser_took(monkeypatch):
+    """The count from a policy's metadata is the number of optimiser steps SB3 took: PPO with a partial last
+    minibatch (rollouts of 8 x 16 = 128 transitions in minibatches of 48: 3 per epoch), and A2C (one a
+    rollout), counted by wrapping the optimisers' step."""
+    import torch
+
+    from adaptfilt.trainers import SB3Config, sb3_optimiser_steps, train_sb3
+
+    calls = []
+    for cls in (torch.optim.Adam, torch.optim.RMSprop):
+        monkeypatch.setattr(cls, "step", lambda self, *a, _f=cls.step, **k: (calls.append(1), _f(self, *a, **k))[1])
+    for algo, kw in (("ppo", {"n_steps": 16, "batch_size": 48, "n_epochs": 2}), ("a2c", {"n_steps": 5})):
+        calls.clear()
+        pol = train_sb3("ungm-ukf", 0.5, 20, 0, SB3Config(algo, 8, kw), n_steps=20, progress=False)
+        assert sb3_optimiser_steps(pol.metadata) == len(calls) > 0, algo

@@ -135,7 +135,8 @@ def test_the_intervals_the_reviews_found_judged_two_ways():
 
 def test_declared_margins_say_what_when_and_why():
     assert set(DECLARED_MARGINS) == {"adaptive vs best fixed", "fast vs faithful", "anchored vs greedy",
-                                     "learned gain vs learned kappa", "learned vs ML"}
+                                     "learned gain vs learned kappa", "learned vs ML",
+                                     "consistent kappa vs squared-error kappa"}
     for name, d in DECLARED_MARGINS.items():
         assert d.comparison == name and d.claim in ("equal", "not worse")
         assert d.fractions and all(0 < f < 1 for f in d.fractions.values())

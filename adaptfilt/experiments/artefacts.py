@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 from adaptfilt.files import sha256
@@ -160,14 +161,21 @@ def verify_beyond(root: str | Path | None = None) -> list[str]:
 
     def load(rel: str, p: Path) -> None:
         if p.suffix == ".npz" and rel.startswith("policies/"):
-            exp = next(x for x in sorted(_experiments(), key=len, reverse=True) if p.name.startswith(x + "-"))
-            if "-gain-" in p.name:  # the gain study's KalmanNets, against their experiment's model
-                from adaptfilt.experiment_registry import get_experiment
-                from adaptfilt.kalmannet import load_kalmannet
+            name = p.name.removeprefix("gain-")  # the gain study's files: gain-<experiment>-<arm>-b<i>-s<j>
+            exp = next(x for x in sorted(_experiments(), key=len, reverse=True) if name.startswith(x + "-"))
+            if name == p.name:
+                _load(p, experiment=exp)
+                return
+            from adaptfilt.experiment_registry import get_experiment
+            from adaptfilt.experiments.studies.gain import arms_of
+            from adaptfilt.kalmannet import load_kalmannet
 
+            arm = re.fullmatch(rf"{re.escape(exp)}-(.+)-b\d+-s\d+\.npz", name).group(1)
+            spec = arms_of(exp)[arm]
+            if spec["kind"] == "gain":  # a KalmanNet, against its experiment's model
                 load_kalmannet(p, get_experiment(exp).make_model())
-            else:  # the gain study's kappa-sqerr files are named after the model, trained on its -sqerr twin
-                _load(p, experiment=exp + "-sqerr" if "-kappa-sqerr-" in p.name else exp)
+            else:  # a kappa policy, against the experiment it was trained on (the -sqerr twin, ...)
+                _load(p, experiment=spec["train"] or exp)
         elif p.name == "results.json":
             Results.load(p.parent)
         elif p.suffix == ".json":

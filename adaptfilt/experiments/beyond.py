@@ -136,25 +136,18 @@ def report_only(out_dir: str | Path, progress: bool = True) -> dict:
     """``adaptfilt beyond --out DIR --report-only``: the studies' verdict words judged again by the one rule
     (:mod:`adaptfilt.verdicts`) from what ``DIR/beyond`` holds, nothing trained or evaluated: the look-ahead
     references' "lower cost than greedy" from their stored intervals, the learned-gain study's verdicts from
-    its stored evaluations (``results/gain-<model>-<regime>`` and ``-curve``). ``summary.json`` (its manifest
+    its stored evaluations (``results/gain-<model>-<regime>`` and ``-final``). ``summary.json`` (its manifest
     entry: the new sha256 and this command) and ``summary.md`` are rewritten when they change. Returns the
     summary."""
     from adaptfilt.experiments.look import rejudge as rejudge_look
     from adaptfilt.experiments.studies import gain
-    from adaptfilt.results import Results
 
     out = Path(out_dir).resolve() / "beyond"
     summary = json.loads((out / "summary.json").read_text())
     if "look" in summary:
         summary["look"] = rejudge_look(summary["look"])
     if "gain" in summary:
-        sc = gain.FULL if summary["gain"]["scale"] == gain.FULL.name else gain.QUICK
-        last = len(summary["gain"]["target_cpu_s"])
-        for e, regimes in summary["gain"]["models"].items():
-            for r, m in regimes.items():
-                final, curve = (Results.load(out / f"results/gain-{e}-{r}{x}") for x in ("", "-curve"))
-                m["verdicts"] = gain.verdict_rows(final, last, sc.seeds) + [
-                    v for b in gain.budgets(sc) if b < last for v in gain.verdict_rows(curve, b, sc.seeds)]
+        summary["gain"] = gain.rejudge(summary["gain"], out)
     text = json.dumps(summary, indent=1) + "\n"
     if text != (out / "summary.json").read_text():
         atomic_write(out / "summary.json", text)

@@ -153,7 +153,7 @@ def look_summary(res) -> dict:
         if n != "greedy":
             row["minus_greedy"] = {m: list(res.paired_difference(n, "greedy", m)) for m in metrics}
         if n in refs and other_bases and "ml" in res:
-            # rollout's cost improvement holds over any base: against ML too, the better one-step rule
+            # every reference is judged against ML as well as greedy (on the CTM ML is the lower of the two)
             row["minus_ml"] = {m: list(res.paired_difference(n, "ml", m)) for m in metrics}
         (out["references"] if n in refs else out["baselines"])[n] = row
     fixed = res.fixed_names()
@@ -185,8 +185,9 @@ def _judge(row: dict, cost: str) -> dict:
 
 
 def rejudge(look: dict) -> dict:
-    """A stored study's ``{experiment: look_summary}`` with every reference's ``improves_on_greedy`` (and ``improves_on_ml``) judged again
-    by the one rule from its stored interval of the verdict cost's difference to greedy."""
+    """A stored study's ``{experiment: look_summary}`` with every reference's verdicts judged again by the
+    one rule from their stored intervals: ``improves_on_greedy`` from the verdict cost's difference to
+    greedy, and ``improves_on_ml`` from its difference to ML where one is stored."""
     out = {}
     for e, s in look.items():
         refs = {n: _judge(dict(row), s["verdict_cost"]) for n, row in s["references"].items()}

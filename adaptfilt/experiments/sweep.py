@@ -129,10 +129,20 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, daemon=True, name="adaptfilt-parent-watch").start()
 
 
+def one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as the command line prints it: ``adaptfilt: warning: MESSAGE``, one line, for a
+    :data:`warnings.formatwarning`. Python's default adds the source line that raised it, which tells a
+    user of ``adaptfilt beyond`` nothing (it is our code, in a worker)."""
+    return f"adaptfilt: warning: {' '.join(str(message).split())}\n"
+
+
 def _worker_init(parent: int) -> None:
+    import warnings
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent)
     _one_thread()
+    warnings.formatwarning = one_line_warning  # a worker is ours: its warnings reach a user's console
 
 
 #: One job at a time per process: trainers seed process-global generators (torch, and SB3 also

@@ -82,6 +82,10 @@ LIK_FEATURES = "paper+circ+cand+lik"
 #: Training budgets of the learning curve (episodes), per scale: the gain study's CTM budgets and the
 #: reproduction's 1000.
 CURVE_EPISODES = {"full": (300, 1000, 2500, 10300), "quick": (4, 10)}
+#: The episodes of the first learned-gain study's CTM kappa-nis files (``policies/ctm-ukf-kappa-nis-b<b>-s<s>.npz``,
+#: the fast mode's recipe, per scale), points of the learning curve where they exist; the study that replaced it
+#: writes its own files under ``policies/gain-...``.
+FIRST_GAIN_STUDY_KAPPA_NIS = {"full": (300, 2500, 10300), "quick": (2, 4, 6)}
 #: Selection runs of the learning curve, per scale.
 CURVE_RUNS = {"full": 2000, "quick": 100}
 #: The groups the look study shows on its runs (where the files exist).
@@ -171,7 +175,8 @@ def _curve_rel(learner: str, episodes: int, seed: int) -> str:
 
 def policies(run: Run, summary: dict) -> list[TrainSpec]:
     """The anchored groups (:data:`KINDS`) and the learning curve's trainings: the likelihood-aware learner at
-    every budget, the ML-anchored one at every budget but the main one (its main group is that point)."""
+    every budget, the ML-anchored one at every budget but the main one (its main group is that point), and the
+    reproduction's learner at :data:`FIRST_GAIN_STUDY_KAPPA_NIS`."""
     sc = run.scale
     out = []
     for kind, g, transform, exps in KINDS:
@@ -189,6 +194,11 @@ def policies(run: Run, summary: dict) -> list[TrainSpec]:
             if ep != sc.episodes:
                 out.append(TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / _curve_rel("adaptive-mlanchored", ep, s)),
                                      features=CAND_EXPERIMENTS["ctm-ukf"], horizon=sc.n_steps, anchor=ANCHOR))
+    # the reproduction's learner (the fast mode) at the first learned-gain study's CTM budgets, under that study's
+    # file names: made by it, kept as this curve's points when the study that replaced it wrote its own files
+    out += [TrainSpec("ctm-ukf", 0.5, ep, s, str(run.out / f"policies/ctm-ukf-kappa-nis-b{b}-s{s}.npz"),
+                      horizon=sc.n_steps)
+            for b, ep in enumerate(FIRST_GAIN_STUDY_KAPPA_NIS[_size(run)], start=1) for s in sc.seeds]
     return out
 
 
@@ -202,15 +212,12 @@ def curve_files(run: Run) -> dict[str, tuple[str, int, list[str]]]:
         anchored = [run.out / (f"policies/ctm-ukf-adaptive-mlanchored-s{s}.npz" if ep == sc.episodes else
                                _curve_rel("adaptive-mlanchored", ep, s)) for s in sc.seeds]
         out["adaptive-mlanchored" if ep == sc.episodes else f"adaptive-mlanchored-e{ep}"] = ("adaptive-mlanchored", ep, anchored)
-    # the reproduction's learner: its own files at its budget, the gain study's kappa-nis (the same recipe) at
-    # the gain study's budgets, where they exist
-    from adaptfilt.experiments.studies import gain
-
+    # the reproduction's learner: its own files at its budget, the first learned-gain study's kappa-nis (the same
+    # recipe, the fast mode's) at that study's budgets, where they exist
     out["adaptive"] = ("adaptive", sc.episodes, [run.data / f"policies/ctm-ukf-adaptive-s{s}.npz" for s in sc.seeds])
-    kappa = gain.scale_of(run).kappa_episodes["ctm-ukf"]
-    for b, ep in zip(gain.budgets(gain.scale_of(run)), kappa):
+    for b, ep in enumerate(FIRST_GAIN_STUDY_KAPPA_NIS[_size(run)], start=1):
         if ep in budgets and ep != sc.episodes:
-            out[f"kappa-nis-b{b}"] = ("adaptive", ep, [run.out / gain.policy_rel("ctm-ukf", "kappa-nis", b, s)
+            out[f"kappa-nis-b{b}"] = ("adaptive", ep, [run.out / f"policies/ctm-ukf-kappa-nis-b{b}-s{s}.npz"
                                                        for s in sc.seeds])
     return {g: (lr, ep, [str(f) for f in fs if Path(f).exists()]) for g, (lr, ep, fs) in out.items()}
 
