@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from pathlib import Path
 
 from adaptfilt.files import sha256
@@ -167,15 +166,17 @@ def verify_beyond(root: str | Path | None = None) -> list[str]:
                 _load(p, experiment=exp)
                 return
             from adaptfilt.experiment_registry import get_experiment
-            from adaptfilt.experiments.studies.gain import arms_of
+            from adaptfilt.files import read_npz
             from adaptfilt.kalmannet import load_kalmannet
 
-            arm = re.fullmatch(rf"{re.escape(exp)}-(.+)-b\d+-s\d+\.npz", name).group(1)
-            spec = arms_of(exp)[arm]
-            if spec["kind"] == "gain":  # a KalmanNet, against its experiment's model
+            if "-gain-" in name:  # a KalmanNet, against its experiment's model
                 load_kalmannet(p, get_experiment(exp).make_model())
-            else:  # a kappa policy, against the experiment it was trained on (the -sqerr twin, ...)
-                _load(p, experiment=spec["train"] or exp)
+                return
+            # a kappa policy, trained on the experiment or a twin of it (-sqerr, -sqerr-nll0.1): the file says which
+            trained = read_npz(p)[1].get("experiment", "")
+            if trained != exp and not trained.startswith(exp + "-"):
+                raise ValueError(f"trained on {trained!r}, not on {exp!r} or a variant of it")
+            _load(p, experiment=trained)
         elif p.name == "results.json":
             Results.load(p.parent)
         elif p.suffix == ".json":
