@@ -115,8 +115,8 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
     training (one training per arm and seed, kept at its budgets)."""
     from adaptfilt.experiments.beyond import summary_md
     from adaptfilt.experiments.reproduce import sha256
-    from adaptfilt.experiments.studies.gain import (ARM_NAMES, MODEL_REGIMES, MODELS, PAIRS, QUICK, arms_of,
-                                                    evaluated, policy_rel)
+    from adaptfilt.experiments.studies.gain import (ARM_NAMES, CARRIED, MODEL_REGIMES, MODELS, PAIRS, QUICK,
+                                                    arms_of, evaluated, policy_rel)
     from adaptfilt.files import read_npz
 
     root, summary = quick
@@ -151,6 +151,13 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
                     both = set(arms_of(e)[a]["budgets"]) & (set(arms_of(e)[b]["budgets"]) if b in ARM_NAMES
                                                             else set(arms_of(e)[a]["budgets"]))
                     assert all((a, b, x) in pairs for x in both), (a, b)
+                for a, b in CARRIED:  # past the kappa's top budget the gain is judged against that top, named
+                    ta, tb = arms_of(e)[a]["top"], arms_of(e)[b]["top"]
+                    assert ta > tb
+                    past = [v for v in m["verdicts"] if (v["a"], v["b"]) == (a, b) and v["budget"] > tb]
+                    assert {v["budget"] for v in past} == set(range(tb + 1, ta + 1))
+                    assert all(v["budget_b"] == tb and v["lower"] is not None for v in past)
+                    assert [v["budget_b"] for v in m["final_verdicts"] if (v["a"], v["b"]) == (a, b)] == [tb]
             else:  # the arms trained on this truth, judged against the same learner trained on the model
                 on = [a for a in m["curve"] if "-on-" in a]
                 assert bool(on) == (e == "ungm-ukf")
@@ -161,7 +168,7 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
         assert sha256(root / "beyond" / f["path"]) == f["sha256"] and f["command"]
         cmds[f["path"]] = f["command"]
     k = cmds["policies/gain-ungm-ukf-gain-sup-b3-s1.npz"]
-    assert k.startswith("adaptfilt train-gain ungm-ukf --arch kalmannet-arch1 ") and "--snapshot-steps 2,4,6,8,10" in k
+    assert k.startswith("adaptfilt train-gain ungm-ukf --arch kalmannet-arch1 ") and "--snapshot-steps 2,4,6,8,10,12" in k
     assert k == cmds["policies/gain-ungm-ukf-gain-sup-b5-s1.npz"]  # one training, a file per budget
     p = cmds["policies/gain-ungm-ukf-kappa-sqerr-b2-s0.npz"]
     assert p.startswith("adaptfilt train ungm-ukf-sqerr --algo fast ") and "--snapshots 20,45,70,95,120" in p
@@ -170,6 +177,8 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
         assert (root / "beyond" / "figures" / fig).stat().st_size > 1000
     md = summary_md(summary, ("gain",))
     assert "| ungm-ukf | q4 | gain-sup-on-q4 b3" in md and "what is learned" in md and "stops improving" in md
+    assert "| ungm-ukf | nominal | gain-sup b6 | kappa-sqerr b5 |" in md
+    assert "| ctm-ukf | nominal, final | gain-sup b5 | kappa-sqerr b4 |" in md
 
 
 def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):
@@ -353,10 +362,10 @@ def test_kalmannet_trains_on_a_truths_trajectories_and_keeps_the_model():
         train_kalmannet(model, truth=af.models.coordinated_turn(), **kw)
 
 
-def test_the_full_scale_is_sized_to_about_five_hours_and_its_units_meet_the_targets():
+def test_the_full_scale_is_sized_to_about_seven_hours_and_its_units_meet_the_targets():
     """The full scale's work units give each budget its target CPU-s by the calibration (within 10 %, or one
     rollout / 25 optimiser steps at the smallest budgets), and the whole run, trainings and evaluations, is
-    estimated at no more than about 5 hours of one worker."""
+    estimated at no more than about 7 hours of one worker (the first run's 5 and the supervised gain's extension)."""
     from adaptfilt.experiments.studies.gain import CALIBRATION, FULL, TARGET_CPU_S, estimate
 
     for e, eps in FULL.kappa_episodes.items():
@@ -368,7 +377,7 @@ def test_the_full_scale_is_sized_to_about_five_hours_and_its_units_meet_the_targ
         for t, n in zip(TARGET_CPU_S[e], steps):
             assert n % 25 == 0 and abs(n * rate - t) <= max(0.1 * t, 12.5 * rate)
     size = estimate()
-    assert size["hours_one_worker"] <= 5.1 and size["total_cpu_s"] == sum(
+    assert size["hours_one_worker"] <= 7.0 and size["total_cpu_s"] == sum(
         v["train_cpu_s"] + v["eval_cpu_s"] for k, v in size.items() if isinstance(v, dict))
 
 

@@ -74,10 +74,13 @@ whose end is infinite (a seed with a diverged run in a resample) is unbounded on
 (:func:`adaptfilt.metrics.percentile_ci`), never NaN.
 
 **Size** (:func:`estimate`, before the run, from the calibrated per-unit costs and the measured evaluation costs
-:data:`EVAL_US`): all of it would take about 7.2 hours of one worker (25,800 CPU-s); sized to about 5 (18,300):
-the measurement-only arms of both models and the consistency arm train to 45 CPU-s (:data:`TOP`; the curve past
-45 CPU-s is the supervised arms'), the final table on 5000 runs, the floor on 100. The supervised arms' budgets
-beyond 200 CPU-s on UNGM cost 4800 of those CPU-s.
+:data:`EVAL_US`). The first run, to 500 CPU-s on UNGM and 200 on the CTM, was sized to about 5 hours of one
+worker (18,300 CPU-s; every arm to every budget would have been 7.2 hours): the measurement-only arms of both
+models and the consistency arm train to 45 CPU-s (:data:`TOP`; the curve past 45 CPU-s is the supervised arms'),
+the final table on 5000 runs, the floor on 100. The supervised gain's curve was still falling at both top
+budgets, so a second run extended it alone (UNGM to 1000 CPU-s, the CTM to 500; every other arm reused from the
+manifest, the squared-error kappa carried at its top budget in its pair, :data:`CARRIED`): 6,400 CPU-s more of
+training, 24,700 CPU-s (6.9 hours of one worker) for the whole study.
 """
 from __future__ import annotations
 
@@ -105,11 +108,15 @@ ARM_NAMES = tuple(a for a, _, _ in ARMS)
 #: KalmanNet's loss per gain arm.
 LOSS = {"gain-unsup": "unsupervised", "gain-sup": "supervised"}
 #: Target training CPU-s of the budgets, per model (per policy).
-TARGET_CPU_S = {"ungm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0), "ctm-ukf": (5.0, 15.0, 45.0, 200.0)}
+#: The last budget of each model (UNGM's 1000, the CTM's 500) is the supervised gain's alone: its curve was still
+#: falling at 500 and 200 CPU-s, where the first run stopped (:data:`CARRIED`).
+TARGET_CPU_S = {"ungm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0, 1000.0), "ctm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0)}
 #: The budget (1-based) each arm trains to where it is not the model's last (the size of the run, :func:`estimate`:
-#: the measurement-only arms and the consistency arm to 45 CPU-s, architecture 2's supervised arm to 200).
+#: the measurement-only arms and the consistency arm to 45 CPU-s, architecture 2's supervised arm to 200, the
+#: squared-error kappa to 500 on UNGM and 200 on the CTM, where it had long stopped improving).
 TOP = {("ungm-ukf", "kappa-nis"): 3, ("ungm-ukf", "gain-unsup"): 3, ("ungm-ukf", "gain-sup-arch2"): 4,
-       ("ungm-ukf", "kappa-sqnll"): 3, ("ctm-ukf", "kappa-nis"): 3, ("ctm-ukf", "gain-unsup"): 3}
+       ("ungm-ukf", "kappa-sqnll"): 3, ("ungm-ukf", "kappa-sqerr"): 5,
+       ("ctm-ukf", "kappa-nis"): 3, ("ctm-ukf", "gain-unsup"): 3, ("ctm-ukf", "kappa-sqerr"): 4}
 #: The KalmanNet architecture of the gain arms per model: the one with the lower selection RMSE in its tuning
 #: (:data:`adaptfilt.kalmannet.RECIPE_TUNING`).
 ARCH = {"ungm-ukf": 1, "ctm-ukf": 2}
@@ -252,8 +259,9 @@ FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
 #: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to five
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
-                  {"ungm-ukf": (20, 45, 70, 95, 120), "ctm-ukf": (20, 45, 70, 95)},
-                  {("ungm-ukf", 1): (2, 4, 6, 8, 10), ("ungm-ukf", 2): (2, 4, 6, 8), ("ctm-ukf", 2): (2, 4, 6, 8)},
+                  {"ungm-ukf": (20, 45, 70, 95, 120, 145), "ctm-ukf": (20, 45, 70, 95, 120)},
+                  {("ungm-ukf", 1): (2, 4, 6, 8, 10, 12), ("ungm-ukf", 2): (2, 4, 6, 8, 10, 12),
+                   ("ctm-ukf", 2): (2, 4, 6, 8, 10)},
                   {"n_train": 8, "n_val": 4, "batch_size": 8, "val_every": 2, "patience": 4},
                   {"parallel": 8})
 
@@ -546,6 +554,11 @@ PAIRS = (("gain-sup", "kappa-sqerr", "what is learned (objective: squared error)
          ("kappa-sqerr", "kappa-nis", "what it is trained on (learning kappa)"),
          ("gain-sup", "gain-unsup", "what it is trained on (learning the gain)"),
          *((a, ref, f"{a} vs the {ref}") for a in ARM_NAMES for ref in ("default", "best fixed")))
+#: The pairs whose second arm stands at its top budget for the first arm's budgets past it: the squared-error
+#: kappa stopped improving long before its top budget (45 CPU-s on UNGM, 5 on the CTM: :func:`stops_improving`
+#: in the first run), so the supervised gain's last budget (UNGM's 1000 CPU-s, the CTM's 500) is judged against
+#: the kappa's top (500, 200), named in every row (``budget_b``).
+CARRIED = frozenset({("gain-sup", "kappa-sqerr")})
 #: The extra arms' pairs: (a, b, what, declared comparison for "not worse" or None, metrics).
 EXTRA_PAIRS = (("gain-sup-arch2", "gain-sup", "the other KalmanNet architecture", DECLARED, ("rmse",)),
                ("kappa-sqnll", "kappa-sqerr", "a consistency term in the kappa learner's cost",
@@ -711,6 +724,8 @@ def verdicts(res, experiment: str, regime: str, seeds) -> list[dict]:
     out = []
 
     def add(a, ba, b, bb, what, claims=(("lower", None), ("not worse", DECLARED)), metric="rmse"):
+        if (a, b) in CARRIED and bb is not None and bb > top(experiment, b):
+            bb = top(experiment, b)
         na = groups.get((a, ba))
         nb = groups.get((b, bb)) if bb is not None else refs.get(b)
         if not na or not nb:
