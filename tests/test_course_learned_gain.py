@@ -76,11 +76,17 @@ def test_the_verdict_table_is_the_rule_on_the_summarys_intervals_at_every_budget
         assert lower == judge("lower", d)[0] or abs(d[1]) < 1e-3 or abs(d[2]) < 1e-3
         word, margin = re.fullmatch(r"(.+) \((\S+)\)", not_worse).groups()
         assert word in {"confirmed", "not confirmed", "contradicted"} and float(margin) > 0
+    from adaptfilt.experiments.studies.gain import CARRIED
+
     for e, regimes in g["models"].items():
         for a, b in lg.LEARNED_PAIRS:
-            both = set(regimes["nominal"]["curve"][a]) & set(regimes["nominal"]["curve"][b])
-            mine = [r for r in rows if r[0] == e and r[2] == f"{a} - {b}"]
+            curve = regimes["nominal"]["curve"]
+            both = set(curve[a]) if (a, b) in CARRIED else set(curve[a]) & set(curve[b])
+            mine = [r for r in rows if r[0] == e and r[2].split(" b")[0] == f"{a} - {b}"]
             assert len(mine) == len(both) + 1 and mine[-1][1].endswith(f"{g['eval_runs']} runs")
+            top_b = max(map(int, curve[b]))  # past b's top budget, b stays at it, named in the row
+            assert all(r[2] == f"{a} - {b} " + lg._budget(g, e, top_b) for r in mine
+                       if int(r[1].split()[0][1:]) > top_b), mine
 
 
 def test_the_training_table_reads_what_each_learner_saw(quick):

@@ -342,7 +342,8 @@ def _interval(d: Sequence) -> str:
 
 def verdict_table(g: Mapping, regime: str = "nominal", pairs: Sequence[tuple[str, str]] = LEARNED_PAIRS,
                   final: bool = True) -> str:
-    """The seed-level verdicts of ``pairs`` under ``regime`` at every budget both arms have, per model: ``a - b``
+    """The seed-level verdicts of ``pairs`` under ``regime`` at every budget both arms have (past b's top budget,
+    for a pair of :data:`adaptfilt.experiments.studies.gain.CARRIED`, b at its top, named), per model: ``a - b``
     of the RMSE (IQM over seeds [two-level 95 % CI]), "a lower" (margin 0) and "a not worse" (within the margin
     declared for the learned gain against the learned kappa, :data:`adaptfilt.verdicts.DECLARED_MARGINS`,
     printed beside it); with ``final`` the top budgets' verdicts on the final runs after each model's curve."""
@@ -357,7 +358,9 @@ def verdict_table(g: Mapping, regime: str = "nominal", pairs: Sequence[tuple[str
             for v, where in found:
                 if (v["a"], v["b"], v["metric"]) == (a, b, "rmse"):
                     nw = "n/a" if v.get("not_worse") is None else f"{v['not_worse']} ({v['margin']:.3g})"
-                    rows.append([e, _budget(g, e, v["budget"]) + where, f"{a} - {b}", _interval(v["diff"]),
+                    bb = v.get("budget_b")  # a carried pair: b at its top budget, named (gain.CARRIED)
+                    label = f"{a} - {b}" + (f" {_budget(g, e, bb)}" if bb not in (None, v["budget"]) else "")
+                    rows.append([e, _budget(g, e, v["budget"]) + where, label, _interval(v["diff"]),
                                  v["lower"], nw])
     return "\n".join(md_lines(head, rows))
 

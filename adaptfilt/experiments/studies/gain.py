@@ -260,7 +260,7 @@ FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
                   {"ungm-ukf": (20, 45, 70, 95, 120, 145), "ctm-ukf": (20, 45, 70, 95, 120)},
-                  {("ungm-ukf", 1): (2, 4, 6, 8, 10, 12), ("ungm-ukf", 2): (2, 4, 6, 8, 10, 12),
+                  {("ungm-ukf", 1): (2, 4, 6, 8, 10, 12), ("ungm-ukf", 2): (2, 4, 6, 8),
                    ("ctm-ukf", 2): (2, 4, 6, 8, 10)},
                   {"n_train": 8, "n_val": 4, "batch_size": 8, "val_every": 2, "patience": 4},
                   {"parallel": 8})
