@@ -556,6 +556,22 @@ def test_a_study_not_stored_yet_has_no_file_in_data_beyond():
         assert not ours, (name, ours)
 
 
+def test_recorded_commands_name_the_output_folder_as_typed():
+    """The manifest records a job's ``--out`` under the folder the user typed (``data``), not the resolved path
+    of the checkout that ran it; a path that only begins like the folder, and an absolute folder, stay as they are."""
+    from pathlib import Path
+
+    from adaptfilt.experiments.beyond import as_typed
+
+    cmd = "adaptfilt train-gain ungm-ukf --seed 0 --out /w/c/data/beyond/policies/a.npz --out /w/c/data/beyond/b.npz"
+    assert as_typed(cmd, Path("/w/c/data"), "data") == (
+        "adaptfilt train-gain ungm-ukf --seed 0 --out data/beyond/policies/a.npz --out data/beyond/b.npz")
+    assert as_typed(cmd, Path("/w/c/data"), "out/") == (
+        "adaptfilt train-gain ungm-ukf --seed 0 --out out/beyond/policies/a.npz --out out/beyond/b.npz")
+    assert as_typed(cmd, Path("/w/c/dat"), "data") == cmd  # not the folder, a prefix of its name
+    assert as_typed(cmd, Path("/w/c/data"), "/w/c/data") == cmd
+
+
 def _beyond_run_command(root: str, studies: tuple[str, ...]) -> str:
     from adaptfilt.experiments.beyond import command
 
@@ -565,10 +581,9 @@ def _beyond_run_command(root: str, studies: tuple[str, ...]) -> str:
 @pytest.mark.crosscpu
 def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_builds():
     """The guard of the move of the studies into one file each: each command in data/beyond/manifest.json, byte for byte, is
-    what the pipeline builds for that file at full scale. The studies were run from several checkouts, so a
-    policy's recorded ``--out`` is absolute (``/work/main/data/beyond/...``, ``/work/study/data/beyond/...``):
-    the root is taken from the record, and the rest of the path must be the file's own; the run's files carry
-    the ``adaptfilt beyond`` command of the run that wrote them, which must have chosen their study."""
+    what the pipeline builds for that file at full scale, run as the README says (``--out data`` from the
+    checkout: no recorded path is absolute, so a command reruns on any machine); the run's files carry the
+    ``adaptfilt beyond`` command of the run that wrote them, which must have chosen their study."""
     import re
 
     from adaptfilt.experiments import artefacts
@@ -581,17 +596,18 @@ def test_every_command_the_beyond_manifest_records_is_the_one_the_pipeline_build
     for entry in man["files"]:
         rel, cmd = entry["path"], entry["command"]
         if rel.startswith("policies/"):  # adaptfilt train, imitate, or train-gain (one line for its snapshots)
-            m = re.search(r"^adaptfilt (?:train(?:-gain)?|imitate) .* --out (/\S+)/beyond/" + re.escape(rel) + "(?: |$)",
+            m = re.search(r"^adaptfilt (?:train(?:-gain)?|imitate) .* --out (\S+)/beyond/" + re.escape(rel) + "(?: |$)",
                           cmd)
             assert m, (rel, cmd)
             root = m.group(1)
+            assert root == "data", (rel, cmd)
             built.setdefault(root, _beyond_policy_commands(root, selection))
             assert cmd == built[root][rel], rel
             continue
         if rel == "summary.json" and cmd == "adaptfilt beyond --out data --report-only":
             continue  # its verdicts judged again by the one rule, nothing trained or evaluated
         m = re.fullmatch(r"adaptfilt beyond --out (\S+)(?: --studies (\S+))?", cmd)
-        assert m, (rel, cmd)
+        assert m and m.group(1) == "data", (rel, cmd)
         studies = tuple(m.group(2).split(",")) if m.group(2) else ()
         assert cmd == _beyond_run_command(m.group(1), studies), rel
         study = {"look-gain.png": "look", "particles-tradeoff.png": "particles"}.get(

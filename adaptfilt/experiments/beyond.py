@@ -21,6 +21,7 @@ for in ``--data DIR``, ``$ADAPTFILT_DATA``, then the checkout's ``data/`` (:func
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -67,7 +68,7 @@ def run(out_dir: str | Path, quick: bool = False, workers: int | None = None, cl
     out = root / "beyond"
     (out / "policies").mkdir(parents=True, exist_ok=True)
     r = Run(out, data, QUICK if quick else FULL, quick, command(out_dir, quick, studies), Journal(out / JOURNAL),
-            workers, cluster, progress)
+            workers, cluster, progress, typed_out=str(out_dir))
     chosen = [s for s in ALL if s.NAME in studies]
     summary: dict = {"scale": r.scale.name, "version": __version__}
     for s in chosen:
@@ -110,6 +111,14 @@ def _train(r: Run, trainings: list[Training]) -> None:
     r.entries.update({rel(o): rec for made in records for o, rec in made.items()})
 
 
+def as_typed(cmd: str, root: Path, typed: str) -> str:
+    """``cmd`` with the resolved output folder ``root`` written as the user typed it (``--out data``): a recorded
+    command reruns from where the run was started, on any machine, not only in the folder that made it."""
+    if Path(typed).is_absolute():
+        return cmd
+    return re.sub(rf"(--out ){re.escape(str(root))}(?=/|\s|$)", lambda m: m.group(1) + typed.rstrip("/"), cmd)
+
+
 def _write(r: Run, summary: dict, version: str) -> dict:
     """summary.json and the manifest; studies run separately (--studies) add to what an earlier run of the
     same scale wrote."""
@@ -124,8 +133,12 @@ def _write(r: Run, summary: dict, version: str) -> dict:
     atomic_write(out / "summary.json", json.dumps(summary, indent=1) + "\n")
     r.entries["summary.json"] = {"command": r.command}
     files = {rel: f for rel, f in old_files.items() if rel not in r.entries and (out / rel).exists()}
+    typed = r.typed_out
     for rel, e in r.entries.items():
-        files[rel] = {"path": rel, "sha256": sha256(out / rel), "command": e.get("command"), "seed": 0,
+        cmd = e.get("command")
+        if cmd and typed is not None:
+            cmd = as_typed(cmd, out.parent, typed)
+        files[rel] = {"path": rel, "sha256": sha256(out / rel), "command": cmd, "seed": 0,
                       "version": version, "wall_time_s": e.get("wall_time_s"), "cpu_time_s": e.get("cpu_time_s")}
     atomic_write(out / "manifest.json", json.dumps({"scale": r.scale.name, "files": [files[k] for k in sorted(files)]},
                                                    indent=1) + "\n")

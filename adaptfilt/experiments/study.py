@@ -88,6 +88,8 @@ class Run:
     cluster: Any = None
     progress: bool = True
     entries: dict[str, dict] = field(default_factory=dict)
+    #: The output folder as the user typed it (``data``): what the manifest's commands say for the resolved one.
+    typed_out: str | None = None
 
     def say(self, *a) -> None:
         if self.progress:
