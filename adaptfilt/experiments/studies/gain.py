@@ -258,7 +258,7 @@ FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
                  {e: work_units(e, "kappa") for e in ("ungm-ukf", "ctm-ukf")},
                  {k: work_units(k[0], "gain", k[1]) for k in CALIBRATION["knet"]
                   if k[1] == ARCH[k[0]] or OTHER_ARCH.get(k[0], (None, None))[1] == k[1]})
-#: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to five
+#: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to six
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
                   {"ungm-ukf": (20, 45, 70, 95, 120, 145), "ctm-ukf": (20, 45, 70, 95, 120)},
