@@ -178,7 +178,7 @@ from adaptfilt.models import StateSpaceModel, Trajectory
 from adaptfilt.nets import arrays_to_state, one_torch_thread, state_to_arrays
 
 __all__ = ["GainNet", "GainNet1", "KalmanNet", "train_kalmannet", "load_kalmannet", "TrainingDiverged",
-           "KALMANNET_FORMAT", "RECIPES", "RECIPE_TUNING", "RECIPE_RESULTS", "restart_seed"]
+           "KALMANNET_FORMAT", "RECIPES", "RECIPE_TUNING", "RECIPE_RESULTS", "restart_seed", "collapse_step"]
 
 KALMANNET_FORMAT = "adaptfilt-kalmannet/1"
 FEATURE_NORMS = ("l2", "none", "scale")
@@ -286,6 +286,51 @@ def restart_seed(seed: int, attempt: int) -> int:
 
 
 # ------------------------------------------------------------- model functions in torch
+def collapse_step(history: dict, min_validations: int = 4) -> int | None:
+    """The optimiser step from which a training's validation loss, finite, stayed above its attempt's initial
+    (untrained) network's to the end of that attempt, after the attempt had beaten it, over at least
+    ``min_validations`` validations (a shorter tail cannot be told from a spike that recovers): a collapse
+    the restart rule does not act on (it acts on non-finite losses only). Read from ``history``
+    (``val_steps``, ``val_loss``, ``attempts``); None when no attempt collapsed. The network kept is the best
+    on validation, from before the collapse, so a collapse ends a training's progress without showing in its
+    filter: a budget curve flattens there.
+
+    >>> h = {"val_steps": [0, 25, 50, 75, 100, 125, 150], "val_loss": [10.0, 4.0, 30.0, 3.0, 300.0, 90.0, 200.0],
+    ...      "attempts": [{"first_step": 0, "init_val": 10.0}]}
+    >>> collapse_step(h, min_validations=3)
+    100
+    """
+    steps, vals, attempts = list(history["val_steps"]), list(history["val_loss"]), list(history["attempts"])
+    if len(steps) != len(vals):
+        raise ValueError(f"history: {len(steps)} val_steps against {len(vals)} val_loss")
+    if int(min_validations) < 1:
+        raise ValueError(f"min_validations must be at least 1, got {min_validations}")
+    # each attempt's entries start at its own initial validation (step first_step, loss init_val); an attempt
+    # that follows another starts on the step where the last one ended, so the step alone does not split them
+    starts, i = [], 0
+    for k, a in enumerate(attempts):
+        while i < len(steps) and not (steps[i] == a["first_step"] and (k == 0 or vals[i] == a["init_val"])):
+            i += 1
+        if i == len(steps):
+            raise ValueError(f"history: attempt {k}'s initial validation (step {a['first_step']}) is not in val_steps")
+        starts.append(i)
+        i += 1
+    for k, a in enumerate(attempts):
+        part = slice(starts[k] + 1, starts[k + 1] if k + 1 < len(starts) else None)
+        s_k, v_k = steps[part], vals[part]
+        if not all(math.isfinite(v) for v in v_k):
+            continue  # a non-finite loss is the restart rule's divergence, not a collapse
+        first_better = next((n for n, v in enumerate(v_k) if v < a["init_val"]), None)
+        if first_better is None:
+            continue
+        tail = len(v_k)
+        while tail > first_better and v_k[tail - 1] > a["init_val"]:
+            tail -= 1
+        if len(v_k) - tail >= int(min_validations):
+            return int(s_k[tail])
+    return None
+
+
 class _NumpyFn(torch.autograd.Function):
     """``y = fn(x, k)`` of a numpy model function, differentiated by forward differences."""
 

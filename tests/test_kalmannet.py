@@ -515,3 +515,38 @@ def test_benchmark_quick_runs_and_prints_the_ratio(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert "kappa, PPO (study recipe)" in out and "gain, architecture 1" in out
     assert "ungm: gain, architecture 2: a trajectory-step of training costs" in out
+
+
+def _hist(steps, vals, attempts):
+    return {"val_steps": list(steps), "val_loss": list(vals), "attempts": attempts}
+
+
+def test_a_collapse_is_a_finite_validation_loss_that_stays_above_the_untrained_networks_to_the_end():
+    """collapse_step against hand-made histories: a spike that recovers is no collapse, a tail above the
+    untrained network's loss is one from its first step when it spans min_validations, an attempt that never
+    beat its initial network cannot collapse, a non-finite loss is divergence, and attempts that follow one
+    another on the same step are split by their initial validation."""
+    from adaptfilt.kalmannet import collapse_step
+
+    one = [{"first_step": 0, "init_val": 10.0}]
+    steps = [0, 25, 50, 75, 100, 125, 150, 175]
+    assert collapse_step(_hist(steps, [10, 5, 40, 4, 3, 3, 2, 2], one)) is None  # a spike that recovers
+    assert collapse_step(_hist(steps, [10, 5, 4, 3, 50, 60, 40, 70], one)) == 100
+    assert collapse_step(_hist(steps, [10, 5, 4, 3, 3, 60, 40, 70], one)) is None  # three validations: a spike?
+    assert collapse_step(_hist(steps, [10, 5, 4, 3, 3, 60, 40, 70], one), min_validations=3) == 125
+    assert collapse_step(_hist(steps, [10, 12, 11, 20, 30, 40, 50, 60], one)) is None  # never beat it
+    assert collapse_step(_hist(steps, [10, 5, 4, 3, 50, 60, float("inf"), 70], one)) is None
+    # attempt 0 abandoned at step 75 without progress; attempt 1 (initial loss 8) starts on step 75 and collapses
+    two = [{"first_step": 0, "init_val": 10.0}, {"first_step": 75, "init_val": 8.0}]
+    s2 = [0, 25, 50, 75, 75, 100, 125, 150, 175, 200]
+    v2 = [10, 11, 12, 13, 8, 7, 9, 9, 9, 9]
+    assert collapse_step(_hist(s2, v2, two)) == 125
+    # attempt 0 beating its initial loss (14) and never rising above it again: still only attempt 1 collapses
+    assert collapse_step(_hist(s2, v2, [{"first_step": 0, "init_val": 14.0}, {"first_step": 75, "init_val": 8.0}]),
+                         min_validations=3) == 125
+    with pytest.raises(ValueError, match="val_steps against"):
+        collapse_step(_hist(steps, [1.0], one))
+    with pytest.raises(ValueError, match="attempt 1's initial validation"):
+        collapse_step(_hist(steps, [10, 5, 4, 3, 3, 2, 2, 2], [*one, {"first_step": 60, "init_val": 1.0}]))
+    with pytest.raises(ValueError, match="min_validations"):
+        collapse_step(_hist(steps, [10] * 8, one), min_validations=0)

@@ -527,6 +527,30 @@ def stored_gain_policies(root=None) -> dict[tuple[str, str, int, int], object]:
     return out
 
 
+def collapse_table(knets: Mapping[tuple[str, str, int, int], object]) -> str:
+    """Where each KalmanNet arm's trainings ended their progress, from the histories of the top budget's files
+    (one training per seed: the top budget's history holds the whole of it): per model and arm, the optimiser
+    steps trained, the trainings that collapsed (:func:`adaptfilt.kalmannet.collapse_step`: the validation
+    loss, after beating the untrained network's, above it from that step to the end) with the steps where they did, and the step of the best
+    network kept (median over seeds; in how many seeds it comes from the last third of the training)."""
+    from adaptfilt.kalmannet import collapse_step
+
+    top: dict[tuple[str, str], int] = {}
+    for e, a, b, _ in knets:
+        top[e, a] = max(b, top.get((e, a), 0))
+    head = ["model", "arm", "top budget", "optimiser steps", "collapsed (from step)", "best network's step (median)",
+            "best in the last third"]
+    rows = []
+    for (e, a), b in top.items():
+        hs = [knets[k].history for k in sorted(knets) if k[:3] == (e, a, b)]
+        n = hs[0]["max_steps"]
+        ups = sorted(x for x in (collapse_step(h) for h in hs) if x is not None)
+        best = [h["best_step"] for h in hs]
+        rows.append([e, a, f"b{b}", n, f"{len(ups)} of {len(hs)}" + (f" ({', '.join(map(str, ups))})" if ups else ""),
+                     f"{float(np.median(best)):g}", f"{sum(x > 2 * n / 3 for x in best)} of {len(hs)}"])
+    return "\n".join(md_lines(head, rows))
+
+
 def initial_attempt(knet) -> int | None:
     """The seed of the training attempt whose untrained initial network ``knet`` holds (compared weight for
     weight with a fresh network of that seed and the same options), or None for a trained network. The
