@@ -802,7 +802,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     max_cpu_s: float | None = None, snapshots: Sequence[int] = (),
                     fresh: Literal["epoch", "batch"] | None = None, val_every: int | None = None,
                     max_steps: int | None = None, snapshot_steps: Sequence[int] = (), restarts: int = 0,
-                    patience: int | None = None, truth: StateSpaceModel | None = None, **options) -> KalmanNet:
+                    patience: int | None = None, truth: StateSpaceModel | None = None,
+                    collapse_after: int | None = None, **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
     Parameters
@@ -869,6 +870,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         The restart rule (``on_diverged="restart"`` only): at most ``restarts`` restarts; an attempt
         none of whose validations in its first ``patience`` optimiser steps beats its initial network
         is abandoned (None: only divergence abandons).
+    collapse_after : int, optional
+        Also count as a divergence (``on_diverged``) a *finite* validation loss above the attempt's initial
+        network's for ``collapse_after`` validations in a row after the attempt had beaten it: a collapse
+        (:func:`collapse_step` finds one in a history) that otherwise ends a training's progress unseen.
+        None (default): only non-finite losses diverge, as in the files made before the option existed.
     calibration : float
         Weight of the covariance calibration term of the Bayesian variant (supervised only).
     init : KalmanNet, optional
@@ -890,7 +896,7 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         if int(v) < 1:
             raise ValueError(f"{name} must be a positive integer, got {v}")
     for name, v in (("epochs", epochs), ("val_every", val_every), ("max_steps", max_steps), ("tbptt", tbptt),
-                    ("patience", patience)):
+                    ("patience", patience), ("collapse_after", collapse_after)):
         if v is not None and (int(v) != v or int(v) < 1):
             raise ValueError(f"{name} must be a positive integer or None, got {v}")
     if clip is not None and not float(clip) > 0:
@@ -984,6 +990,9 @@ class _Training:
             "trajectory_steps": 0}
         if a["truth"] is not None:  # recorded only when set: files made before the option existed stay reproducible
             self.hist["truth"] = a["truth"].description
+        if a["collapse_after"] is not None:  # the same
+            self.hist["collapse_after"] = int(a["collapse_after"])
+        self.above = 0                # consecutive validations above the attempt's initial loss (collapse_after)
 
     # ------------------------------------------------------------------ the whole training
     def run(self) -> KalmanNet:
@@ -1029,6 +1038,7 @@ class _Training:
         self.hist["n_restarts"] = n
         self.n = n
         self.improved = False
+        self.above = 0
         v = _evaluate(knet, self.val, a["loss"], a["calibration"])
         # an untrained filter that diverges on validation: any finite network beats it
         self.att_best = self.att["init_val"] = v if math.isfinite(v) else math.inf
@@ -1149,6 +1159,8 @@ class _Training:
         if not math.isfinite(v):
             return self.diverged(f"non-finite validation loss after epoch {epoch}", epoch)
         self.improve(v, epoch)
+        if (end := self.collapsed(v, epoch)) is not None:
+            return end
         if epoch in self.a["snaps"]:
             self.keep(("epoch", epoch), epochs=epoch)
         return self.no_progress()
@@ -1159,7 +1171,23 @@ class _Training:
         if not math.isfinite(v):
             return self.diverged(f"non-finite validation loss after optimiser step {self.step}", epoch)
         self.improve(v, epoch)
+        if (end := self.collapsed(v, epoch)) is not None:
+            return end
         return None if final else self.no_progress()
+
+    def collapsed(self, v: float, epoch: int) -> str | None:
+        """``collapse_after``: a finite validation loss above the attempt's initial network's for that many
+        validations in a row, after the attempt had beaten it, is a divergence (:meth:`diverged`: under the
+        restart rule the best weights at half the learning rate); None otherwise or when it restores."""
+        n = self.a["collapse_after"]
+        if n is None:
+            return None
+        self.above = self.above + 1 if self.improved and v > self.att["init_val"] else 0
+        if self.above < int(n):
+            return None
+        self.above = 0
+        return self.diverged(f"validation loss above the untrained network's ({self.att['init_val']:.4g}) for {n} "
+                             f"validations in a row, to optimiser step {self.step}", epoch)
 
     def no_progress(self) -> str | None:
         """The restart rule's patience: "no progress" when the attempt has not beaten its initial network."""

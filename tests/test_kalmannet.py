@@ -26,8 +26,8 @@ import pytest
 import torch
 
 import adaptfilt as af
-from adaptfilt.kalmannet import (GainNet, GainNet1, KalmanNet, TrainingDiverged, load_kalmannet, restart_seed,
-                                 train_kalmannet)
+from adaptfilt.kalmannet import (GainNet, GainNet1, KalmanNet, TrainingDiverged, collapse_step, load_kalmannet,
+                                 restart_seed, train_kalmannet)
 
 torch.set_num_threads(1)
 
@@ -526,8 +526,6 @@ def test_a_collapse_is_a_finite_validation_loss_that_stays_above_the_untrained_n
     untrained network's loss is one from its first step when it spans min_validations, an attempt that never
     beat its initial network cannot collapse, a non-finite loss is divergence, and attempts that follow one
     another on the same step are split by their initial validation."""
-    from adaptfilt.kalmannet import collapse_step
-
     one = [{"first_step": 0, "init_val": 10.0}]
     steps = [0, 25, 50, 75, 100, 125, 150, 175]
     assert collapse_step(_hist(steps, [10, 5, 40, 4, 3, 3, 2, 2], one)) is None  # a spike that recovers
@@ -550,3 +548,32 @@ def test_a_collapse_is_a_finite_validation_loss_that_stays_above_the_untrained_n
         collapse_step(_hist(steps, [10, 5, 4, 3, 3, 2, 2, 2], [*one, {"first_step": 60, "init_val": 1.0}]))
     with pytest.raises(ValueError, match="min_validations"):
         collapse_step(_hist(steps, [10] * 8, one), min_validations=0)
+
+
+def test_collapse_after_restores_the_best_weights_when_validation_stays_above_the_untrained_network(monkeypatch):
+    """The rule on scripted validation losses (the network trains for real; only its validation loss is
+    scripted): with collapse_after=3, the third validation in a row above the initial loss, after the attempt
+    beat it, restores the best weights at half the learning rate; a validation back below resets the count;
+    without the option the same losses restore nothing, and the history does not name the option; and a
+    stored history of a collapsed run is one collapse_step finds."""
+    import adaptfilt.kalmannet as kn
+
+    script = [10.0, 5.0, 20.0, 20.0, 4.0, 20.0, 30.0, 40.0, 3.0, 3.0, 3.0, 50.0, 50.0]
+
+    def train(**kw):
+        it = iter(script)
+        monkeypatch.setattr(kn, "_evaluate", lambda *a, **k: next(it))
+        return train_kalmannet(linear_model(), n_train=8, n_val=4, n_steps=10, epochs=None, batch_size=4,
+                               max_steps=12 * 5, val_every=5, lr=1e-3, seed=0, progress=False, fresh="batch",
+                               on_diverged="restart", restarts=1, **kw).history
+
+    with pytest.warns(RuntimeWarning, match="restored the best weights so far, learning rate halved"):
+        h = train(collapse_after=3)
+    assert [r["step"] for r in h["restores"]] == [35] and h["restores"][0]["lr"] == 5e-4
+    assert "above the untrained network's (10) for 3 validations" in h["restores"][0]["what"]
+    assert h["collapse_after"] == 3 and h["best_val_loss"] == 3.0 and h["n_restarts"] == 0
+    plain = train()
+    assert plain["restores"] == [] and "collapse_after" not in plain
+    assert collapse_step(plain, min_validations=2) == 55 and collapse_step(plain) is None
+    with pytest.raises(ValueError, match="collapse_after must be a positive integer"):
+        train(collapse_after=0)

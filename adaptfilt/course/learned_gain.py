@@ -531,8 +531,9 @@ def collapse_table(knets: Mapping[tuple[str, str, int, int], object]) -> str:
     """Where each KalmanNet arm's trainings ended their progress, from the histories of the top budget's files
     (one training per seed: the top budget's history holds the whole of it): per model and arm, the optimiser
     steps trained, the trainings that collapsed (:func:`adaptfilt.kalmannet.collapse_step`: the validation
-    loss, after beating the untrained network's, above it from that step to the end) with the steps where they did, and the step of the best
-    network kept (median over seeds; in how many seeds it comes from the last third of the training)."""
+    loss, after beating the untrained network's, above it from that step to the end) with the steps where
+    they did, and the step of the best network kept (median over seeds; in how many seeds it comes from the
+    last third of the training)."""
     from adaptfilt.kalmannet import collapse_step
 
     top: dict[tuple[str, str], int] = {}
