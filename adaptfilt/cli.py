@@ -15,7 +15,7 @@ Sub-commands (their names and flags are a contract the course, the README and
                          [--truth q=4,r=1|forcing=10] [--horizon T] [--train-runs N] [--val-runs N] [--batch-size B]
                          [--fresh batch|epoch] [--val-every K] [--lr LR] [--weight-decay W] [--clip C] [--tbptt L]
                          [--feature-norm l2|none|scale] [--clamp auto]
-                         [--on-diverged raise|restore|stop|restart [--restarts N] [--patience P]]
+                         [--on-diverged raise|restore|stop|restart [--restarts N] [--patience P]] [--collapse-after K]
                          [--model-grad jacobian|finite-difference|detach] --out FILE [--out FILE ...]
     adaptfilt imitate NAME --features SPEC [--seed S] [--runs M] [--epochs N] [--teacher ml|greedy] [--horizon T]
                       [--holdout F] [--lr LR] [--batch-size B] --out FILE
@@ -238,7 +238,7 @@ def gain_spec(args: argparse.Namespace):
                     clip=args.clip, tbptt=args.tbptt, feature_norm=args.feature_norm, on_diverged=args.on_diverged,
                     model_grad=args.model_grad, steps=args.steps, snapshot_steps=args.snapshot_steps,
                     hidden_mult=args.hidden_mult, fresh=args.fresh, val_every=args.val_every, clamp=args.clamp,
-                    restarts=args.restarts, patience=args.patience)
+                    restarts=args.restarts, patience=args.patience, collapse_after=args.collapse_after)
 
 
 def _train_gain(args: argparse.Namespace) -> int:
@@ -633,6 +633,10 @@ def _add_train_gain(sub) -> None:
     p.add_argument("--patience", type=_int_at_least(1), default=None,
                    help="the restart rule: abandon an attempt none of whose validations in its first P optimiser "
                         "steps beats its initial network (default: only divergence abandons)")
+    p.add_argument("--collapse-after", type=_int_at_least(1), default=None,
+                   help="count a finite validation loss above the untrained network's for K validations in a row, "
+                        "after beating it, as a divergence (--on-diverged decides what it does; default: only "
+                        "non-finite losses diverge)")
     p.add_argument("--model-grad", choices=MODEL_GRADS, default=d["model_grad"].default,
                    help="how the loss's gradient passes through f and h: jacobian (the model's torch forms, "
                         f"default {d['model_grad'].default}), finite-difference (the numpy path with "

@@ -207,7 +207,7 @@ def test_a_train_gain_line_with_every_option_of_the_gain_study_reads_back_the_sa
     for spec in (GainSpec("ungm-ukf", "supervised", None, 5, ("a.npz", "b.npz"), arch="kalmannet-arch1", steps=50,
                           snapshot_steps=(25, 50), truth="q=1,r=1,forcing=10", horizon=30, train_runs=100,
                           val_runs=100, batch_size=100, fresh="batch", val_every=25, lr=3e-3, clip=10.0, tbptt=20,
-                          clamp="auto", on_diverged="restart", restarts=2, patience=200),
+                          clamp="auto", on_diverged="restart", restarts=2, patience=200, collapse_after=4),
                  GainSpec("ctm-ukf", "unsupervised", 4, 1, ("c.npz",), hidden_mult=8, fresh="epoch",
                           on_diverged="restart", restarts=1)):
         back = gain_spec(build_parser().parse_args(shlex.split(spec.command)[1:]))

@@ -210,10 +210,12 @@ class GainSpec:
     ``snapshot_steps`` (optimiser steps, multiples of ``val_every``): where the filter is kept, one file of
     ``outs`` each, in order (a snapshot is bit for bit the filter of a training that stopped there: one training
     serves a budget curve); neither: one file, the trained filter. ``clamp="auto"``: the state estimate clamped
-    to the model's range; ``on_diverged="restart"`` with ``restarts`` and ``patience``: the restart rule. The rest
+    to the model's range; ``on_diverged="restart"`` with ``restarts`` and ``patience``: the restart rule;
+    ``collapse_after``: a finite collapse of the validation loss counts as a divergence. The rest
     is the recipe of :func:`adaptfilt.kalmannet.train_kalmannet`, written out in the command; an option left
     out of it is one whose value is the absence of that feature (no clip, whole-sequence back-propagation, a
-    fixed training set, per-epoch validation, no clamp, the paper's widths, no restarts), as files recorded
+    fixed training set, per-epoch validation, no clamp, the paper's widths, no restarts, only non-finite
+    divergence), as files recorded
     before those options existed say."""
 
     experiment: str
@@ -243,6 +245,7 @@ class GainSpec:
     clamp: str | None = None
     restarts: int = 0
     patience: int | None = None
+    collapse_after: int | None = None
 
     def __post_init__(self):
         from adaptfilt.kalmannet import FRESH, MODEL_GRADS
@@ -275,6 +278,9 @@ class GainSpec:
             raise ValueError(f"unknown on_diverged {self.on_diverged!r}; known: {', '.join(GAIN_ON_DIVERGED)}")
         if (self.restarts or self.patience is not None) and self.on_diverged != "restart":
             raise ValueError("--restarts and --patience belong to the restart rule: give --on-diverged restart")
+        if self.collapse_after is not None and (int(self.collapse_after) != self.collapse_after
+                                                or self.collapse_after < 1):
+            raise ValueError(f"--collapse-after is a positive number of validations, got {self.collapse_after}")
         snaps = self.snapshots if self.snapshots is not None else self.snapshot_steps
         n = 1 if snaps is None else len(snaps)
         if len(self.outs) != n:
@@ -298,7 +304,8 @@ class GainSpec:
                 + f" --lr {_exact(self.lr)} --weight-decay {_exact(self.weight_decay)}"
                 + ("" if self.clip is None else f" --clip {_exact(self.clip)}") + _flag("tbptt", self.tbptt)
                 + f" --feature-norm {self.feature_norm}" + _flag("clamp", self.clamp)
-                + f" --on-diverged {self.on_diverged}{restart} --model-grad {self.model_grad}"
+                + f" --on-diverged {self.on_diverged}{restart}" + _flag("collapse-after", self.collapse_after)
+                + f" --model-grad {self.model_grad}"
                 + "".join(f" --out {o}" for o in self.outs))
 
     @property
@@ -321,6 +328,8 @@ class GainSpec:
             options["clamp"] = self.clamp
         if self.on_diverged == "restart":
             options.update(restarts=self.restarts, patience=self.patience)
+        if self.collapse_after is not None:
+            options["collapse_after"] = self.collapse_after
         return train_kalmannet(model, loss=self.loss, n_steps=self.horizon or model.n_steps, epochs=self.epochs,
                                seed=self.seed, progress=progress, snapshots=self.snapshots or (),
                                n_train=self.train_runs, n_val=self.val_runs, batch_size=self.batch_size, lr=self.lr,
