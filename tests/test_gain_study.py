@@ -178,7 +178,7 @@ def test_quick_gain_study_has_every_arm_budget_model_and_regime(quick):
     md = summary_md(summary, ("gain",))
     assert "| ungm-ukf | q4 | gain-sup-on-q4 b3" in md and "what is learned" in md and "stops improving" in md
     assert "| ungm-ukf | nominal | gain-sup b6 | kappa-sqerr b5 |" in md
-    assert "| ctm-ukf | nominal, final | gain-sup b5 | kappa-sqerr b4 |" in md
+    assert "| ctm-ukf | nominal, final | gain-sup b6 | kappa-sqerr b4 |" in md
 
 
 def test_kalmannet_entries_are_paired_with_the_filters_on_the_same_runs(quick):

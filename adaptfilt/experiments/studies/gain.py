@@ -81,8 +81,11 @@ the final table on 5000 runs, the floor on 100. The supervised gain's curve was 
 budgets, so a second run extended it alone (UNGM to 800 CPU-s, the CTM to 500: what the second run's session
 could afford on 2 cores; every other arm reused from the manifest, the squared-error kappa carried at its top
 budget in its pair, :data:`CARRIED`): 10,400 CPU-s of training (its 8 trainings per model run again from the
-start, their earlier snapshots bit for bit the stored ones), 23,100 CPU-s (6.4 hours of one worker) for the
-whole study.
+start, their earlier snapshots bit for bit the stored ones). It stopped improving at 500 CPU-s on UNGM and still
+improved at 500 on the CTM, so a third run extended the CTM's to 1200 CPU-s (9,600 CPU-s of training, the same
+way): 28,700 CPU-s (8.0 hours of one worker) for the whole study. On the CTM every supervised training's
+validation loss had collapsed by then (:func:`adaptfilt.kalmannet.collapse_step`), its best network from before
+the collapse.
 """
 from __future__ import annotations
 
