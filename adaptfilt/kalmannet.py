@@ -285,7 +285,6 @@ def restart_seed(seed: int, attempt: int) -> int:
     return int(seed) + RESTART_SEED_STRIDE * int(attempt)
 
 
-# ------------------------------------------------------------- model functions in torch
 def collapse_step(history: dict, min_validations: int = 4) -> int | None:
     """The optimiser step from which a training's validation loss, finite, stayed above its attempt's initial
     (untrained) network's to the end of that attempt, after the attempt had beaten it, over at least
@@ -331,6 +330,7 @@ def collapse_step(history: dict, min_validations: int = 4) -> int | None:
     return None
 
 
+# ------------------------------------------------------------- model functions in torch
 class _NumpyFn(torch.autograd.Function):
     """``y = fn(x, k)`` of a numpy model function, differentiated by forward differences."""
 
@@ -992,7 +992,6 @@ class _Training:
             self.hist["truth"] = a["truth"].description
         if a["collapse_after"] is not None:  # the same
             self.hist["collapse_after"] = int(a["collapse_after"])
-        self.above = 0                # consecutive validations above the attempt's initial loss (collapse_after)
 
     # ------------------------------------------------------------------ the whole training
     def run(self) -> KalmanNet:
@@ -1038,7 +1037,7 @@ class _Training:
         self.hist["n_restarts"] = n
         self.n = n
         self.improved = False
-        self.above = 0
+        self.above = 0  # validations in a row above the attempt's initial loss (collapse_after)
         v = _evaluate(knet, self.val, a["loss"], a["calibration"])
         # an untrained filter that diverges on validation: any finite network beats it
         self.att_best = self.att["init_val"] = v if math.isfinite(v) else math.inf
