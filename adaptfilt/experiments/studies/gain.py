@@ -390,7 +390,8 @@ def knet_spec(experiment: str, arm: str, spec: dict, seed: int, scale: GainScale
                     batch_size=k["batch_size"], lr=k["lr"], weight_decay=k["weight_decay"], clip=k["clip"],
                     tbptt=k["tbptt"], feature_norm=k["feature_norm"], on_diverged=k["on_diverged"],
                     model_grad=k.get("model_grad", "jacobian"), fresh=k["fresh"], val_every=k["val_every"],
-                    clamp=k["clamp"], restarts=k["restarts"], patience=k["patience"])
+                    clamp=k["clamp"], restarts=k["restarts"], patience=k["patience"],
+                    collapse_after=k.get("collapse_after"))
 
 
 def kappa_spec(experiment: str, arm: str, spec: dict, seed: int, scale: GainScale, root: Path) -> TrainSpec:
