@@ -533,22 +533,26 @@ def collapse_table(knets: Mapping[tuple[str, str, int, int], object]) -> str:
     steps trained, the trainings that collapsed (:func:`adaptfilt.kalmannet.collapse_step`: the validation
     loss, after beating the untrained network's, above it from that step to the end) with the steps where
     they did, and the step of the best network kept (median over seeds; in how many seeds it comes from the
-    last third of the training)."""
+    last third of the training), and the returns to the best weights at half the learning rate
+    (``history["restores"]``: a non-finite loss or, under ``collapse_after``, a collapse caught; in how many
+    trainings)."""
     from adaptfilt.kalmannet import collapse_step
 
     top: dict[tuple[str, str], int] = {}
     for e, a, b, _ in knets:
         top[e, a] = max(b, top.get((e, a), 0))
-    head = ["model", "arm", "top budget", "optimiser steps", "collapsed (from step)", "best network's step (median)",
-            "best in the last third"]
+    head = ["model", "arm", "top budget (optimiser steps)", "collapsed (from step)", "best network's step (median)",
+            "best in the last third", "restores (trainings)"]
     rows = []
     for (e, a), b in top.items():
         hs = [knets[k].history for k in sorted(knets) if k[:3] == (e, a, b)]
         n = hs[0]["max_steps"]
         ups = sorted(x for x in (collapse_step(h) for h in hs) if x is not None)
         best = [h["best_step"] for h in hs]
-        rows.append([e, a, f"b{b}", n, f"{len(ups)} of {len(hs)}" + (f" ({', '.join(map(str, ups))})" if ups else ""),
-                     f"{float(np.median(best)):g}", f"{sum(x > 2 * n / 3 for x in best)} of {len(hs)}"])
+        rest = [len(h.get("restores", [])) for h in hs]
+        rows.append([e, a, f"b{b} ({n})", f"{len(ups)} of {len(hs)}" + (f" ({', '.join(map(str, ups))})" if ups else ""),
+                     f"{float(np.median(best)):g}", f"{sum(x > 2 * n / 3 for x in best)} of {len(hs)}",
+                     f"{sum(rest)} ({sum(r > 0 for r in rest)})"])
     return "\n".join(md_lines(head, rows))
 
 
