@@ -113,11 +113,11 @@ ARM_NAMES = tuple(a for a, _, _ in ARMS)
 #: KalmanNet's loss per gain arm.
 LOSS = {"gain-unsup": "unsupervised", "gain-sup": "supervised"}
 #: Target training CPU-s of the budgets, per model (per policy).
-#: The last budget of UNGM (800) and the last two of the CTM (500, 1200) are the supervised gain's alone: its
-#: curve was still falling at 500 and 200 CPU-s, where the first run stopped, and on the CTM again at 500, where
-#: the second stopped (:data:`CARRIED`).
+#: The last budget of UNGM (800) and the last three of the CTM (500, 1200, 3000) are the supervised gain's alone:
+#: its curve was still falling at 500 and 200 CPU-s, where the first run stopped, on the CTM again at 500, where
+#: the second stopped, and at 1200 once its trainings no longer collapsed (the fourth run, :data:`CARRIED`).
 TARGET_CPU_S = {"ungm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0, 800.0),
-                "ctm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0, 1200.0)}
+                "ctm-ukf": (5.0, 15.0, 45.0, 200.0, 500.0, 1200.0, 3000.0)}
 #: The budget (1-based) each arm trains to where it is not the model's last (the size of the run, :func:`estimate`:
 #: the measurement-only arms and the consistency arm to 45 CPU-s, architecture 2's supervised arm to 200, the
 #: squared-error kappa to 500 on UNGM and 200 on the CTM, where it had long stopped improving).
@@ -263,12 +263,12 @@ FULL = GainScale("full", tuple(range(8)), None, 5000, 2000, 100, PF_PARTICLES,
                  {e: work_units(e, "kappa") for e in ("ungm-ukf", "ctm-ukf")},
                  {k: work_units(k[0], "gain", k[1]) for k in CALIBRATION["knet"]
                   if k[1] == ARCH[k[0]] or OTHER_ARCH.get(k[0], (None, None))[1] == k[1]})
-#: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to six
+#: The quick scale of the test suite: 2 seeds, 20 steps, 100 runs, toy budgets (the kappa learner's one to seven
 #: rollouts of 8 runs x 64 steps, 25.6 episodes each).
 QUICK = GainScale("quick", (0, 1), 20, 100, 100, 5, {"ungm-ukf": 50, "ctm-ukf": 50},
-                  {"ungm-ukf": (20, 45, 70, 95, 120, 145), "ctm-ukf": (20, 45, 70, 95, 120, 145)},
+                  {"ungm-ukf": (20, 45, 70, 95, 120, 145), "ctm-ukf": (20, 45, 70, 95, 120, 145, 170)},
                   {("ungm-ukf", 1): (2, 4, 6, 8, 10, 12), ("ungm-ukf", 2): (2, 4, 6, 8),
-                   ("ctm-ukf", 2): (2, 4, 6, 8, 10, 12)},
+                   ("ctm-ukf", 2): (2, 4, 6, 8, 10, 12, 14)},
                   {"n_train": 8, "n_val": 4, "batch_size": 8, "val_every": 2, "patience": 4},
                   {"parallel": 8})
 
