@@ -189,14 +189,28 @@ def test_the_collapse_table_reads_each_arms_top_budget_history():
     budget's history (a lower budget's history is a prefix and is not read), and where the best network lies."""
     from types import SimpleNamespace
 
-    def knet(vals, best_step, n=150):
+    def knet(vals, best_step, n=150, restores=()):
         steps = list(range(0, 25 * len(vals), 25))
         return SimpleNamespace(history={"val_steps": steps, "val_loss": vals, "max_steps": n, "best_step": best_step,
-                                        "attempts": [{"first_step": 0, "init_val": vals[0]}]})
+                                        "attempts": [{"first_step": 0, "init_val": vals[0]}],
+                                        "restores": [{"step": s} for s in restores]})
 
     ok, bad = [10, 5, 4, 3, 3, 2, 2], [10, 5, 4, 30, 40, 50, 60]
-    knets = {("m", "gain-sup", 2, 0): knet(ok, 150), ("m", "gain-sup", 2, 1): knet(bad, 50),
-             ("m", "gain-sup", 1, 1): knet(bad[:3], 50, n=50), ("m", "gain-unsup", 1, 0): knet(ok, 25)}
+    knets = {("m", "gain-sup", 2, 0): knet(ok, 150, restores=(50, 100)), ("m", "gain-sup", 2, 1): knet(bad, 50),
+             ("m", "gain-sup", 1, 1): knet(bad[:3], 50, n=50, restores=(25,)),  # a prefix: not read
+             ("m", "gain-unsup", 1, 0): knet(ok, 25)}
     rows = {(r[0], r[1]): r for r in _rows(lg.collapse_table(knets))}
-    assert rows["m", "gain-sup"] == ["m", "gain-sup", "b2", "150", "1 of 2 (75)", "100", "1 of 2"]
-    assert rows["m", "gain-unsup"][4:] == ["0 of 1", "25", "0 of 1"]
+    assert rows["m", "gain-sup"] == ["m", "gain-sup", "b2 (150)", "1 of 2 (75)", "100", "1 of 2", "2 (1)"]
+    assert rows["m", "gain-unsup"][3:] == ["0 of 1", "25", "0 of 1", "0 (0)"]
+
+
+def test_the_particle_filter_lines_judge_the_supervised_gains_top_budget_by_the_one_rule(quick):
+    """pf_lines: per model, the supervised gain's top budget against the particle filter (final runs), its word
+    the one rule's for its interval (margin 0: no margin was declared for the pair)."""
+    _, g = quick
+    lines = lg.pf_lines(g).splitlines()
+    assert len(lines) == len(g["models"])
+    for ln, e in zip(lines, g["models"]):
+        assert ln.startswith(f"{e}: gain-sup b{g['arms'][e]['gain-sup']['top']} - particle filter (bpf-")
+        assert ln.endswith(judge("lower", _interval(ln.split(": ")[-1]))[0])
+    assert len(lg.pf_lines(g, "q4").splitlines()) == len(g["models"])

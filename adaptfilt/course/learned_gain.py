@@ -33,7 +33,7 @@ from adaptfilt.course.common import figure_axes
 from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
-           "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains", "LEARNED_PAIRS", "design_lines",
+           "plot_gains", "plot_seed_spread", "pf_lines", "gain_function", "kalman_gains", "LEARNED_PAIRS", "design_lines",
            "curve_lines", "plot_curves", "stops_lines", "verdict_table", "training_table",
            "restart_table", "truth_table", "consistency_table", "final_table", "stored_gain_policies",
            "initial_attempt", "is_initial_network"]
@@ -365,6 +365,24 @@ def verdict_table(g: Mapping, regime: str = "nominal", pairs: Sequence[tuple[str
     return "\n".join(md_lines(head, rows))
 
 
+def pf_lines(g: Mapping, regime: str = "nominal") -> str:
+    """The supervised gain's top budget against the particle filter under ``regime`` (the final runs under the
+    nominal model, else the curve's), per model: ``a - b`` of the RMSE and "a lower" at margin 0 (no margin
+    was declared for this pair, :data:`adaptfilt.experiments.studies.gain.PF`)."""
+    from adaptfilt.experiments.studies.gain import PF
+
+    out = []
+    for e, regimes in g["models"].items():
+        m = regimes[regime]
+        rows = m.get("final_verdicts", []) if regime == "nominal" else m["verdicts"]
+        top = max((v["budget"] for v in rows if v["a"] == "gain-sup" and v["b"].startswith(PF)), default=None)
+        for v in rows:
+            if v["a"] == "gain-sup" and v["b"].startswith(PF) and v["budget"] == top:
+                runs = f", {g['eval_runs']} runs" if regime == "nominal" else ""
+                out.append(f"{e}: gain-sup b{top} - {v['b']}{runs}: {_interval(v['diff'])} {v['lower']}")
+    return "\n".join(out)
+
+
 def md_lines(head: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
     """A Markdown table (:func:`adaptfilt.experiments.report.md_table`)."""
     from adaptfilt.experiments.report import md_table
@@ -533,22 +551,26 @@ def collapse_table(knets: Mapping[tuple[str, str, int, int], object]) -> str:
     steps trained, the trainings that collapsed (:func:`adaptfilt.kalmannet.collapse_step`: the validation
     loss, after beating the untrained network's, above it from that step to the end) with the steps where
     they did, and the step of the best network kept (median over seeds; in how many seeds it comes from the
-    last third of the training)."""
+    last third of the training), and the returns to the best weights at half the learning rate
+    (``history["restores"]``: a non-finite loss or, under ``collapse_after``, a collapse caught; in how many
+    trainings)."""
     from adaptfilt.kalmannet import collapse_step
 
     top: dict[tuple[str, str], int] = {}
     for e, a, b, _ in knets:
         top[e, a] = max(b, top.get((e, a), 0))
-    head = ["model", "arm", "top budget", "optimiser steps", "collapsed (from step)", "best network's step (median)",
-            "best in the last third"]
+    head = ["model", "arm", "top budget (optimiser steps)", "collapsed (from step)", "best network's step (median)",
+            "best in the last third", "restores (trainings)"]
     rows = []
     for (e, a), b in top.items():
         hs = [knets[k].history for k in sorted(knets) if k[:3] == (e, a, b)]
         n = hs[0]["max_steps"]
         ups = sorted(x for x in (collapse_step(h) for h in hs) if x is not None)
         best = [h["best_step"] for h in hs]
-        rows.append([e, a, f"b{b}", n, f"{len(ups)} of {len(hs)}" + (f" ({', '.join(map(str, ups))})" if ups else ""),
-                     f"{float(np.median(best)):g}", f"{sum(x > 2 * n / 3 for x in best)} of {len(hs)}"])
+        rest = [len(h.get("restores", [])) for h in hs]
+        rows.append([e, a, f"b{b} ({n})", f"{len(ups)} of {len(hs)}" + (f" ({', '.join(map(str, ups))})" if ups else ""),
+                     f"{float(np.median(best)):g}", f"{sum(x > 2 * n / 3 for x in best)} of {len(hs)}",
+                     f"{sum(rest)} ({sum(r > 0 for r in rest)})"])
     return "\n".join(md_lines(head, rows))
 
 
