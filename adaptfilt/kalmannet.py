@@ -132,7 +132,8 @@ per architecture (:data:`RECIPE_TUNING`). On 2000 fresh test runs (:data:`RECIPE
 architecture 1 reached an RMSE of 2.18-2.51 at about 45 CPU-s and 1.26-1.54 at 200 CPU-s (about
 20,000 trajectories seen, no restart), architecture 2 (472 weights) 2.61-3.02 and 2.51-2.79 (one
 restart in three trainings): architecture 1 was ahead in every seed at both budgets (one recipe
-each, three seeds; the study's eight will say more).
+each, three seeds; the study's eight will say more). The CTM's recipes also count a collapse of the validation
+loss as a divergence (``collapse_after=4``), added after the tuning when longer trainings showed it.
 
 Files (:meth:`KalmanNet.save`, :func:`load_kalmannet`): one ``.npz`` without pickles
 (:func:`adaptfilt.files.write_npz`, as a policy's) holding the weights and a JSON record of the model's

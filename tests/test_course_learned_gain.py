@@ -202,3 +202,15 @@ def test_the_collapse_table_reads_each_arms_top_budget_history():
     rows = {(r[0], r[1]): r for r in _rows(lg.collapse_table(knets))}
     assert rows["m", "gain-sup"] == ["m", "gain-sup", "b2 (150)", "1 of 2 (75)", "100", "1 of 2", "2 (1)"]
     assert rows["m", "gain-unsup"][3:] == ["0 of 1", "25", "0 of 1", "0 (0)"]
+
+
+def test_the_particle_filter_lines_judge_the_supervised_gains_top_budget_by_the_one_rule(quick):
+    """pf_lines: per model, the supervised gain's top budget against the particle filter (final runs), its word
+    the one rule's for its interval (margin 0: no margin was declared for the pair)."""
+    _, g = quick
+    lines = lg.pf_lines(g).splitlines()
+    assert len(lines) == len(g["models"])
+    for ln, e in zip(lines, g["models"]):
+        assert ln.startswith(f"{e}: gain-sup b{g['arms'][e]['gain-sup']['top']} - particle filter (bpf-")
+        assert ln.endswith(judge("lower", _interval(ln.split(": ")[-1]))[0])
+    assert len(lg.pf_lines(g, "q4").splitlines()) == len(g["models"])

@@ -33,7 +33,7 @@ from adaptfilt.course.common import figure_axes
 from adaptfilt.models import StateSpaceModel, Trajectory, linear_gaussian
 
 __all__ = ["LINEAR", "TRAIN", "linear_model", "steady_state_gain", "db", "train_seeds", "seed_table",
-           "plot_gains", "plot_seed_spread", "gain_function", "kalman_gains", "LEARNED_PAIRS", "design_lines",
+           "plot_gains", "plot_seed_spread", "pf_lines", "gain_function", "kalman_gains", "LEARNED_PAIRS", "design_lines",
            "curve_lines", "plot_curves", "stops_lines", "verdict_table", "training_table",
            "restart_table", "truth_table", "consistency_table", "final_table", "stored_gain_policies",
            "initial_attempt", "is_initial_network"]
@@ -363,6 +363,24 @@ def verdict_table(g: Mapping, regime: str = "nominal", pairs: Sequence[tuple[str
                     rows.append([e, _budget(g, e, v["budget"]) + where, label, _interval(v["diff"]),
                                  v["lower"], nw])
     return "\n".join(md_lines(head, rows))
+
+
+def pf_lines(g: Mapping, regime: str = "nominal") -> str:
+    """The supervised gain's top budget against the particle filter under ``regime`` (the final runs under the
+    nominal model, else the curve's), per model: ``a - b`` of the RMSE and "a lower" at margin 0 (no margin
+    was declared for this pair, :data:`adaptfilt.experiments.studies.gain.PF`)."""
+    from adaptfilt.experiments.studies.gain import PF
+
+    out = []
+    for e, regimes in g["models"].items():
+        m = regimes[regime]
+        rows = m.get("final_verdicts", []) if regime == "nominal" else m["verdicts"]
+        top = max((v["budget"] for v in rows if v["a"] == "gain-sup" and v["b"].startswith(PF)), default=None)
+        for v in rows:
+            if v["a"] == "gain-sup" and v["b"].startswith(PF) and v["budget"] == top:
+                runs = f", {g['eval_runs']} runs" if regime == "nominal" else ""
+                out.append(f"{e}: gain-sup b{top} - {v['b']}{runs}: {_interval(v['diff'])} {v['lower']}")
+    return "\n".join(out)
 
 
 def md_lines(head: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
