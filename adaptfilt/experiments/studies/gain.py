@@ -83,12 +83,13 @@ could afford on 2 cores; every other arm reused from the manifest, the squared-e
 budget in its pair, :data:`CARRIED`): 10,400 CPU-s of training (its 8 trainings per model run again from the
 start, their earlier snapshots bit for bit the stored ones). It stopped improving at 500 CPU-s on UNGM and still
 improved at 500 on the CTM, so a third run extended the CTM's to 1200 CPU-s (9,600 CPU-s of training, the same
-way): 28,700 CPU-s (8.0 hours of one worker) for the whole study. On the CTM every supervised training's
-validation loss had collapsed by then (:func:`adaptfilt.kalmannet.collapse_step`), its best network from before
-the collapse, so a fourth run trained the CTM's KalmanNet arms again with recipes that count a collapse as a
-divergence (``collapse_after=4`` in :data:`adaptfilt.kalmannet.RECIPES`: the best weights at half the learning
-rate); its curve then still fell at 1200 CPU-s. The supervised gain is judged against the particle filter too
-(:data:`PF`, "lower" alone).
+way). On the CTM every supervised training's validation loss had collapsed by then
+(:func:`adaptfilt.kalmannet.collapse_step`), its best network from before the collapse, so a fourth run trained
+the CTM's KalmanNet arms again with recipes that count a collapse as a divergence (``collapse_after=4`` in
+:data:`adaptfilt.kalmannet.RECIPES`: the best weights at half the learning rate); its curve then still fell at
+1200 CPU-s, so a fifth run extended it to 3000 (24,000 CPU-s of training, its 8 trainings again from the start):
+43,100 CPU-s (12.0 hours of one worker) for the whole study. The supervised gain is judged against the particle
+filter too (:data:`PF`, "lower" alone).
 """
 from __future__ import annotations
 
