@@ -575,7 +575,10 @@ def _add_train_gain(sub) -> None:
     p = sub.add_parser("train-gain", help="train a filter with a learned gain (KalmanNet) on simulated trajectories",
                        description="Train a filter whose gain is learned (KalmanNet's architecture 2, "
                                    "adaptfilt.kalmannet) on trajectories of an experiment's model; every option "
-                                   "is recorded in the command line each file keeps.")
+                                   "is recorded in the command line each file keeps. While it runs the training "
+                                   "keeps a checkpoint beside its last --out (OUT.resume.pt, every minute): the "
+                                   "same command after an interruption resumes from it, bit for bit the training "
+                                   "that was never stopped.")
     p.add_argument("name", type=_experiment, help="experiment name (its model), see `adaptfilt experiments`")
     p.add_argument("--arch", choices=tuple(GAIN_ARCHS), default=d["arch"].default,
                    help="the learned-gain architecture: kalmannet (KalmanNet's architecture 2, the default) or "

@@ -125,6 +125,19 @@ training amplifies that: equality across machines is not claimed. A budget in CP
 a step count calibrated on the machine (:data:`RECIPE_TUNING` records CPU-s per step); ``max_cpu_s`` stops
 on the clock itself, which is not reproducible.
 
+**Checkpoints** (``checkpoint=PATH``): a training of hours can be stopped and resumed. At a validation,
+at most every :data:`CHECKPOINT_EVERY_S` seconds, the whole state of the loop goes to ``PATH``
+(atomically; ``torch.save``, read back with ``weights_only=True``): the weights, Adam's state and learning
+rate, torch's random state, the minibatch order's generator, where in the epoch, minibatch and
+back-propagation window the next step starts (with the estimate and GRU states carried into it), the
+history, the best weights, the attempt's and every snapshot kept so far, and the CPU seconds spent. The
+same call that finds the file goes on from there (the simulated minibatches are drawn again from their
+own seeds), bit for bit the training that was never stopped, and removes the file when it returns;
+``knet.resumed_at`` lists the steps it resumed at (not in the saved file, which is byte for byte the
+uninterrupted training's). A file made by another call (other arguments, or other code in this module
+or :mod:`adaptfilt.gainnets`) is ignored with a warning. ``adaptfilt train-gain`` and the pipeline
+keep one beside the training's last file (:attr:`adaptfilt.experiments.jobs.GainSpec.checkpoint`).
+
 **Recipes** (:data:`RECIPES`): on UNGM both architectures train at learning rate 3e-3 over windows of
 20 steps, on minibatches of 100 freshly simulated trajectories, validated every 25 steps, the state
 clamped, under the restart rule; chosen on selection runs only from 8 learning rates x window lengths
@@ -182,6 +195,11 @@ __all__ = ["GainNet", "GainNet1", "KalmanNet", "train_kalmannet", "load_kalmanne
            "KALMANNET_FORMAT", "RECIPES", "RECIPE_TUNING", "RECIPE_RESULTS", "restart_seed", "collapse_step"]
 
 KALMANNET_FORMAT = "adaptfilt-kalmannet/1"
+#: The format of a training's checkpoint (``train_kalmannet(checkpoint=...)``).
+CHECKPOINT_FORMAT = "adaptfilt-kalmannet-checkpoint/1"
+#: Seconds of wall time between a training's checkpoints (a validation falls every few seconds; writing one
+#: costs milliseconds): what a stop loses at most, besides the validation interval.
+CHECKPOINT_EVERY_S = 60.0
 FEATURE_NORMS = ("l2", "none", "scale")
 MODEL_GRADS = ("jacobian", "finite-difference", "detach")
 LOSSES = ("supervised", "unsupervised")
@@ -809,7 +827,8 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
                     fresh: Literal["epoch", "batch"] | None = None, val_every: int | None = None,
                     max_steps: int | None = None, snapshot_steps: Sequence[int] = (), restarts: int = 0,
                     patience: int | None = None, truth: StateSpaceModel | None = None,
-                    collapse_after: int | None = None, **options) -> KalmanNet:
+                    collapse_after: int | None = None, checkpoint: str | os.PathLike | None = None,
+                    checkpoint_every: float | None = None, **options) -> KalmanNet:
     """Train a :class:`KalmanNet` on simulated trajectories of ``model`` (module docstring).
 
     Parameters
@@ -885,6 +904,13 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         Weight of the covariance calibration term of the Bayesian variant (supervised only).
     init : KalmanNet, optional
         Continue from these weights (options then come from it; no restarts).
+    checkpoint : path, optional
+        A file through which the training can be stopped and resumed (module docstring, *Checkpoints*):
+        the whole state of the loop is written there at a validation at most every ``checkpoint_every``
+        seconds of wall time (default :data:`CHECKPOINT_EVERY_S`; 0: at every validation); a call with the same arguments that finds it goes on
+        from there, bit for bit the training that was never stopped, and removes it when it returns. A file
+        made by another call (other arguments, other training code) is ignored with a warning. Only for a
+        training that simulates its own data (no ``train``, ``val`` or ``init``).
     **options
         :class:`KalmanNet`'s options (``arch``, ``feature_norm``, ``clamp``, the widths, ``dropout``,
         ``n_samples``, ``model_grad``).
@@ -944,6 +970,12 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
         raise ValueError("init continues one training: it cannot be restarted from new weights (restarts=0)")
     if init is not None and (init.model.name, init.model.nx, init.model.nz) != (model.name, model.nx, model.nz):
         raise ValueError(f"init is a KalmanNet for model {init.model.name!r}, not for {model.name!r}")
+    if checkpoint is not None and (train is not None or val is not None or init is not None):
+        raise ValueError("a checkpoint resumes a training that simulates its own data: give no train, val or init")
+    if checkpoint_every is None:
+        checkpoint_every = CHECKPOINT_EVERY_S
+    if not (math.isfinite(checkpoint_every) and checkpoint_every >= 0):
+        raise ValueError(f"checkpoint_every must be a number of seconds >= 0, got {checkpoint_every}")
     grad = (init.options if init is not None else options).get("model_grad", "jacobian")
     if loss == "unsupervised" and grad == "detach":
         raise ValueError("the unsupervised loss reaches the weights only through f and h: use model_grad='jacobian'")
@@ -960,6 +992,8 @@ class _Training:
 
     def __init__(self, model: StateSpaceModel, a: dict):
         self.cpu0 = time.process_time()
+        self.cpu_before = 0.0         # CPU seconds of the sittings before a resume (a checkpoint's)
+        self.resumed_at: list[int] = []
         self.model, self.a = model, a
         self.ds = int(a["seed"] if a["data_seed"] is None else a["data_seed"])
         self.sim = model if a["truth"] is None else a["truth"]  # what the trajectories are simulated from
@@ -998,6 +1032,13 @@ class _Training:
             self.hist["truth"] = a["truth"].description
         if a["collapse_after"] is not None:  # the same
             self.hist["collapse_after"] = int(a["collapse_after"])
+        self.ckpt = None if a["checkpoint"] is None else Path(a["checkpoint"])
+        self.ckpt_time = time.monotonic()
+        self.resume = self.read_checkpoint() if self.ckpt is not None else None
+
+    def cpu(self) -> float:
+        """Process CPU seconds of the training, every sitting together."""
+        return self.cpu_before + time.process_time() - self.cpu0
 
     # ------------------------------------------------------------------ the whole training
     def run(self) -> KalmanNet:
@@ -1006,13 +1047,15 @@ class _Training:
         if a["progress"]:
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(total=a["max_steps"], desc=f"train KalmanNet ({self.model.name})", unit="step", leave=False)
+            self.bar = tqdm(total=a["max_steps"], desc=f"train KalmanNet ({self.model.name})", unit="step", leave=False,
+                            initial=0 if self.resume is None else self.resume["step"])
         try:
             with one_torch_thread(), torch.random.fork_rng(devices=[]), np.errstate(over="ignore", invalid="ignore"):
                 # numpy's overflow warnings of a diverging estimate are replaced by the check of the loss
-                attempt = 0
+                attempt = 0 if self.resume is None else self.resume["n"]
                 while True:
-                    end = self.attempt(attempt)
+                    end = self.attempt(attempt, self.resume)
+                    self.resume = None
                     if end in ("diverged", "no progress") and attempt < int(a["restarts"]) and not self.spent():
                         attempt += 1
                         continue
@@ -1025,44 +1068,48 @@ class _Training:
     def spent(self) -> bool:
         a = self.a
         return ((a["max_steps"] is not None and self.step >= int(a["max_steps"]))
-                or (a["max_cpu_s"] is not None and time.process_time() - self.cpu0 >= float(a["max_cpu_s"])))
+                or (a["max_cpu_s"] is not None and self.cpu() >= float(a["max_cpu_s"])))
 
     # ------------------------------------------------------------------ one attempt
-    def attempt(self, n: int) -> str:
-        """Train attempt ``n`` until its end: "epochs", "budget", "diverged", "no progress" or "stopped"."""
+    def attempt(self, n: int, resume: dict | None = None) -> str:
+        """Train attempt ``n`` until its end: "epochs", "budget", "diverged", "no progress" or "stopped"; from
+        where a checkpoint left it with ``resume`` (:meth:`read_checkpoint`)."""
         a = self.a
         seed = restart_seed(a["seed"], n)
-        self.knet = knet = copy.deepcopy(a["init"]) if a["init"] is not None else KalmanNet(
-            self.model, seed=seed, **a["options"])
+        self.knet = knet = self.attempt_filter(n)
         self.opt = torch.optim.Adam(knet.net.parameters(), lr=a["lr"], weight_decay=a["weight_decay"])
         order_rng = np.random.default_rng([seed, 2])
         torch.manual_seed(seed + 1)
-        self.att = {"seed": seed, "first_step": self.step, "last_step": self.step, "epochs": 0, "init_val": None,
-                    "best_val": None, "best_step": self.step, "restores": 0, "end": None}
-        self.hist["attempts"].append(self.att)
-        self.hist["n_restarts"] = n
-        self.n = n
-        self.improved = False
-        self.above = 0  # validations in a row above the attempt's initial loss (collapse_after)
-        v = _evaluate(knet, self.val, a["loss"], a["calibration"])
-        # an untrained filter that diverges on validation: any finite network beats it
-        self.att_best = self.att["init_val"] = v if math.isfinite(v) else math.inf
-        self.record_val(self.att_best)
-        self.att_state = copy.deepcopy(knet.net.state_dict())
-        self.consider(self.att_best, epoch=0, trained=False)
         z_prev_fixed = knet._z_prev(self.train.z) if self.train is not None else None
-        epoch, end = 0, None
+        if resume is None:
+            self.att = {"seed": seed, "first_step": self.step, "last_step": self.step, "epochs": 0, "init_val": None,
+                        "best_val": None, "best_step": self.step, "restores": 0, "end": None}
+            self.hist["attempts"].append(self.att)
+            self.hist["n_restarts"] = n
+            self.n = n
+            self.improved = False
+            self.above = 0  # validations in a row above the attempt's initial loss (collapse_after)
+            v = _evaluate(knet, self.val, a["loss"], a["calibration"])
+            # an untrained filter that diverges on validation: any finite network beats it
+            self.att_best = self.att["init_val"] = v if math.isfinite(v) else math.inf
+            self.record_val(self.att_best)
+            self.att_state = copy.deepcopy(knet.net.state_dict())
+            self.consider(self.att_best, epoch=0, trained=False)
+            epoch, b0, t00, carry0, losses0 = 1, 0, 0, None, []
+        else:
+            epoch, b0, t00, carry0, losses0 = self.load_state(resume, order_rng)
+        end = None
         while end is None:
-            epoch += 1
             if a["epochs"] is not None and epoch > int(a["epochs"]):
                 end = "epochs"
                 break
             knet.net.train()
-            losses = []
-            for z, zp, x in self.minibatches(n, epoch, order_rng, z_prev_fixed):
-                carry = knet._start(len(z))
+            losses = losses0
+            self.order_state = copy.deepcopy(order_rng.bit_generator.state)  # where this epoch's order is drawn from
+            for b, (z, zp, x) in self.minibatches(n, epoch, order_rng, z_prev_fixed, b0, t00 > 0):
+                carry = carry0 if (b == b0 and t00 > 0) else knet._start(len(z))
                 x = torch.from_numpy(x)
-                for t0 in range(0, self.T, self.window):
+                for t0 in range(t00 if b == b0 else 0, self.T, self.window):
                     t1 = min(self.T, t0 + self.window)
                     out, carry = knet._window(z[:, t0:t1], zp[:, t0:t1], t0, carry)
                     ell = _loss(knet, out, x[:, t0:t1], a["loss"], a["calibration"])
@@ -1091,38 +1138,63 @@ class _Training:
                         self.bar.update(1)
                     if end is not None or broke:  # a diverged step skips the rest of its minibatch
                         break
+                    if not self.per_epoch and self.step % int(a["val_every"]) == 0:
+                        # just validated: the loop's state is whole here, and the next step comes from it
+                        go_on = t1 < self.T
+                        self.write_checkpoint(epoch, b if go_on else b + 1, t1 if go_on else 0,
+                                              carry if go_on else None, losses)
                 if end is not None:
                     break
+            b0, t00, carry0, losses0 = 0, 0, None, []
             self.att["epochs"] = epoch
             if end == "stopped":
                 break
             self.hist["train_loss"].append(float(np.mean(losses)) if losses else math.nan)
             if self.per_epoch and end in (None, "budget"):
                 end = self.validate_epoch(epoch) or end
+                if end is None and (a["epochs"] is None or epoch < int(a["epochs"])):  # else the last epoch ended
+                    self.order_state = copy.deepcopy(order_rng.bit_generator.state)
+                    self.write_checkpoint(epoch + 1, 0, 0, None, [])
+            epoch += 1
         self.att["end"], self.att["last_step"] = end, self.step
         self.keep_step_snapshot()  # a snapshot step at which the attempt ended
         return end
 
-    def minibatches(self, n: int, epoch: int, order_rng: np.random.Generator, z_prev_fixed):
-        """``(z, z_prev, x)`` of each minibatch of an epoch: from the fixed set in a seeded order, or simulated."""
+    def attempt_filter(self, n: int) -> KalmanNet:
+        """Attempt ``n``'s filter before training: its weights from :func:`restart_seed` (or ``init``)."""
+        a = self.a
+        if a["init"] is not None:
+            return copy.deepcopy(a["init"])
+        return KalmanNet(self.model, seed=restart_seed(a["seed"], n), **a["options"])
+
+    def minibatches(self, n: int, epoch: int, order_rng: np.random.Generator, z_prev_fixed, start: int = 0,
+                    counted: bool = False):
+        """``(b, (z, z_prev, x))`` of each minibatch ``b`` of an epoch: from the fixed set in a seeded order, or
+        simulated; from minibatch ``start`` on (a resumed epoch: ``counted`` when minibatch ``start`` was begun,
+        its trajectories already counted in ``trajectories_seen``)."""
         a, bs = self.a, int(self.a["batch_size"])
         if a["fresh"] == "batch":
             for b, i in enumerate(range(0, self.n_train, bs)):
+                if b < start:
+                    continue
                 tr = self.sim.simulate(min(bs, self.n_train - i), self.T,
                                          rng=np.random.default_rng([self.ds, 4, n, epoch, b]))
-                self.hist["trajectories_seen"] += tr.n_runs
-                yield tr.z, self.knet._z_prev(tr.z), tr.x
+                if not (counted and b == start):
+                    self.hist["trajectories_seen"] += tr.n_runs
+                yield b, (tr.z, self.knet._z_prev(tr.z), tr.x)
             return
         if a["fresh"] == "epoch":
             tr = self.sim.simulate(self.n_train, self.T, rng=np.random.default_rng([self.ds, 3, n, epoch]))
-            self.hist["trajectories_seen"] += tr.n_runs
+            if start == 0 and not counted:
+                self.hist["trajectories_seen"] += tr.n_runs
             z_all, zp_all, x_all = tr.z, self.knet._z_prev(tr.z), tr.x
         else:
             z_all, zp_all, x_all = self.train.z, z_prev_fixed, self.train.x
         perm = order_rng.permutation(self.n_train)
-        for i in range(0, self.n_train, bs):
-            idx = np.sort(perm[i:i + bs])
-            yield z_all[idx], zp_all[idx], x_all[idx]
+        for b, i in enumerate(range(0, self.n_train, bs)):
+            if b >= start:
+                idx = np.sort(perm[i:i + bs])
+                yield b, (z_all[idx], zp_all[idx], x_all[idx])
 
     # ------------------------------------------------------------------ after each optimiser step
     def after_step(self, epoch: int) -> str | None:
@@ -1238,7 +1310,7 @@ class _Training:
     # ------------------------------------------------------------------ snapshots and the result
     def history_now(self, **update) -> dict:
         h = copy.deepcopy(self.hist)
-        h.update(best_val_loss=self.best, optimiser_steps=self.step, cpu_s=time.process_time() - self.cpu0,
+        h.update(best_val_loss=self.best, optimiser_steps=self.step, cpu_s=self.cpu(),
                  failed=None if self.best_trained else self.failure(), **update)
         return h
 
@@ -1265,10 +1337,96 @@ class _Training:
         knet = self.best_knet
         knet.net.load_state_dict(self.best_state)
         knet.net.eval()
-        self.hist.update(best_val_loss=self.best, optimiser_steps=self.step, cpu_s=time.process_time() - self.cpu0)
+        self.hist.update(best_val_loss=self.best, optimiser_steps=self.step, cpu_s=self.cpu())
         if not self.best_trained:
             self.hist["failed"] = self.failure()
             _warn(f"KalmanNet training failed: {self.hist['failed']}")
         knet.history = self.hist
         knet._snapshots = self.kept
+        knet.resumed_at = list(self.resumed_at)
+        if self.ckpt is not None:
+            self.ckpt.unlink(missing_ok=True)
         return knet
+
+    # ------------------------------------------------------------------ checkpoints
+    def fingerprint(self) -> str:
+        """What a checkpoint must have been made by: this call's arguments and the training code."""
+        import hashlib
+        import json
+
+        a = self.a
+        skip = {"model", "truth", "train", "val", "init", "progress", "checkpoint", "checkpoint_every", "options",
+                "snaps", "snap_steps"}
+        args = {k: v for k, v in a.items() if k not in skip}
+        def words(m: StateSpaceModel | None):  # f and h are functions: their name and the description stand for them
+            return None if m is None else [m.name, m.description, m.n_steps, m.circular_z] + [
+                None if v is None else np.asarray(v).tolist() for v in (m.Q, m.R, m.m0, m.P0, m.F, m.H)]
+
+        args.update(model=words(self.model), truth=words(a["truth"]),
+                    options=a["options"], snapshots=a["snaps"], snapshot_steps=a["snap_steps"], version=__version__)
+        code = hashlib.sha256()
+        for f in (__file__, sys.modules[GainNet.__module__].__file__):
+            code.update(Path(f).read_bytes())
+        return json.dumps(args, sort_keys=True, default=repr) + " code " + code.hexdigest()
+
+    def write_checkpoint(self, epoch: int, b: int, t0: int, carry: "_Carry | None", losses: list) -> None:
+        """The loop's whole state after the validation just made, where the next optimiser step is minibatch ``b``
+        of ``epoch`` from window start ``t0`` (``carry``: the estimate and GRU states at ``t0``)."""
+        if self.ckpt is None or time.monotonic() - self.ckpt_time < float(self.a["checkpoint_every"]):
+            return
+        from adaptfilt.files import atomic_path
+
+        state = {"format": CHECKPOINT_FORMAT, "fingerprint": self.fingerprint(), "n": self.n, "step": self.step,
+                 "position": [epoch, b, t0], "losses": list(losses),
+                 "carry": None if carry is None else [carry.x_filt, carry.x_filt_prev, carry.x_pred, list(carry.h),
+                                                      carry.mask],
+                 "net": self.knet.net.state_dict(), "opt": self.opt.state_dict(), "torch_rng": torch.get_rng_state(),
+                 "order_state": self.order_state, "hist": self.hist, "best": self.best, "best_state": self.best_state,
+                 "best_trained": self.best_trained, "att_best": self.att_best, "att_state": self.att_state,
+                 "improved": self.improved, "above": self.above, "cpu_s": self.cpu(), "resumed_at": self.resumed_at,
+                 "kept": [[k[0], k[1], w, h] for k, (w, h, _) in self.kept.items()]}
+        with atomic_path(self.ckpt) as tmp:
+            torch.save(state, tmp)
+        self.ckpt_time = time.monotonic()
+
+    def read_checkpoint(self) -> dict | None:
+        """The checkpoint this call can resume from, else None (none there, or one another call made: a warning)."""
+        if not self.ckpt.is_file():
+            return None
+        try:
+            state = torch.load(self.ckpt, weights_only=True)
+            ok = state.get("format") == CHECKPOINT_FORMAT and state.get("fingerprint") == self.fingerprint()
+        except Exception as e:  # noqa: BLE001 -- any unreadable file is one this call cannot resume from
+            ok, why = False, f"unreadable ({type(e).__name__}: {e})"[:200]
+        else:
+            why = "made by a training with other arguments or other training code"
+        if not ok:
+            _warn(f"KalmanNet training: checkpoint {self.ckpt} ignored, {why}; training from the start")
+            return None
+        print(f"adaptfilt: KalmanNet training resumed at optimiser step {state['step']} from {self.ckpt}",
+              file=sys.stderr)
+        return state
+
+    def load_state(self, r: dict, order_rng: np.random.Generator):
+        """Put the loop back where :meth:`write_checkpoint` left it; its position ``(epoch, b, t0, carry,
+        losses)``."""
+        self.hist, self.step, self.n = r["hist"], int(r["step"]), int(r["n"])
+        self.att = self.hist["attempts"][-1]  # the attempt's record is the history's last one, not a copy of it
+        self.best, self.best_state, self.best_trained = r["best"], r["best_state"], r["best_trained"]
+        self.att_best, self.att_state, self.improved, self.above = r["att_best"], r["att_state"], r["improved"], r["above"]
+        self.cpu_before, self.cpu0 = float(r["cpu_s"]), time.process_time()
+        self.resumed_at = list(r["resumed_at"]) + [self.step]
+        filters = {self.n: self.knet}
+        for k in {self.hist["best_attempt"]} | {int(h["best_attempt"]) for _, _, _, h in r["kept"]}:
+            if k not in filters:
+                filters[k] = self.attempt_filter(k)
+        self.best_knet = filters[int(self.hist["best_attempt"])]
+        self.kept = {(kind, int(v)): (w, h, filters[int(h["best_attempt"])]) for kind, v, w, h in r["kept"]}
+        self.knet.net.load_state_dict(r["net"])
+        self.opt.load_state_dict(r["opt"])
+        torch.set_rng_state(r["torch_rng"])
+        order_rng.bit_generator.state = r["order_state"]
+        epoch, b, t0 = (int(v) for v in r["position"])
+        c = r["carry"]
+        carry = None if c is None else _Carry(c[0], c[1], c[2], tuple(c[3]), c[4])
+        return epoch, b, t0, carry, list(r["losses"])

@@ -316,9 +316,15 @@ class GainSpec:
     def outputs(self) -> tuple[str, ...]:
         return tuple(str(o) for o in self.outs)
 
-    def train(self, progress: bool = False):
+    @property
+    def checkpoint(self) -> Path:
+        """Where the training keeps its checkpoint while it runs (``train_kalmannet(checkpoint=...)``): beside its
+        last file, ``OUT.resume.pt``; an interrupted training resumes from it, bit for bit, and removes it."""
+        return Path(str(self.outs[-1]) + ".resume.pt")
+
+    def train(self, progress: bool = False, checkpoint: str | Path | None = None):
         """The training itself: :func:`adaptfilt.kalmannet.train_kalmannet` with this recipe (the trained
-        filter, its snapshots kept)."""
+        filter, its snapshots kept), through ``checkpoint`` if given (the results are the same)."""
         from adaptfilt.experiment_registry import get_experiment, truth_model
         from adaptfilt.kalmannet import train_kalmannet
 
@@ -338,12 +344,14 @@ class GainSpec:
                                model_grad=self.model_grad, arch=GAIN_ARCHS[self.arch], fresh=self.fresh,
                                val_every=self.val_every, max_steps=self.steps,
                                snapshot_steps=self.snapshot_steps or (),
-                               truth=None if self.truth is None else truth_model(model, self.truth), **options)
+                               truth=None if self.truth is None else truth_model(model, self.truth),
+                               checkpoint=checkpoint, **options)
 
     def run(self, progress: bool = False) -> dict[str, dict]:
         """Train once and write each snapshot (or the filter) to its file; per file its command and its
-        training CPU-s up to it (the file's own ``history["cpu_s"]``)."""
-        knet = self.train(progress)
+        training CPU-s up to it (the file's own ``history["cpu_s"]``, every sitting of a resumed training together).
+        The training keeps a checkpoint (:attr:`checkpoint`) while it runs."""
+        knet = self.train(progress, checkpoint=self.checkpoint)
         if self.snapshots is not None:
             filters = [knet.snapshot(e) for e in self.snapshots]
         elif self.snapshot_steps is not None:
