@@ -364,10 +364,10 @@ def test_kalmannet_trains_on_a_truths_trajectories_and_keeps_the_model():
         train_kalmannet(model, truth=af.models.coordinated_turn(), **kw)
 
 
-def test_the_full_scale_is_sized_to_twelve_hours_of_one_worker_and_its_units_meet_the_targets():
+def test_the_full_scale_is_sized_to_twenty_two_hours_of_one_worker_and_its_units_meet_the_targets():
     """The full scale's work units give each budget its target CPU-s by the calibration (within 10 %, or one
     rollout / 25 optimiser steps at the smallest budgets), and the whole run, trainings and evaluations, is
-    estimated at no more than 12 hours of one worker (the first run's 5 and the supervised gain's extensions)."""
+    estimated at no more than 22 hours of one worker (the first run's 5 and the supervised gain's extensions)."""
     from adaptfilt.experiments.studies.gain import CALIBRATION, FULL, TARGET_CPU_S, estimate
 
     for e, eps in FULL.kappa_episodes.items():
@@ -379,7 +379,7 @@ def test_the_full_scale_is_sized_to_twelve_hours_of_one_worker_and_its_units_mee
         for t, n in zip(TARGET_CPU_S[e], steps):
             assert n % 25 == 0 and abs(n * rate - t) <= max(0.1 * t, 12.5 * rate)
     size = estimate()
-    assert size["hours_one_worker"] <= 12.0 and size["total_cpu_s"] == sum(
+    assert size["hours_one_worker"] <= 22.0 and size["total_cpu_s"] == sum(
         v["train_cpu_s"] + v["eval_cpu_s"] for k, v in size.items() if isinstance(v, dict))
 
 
