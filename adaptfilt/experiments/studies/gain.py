@@ -91,7 +91,10 @@ the CTM's KalmanNet arms again with recipes that count a collapse as a divergenc
 It still improved at 3000, so a sixth run extends it to 7500 by the same factor of 2.5 (60,000 CPU-s of training,
 its 8 trainings again from the start, each keeping a checkpoint, :attr:`adaptfilt.experiments.jobs.GainSpec.checkpoint`,
 so that the run can cross the sittings it needs on 2 cores): 79,100 CPU-s (22.0 hours of one worker) for the whole
-study. The supervised gain is judged against the particle
+study. 7500 CPU-s is the study's ceiling, declared before the sixth run's results: the next step (18,750 CPU-s, 150,000
+CPU-s of training, about 21 hours on 2 cores) is beyond this machine, so if the curve still falls at 7500 the study
+says that the CTM's supervised gain had not stopped improving at its ceiling, with the last step's interval, and
+does not extend it again. The supervised gain is judged against the particle
 filter too (:data:`PF`, "lower" alone).
 """
 from __future__ import annotations
