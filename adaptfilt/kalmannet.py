@@ -171,6 +171,8 @@ Example
 from __future__ import annotations
 
 import copy
+import functools
+import hashlib
 import math
 import os
 import sys
@@ -302,6 +304,16 @@ def _warn(msg: str) -> None:
     while f is not None and f.f_code.co_filename == __file__:
         f, level = f.f_back, level + 1
     warnings.warn(msg, RuntimeWarning, stacklevel=level)
+
+
+@functools.lru_cache(maxsize=1)
+def _code_sha256() -> str:
+    """The training code a checkpoint belongs to: this module's and :mod:`adaptfilt.gainnets`' source, read once,
+    in the first training of the process (an edit made while it runs then cannot pass for the code that ran)."""
+    h = hashlib.sha256()
+    for f in (__file__, sys.modules[GainNet.__module__].__file__):
+        h.update(Path(f).read_bytes())
+    return h.hexdigest()
 
 
 def restart_seed(seed: int, attempt: int) -> int:
@@ -1351,7 +1363,6 @@ class _Training:
     # ------------------------------------------------------------------ checkpoints
     def fingerprint(self) -> str:
         """What a checkpoint must have been made by: this call's arguments and the training code."""
-        import hashlib
         import json
 
         a = self.a
@@ -1364,10 +1375,7 @@ class _Training:
 
         args.update(model=words(self.model), truth=words(a["truth"]),
                     options=a["options"], snapshots=a["snaps"], snapshot_steps=a["snap_steps"], version=__version__)
-        code = hashlib.sha256()
-        for f in (__file__, sys.modules[GainNet.__module__].__file__):
-            code.update(Path(f).read_bytes())
-        return json.dumps(args, sort_keys=True, default=repr) + " code " + code.hexdigest()
+        return json.dumps(args, sort_keys=True, default=repr) + " code " + _code_sha256()
 
     def write_checkpoint(self, epoch: int, b: int, t0: int, carry: "_Carry | None", losses: list) -> None:
         """The loop's whole state after the validation just made, where the next optimiser step is minibatch ``b``

@@ -133,6 +133,13 @@ def test_a_checkpoint_of_another_call_is_ignored_with_a_warning(tmp_path, monkey
         got = train_kalmannet(model, checkpoint=ckpt, checkpoint_every=0, **other)
     assert got.resumed_at == []
     same_training(train_kalmannet(model, **other), got)
+    with monkeypatch.context() as m:
+        stopped_after(m, 2)
+        with pytest.raises(Stop):
+            train_kalmannet(model, checkpoint=ckpt, checkpoint_every=0, **kw)
+    monkeypatch.setattr(kalmannet, "_code_sha256", lambda: "edited training code")
+    with pytest.warns(RuntimeWarning, match="other arguments or other training code"):
+        assert train_kalmannet(model, checkpoint=ckpt, **kw).resumed_at == []
     ckpt.write_bytes(b"not a checkpoint")
     with pytest.warns(RuntimeWarning, match="checkpoint .* ignored, unreadable"):
         assert train_kalmannet(model, checkpoint=ckpt, **kw).resumed_at == []
