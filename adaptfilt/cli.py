@@ -242,8 +242,15 @@ def gain_spec(args: argparse.Namespace):
 
 
 def _train_gain(args: argparse.Namespace) -> int:
+    from adaptfilt.experiments.sweep import Interrupted
+
     spec = gain_spec(args)
-    spec.run(progress=not args.no_progress)
+    try:
+        spec.run(progress=not args.no_progress)
+    except KeyboardInterrupt as e:
+        kept = (f"the checkpoint {spec.checkpoint} is kept; run the same command again to continue from it"
+                if spec.checkpoint.exists() else "nothing was written")
+        raise Interrupted(kept=kept, signum=getattr(e, "signum", signal.SIGINT)) from None
     print("wrote " + ", ".join(spec.outputs))
     return 0
 
@@ -576,7 +583,7 @@ def _add_train_gain(sub) -> None:
                        description="Train a filter whose gain is learned (KalmanNet's architecture 2, "
                                    "adaptfilt.kalmannet) on trajectories of an experiment's model; every option "
                                    "is recorded in the command line each file keeps. While it runs the training "
-                                   f"keeps a checkpoint beside its last --out (OUT.resume.pt, every "
+                                   f"keeps a checkpoint beside its last --out (OUT.ckpt.npz, every "
                                    f"{CHECKPOINT_EVERY_S:g} s): the "
                                    "same command after an interruption resumes from it, bit for bit the training "
                                    "that was never stopped.")

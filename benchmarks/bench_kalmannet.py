@@ -101,7 +101,7 @@ def checkpoint_cost(key: str, model, arch: int, a) -> tuple[int, float, float, f
     try:
         with tempfile.TemporaryDirectory() as d:
             c0 = time.process_time()
-            _, h, _ = knet_cost(key, model, arch, a, checkpoint=Path(d) / "t.resume.pt", checkpoint_every=0)
+            _, h, _ = knet_cost(key, model, arch, a, checkpoint=Path(d) / "t.ckpt.npz", checkpoint_every=0)
             total = time.process_time() - c0
     finally:
         kalmannet._Training.write_checkpoint = write
