@@ -106,7 +106,7 @@ from adaptfilt.experiment_registry import resolve
 from adaptfilt.features import FeatureScaler, FeatureSet, fit_scaler, observe
 from adaptfilt.files import read_npz, write_npz
 from adaptfilt.learned import Actor, Critic, LearnedPolicy
-from adaptfilt.nets import arrays_to_state, state_to_arrays
+from adaptfilt.nets import adam_to_arrays, arrays_to_adam, arrays_to_state, state_to_arrays
 
 __all__ = ["Hyper", "train", "train_experiment", "soft_update", "checkpoint_path"]
 
@@ -153,26 +153,6 @@ def checkpoint_path(out: str | Path) -> Path:
     """``OUT.ckpt.npz`` next to the policy file ``OUT.npz``."""
     out = Path(out)
     return out.with_name((out.name[:-4] if out.name.endswith(".npz") else out.name) + ".ckpt.npz")
-
-
-def _adam_arrays(prefix: str, opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
-    out = {}
-    for i, st in opt.state_dict()["state"].items():
-        for k, v in st.items():
-            out[f"{prefix}/{i}/{k}"] = v.detach().cpu().numpy().copy() if torch.is_tensor(v) else np.asarray(v)
-    return out
-
-
-def _adam_load(prefix: str, opt: torch.optim.Optimizer, arrays: dict) -> None:
-    sd = opt.state_dict()
-    state: dict[int, dict] = {}
-    p = prefix + "/"
-    for key, v in arrays.items():
-        if key.startswith(p):
-            i, k = key[len(p):].split("/")
-            state.setdefault(int(i), {})[k] = torch.from_numpy(np.array(v))
-    sd["state"] = state
-    opt.load_state_dict(sd)
 
 
 def _summary(curve: dict[str, np.ndarray], grid) -> dict[str, Any]:
@@ -267,8 +247,8 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
             actor.load_state_dict(arrays_to_state("actor", arrays))
             critic.load_state_dict(arrays_to_state("critic", arrays))
             target.load_state_dict(arrays_to_state("target", arrays))
-            _adam_load("adam_actor", opt_actor, arrays)
-            _adam_load("adam_critic", opt_critic, arrays)
+            arrays_to_adam("adam_actor", opt_actor, arrays)
+            arrays_to_adam("adam_critic", opt_critic, arrays)
             rng_act.bit_generator.state = meta["rng_act"]
             torch_rng = torch.from_numpy(arrays["torch_rng"].copy())
             scaler = FeatureScaler(arrays["scaler/center"], arrays["scaler/scale"], float(meta["scaler"]["clip"]),
@@ -279,8 +259,8 @@ def train(env_or_experiment, gamma: float = 0.5, episodes: int = 1000, parallel:
 
         def save_checkpoint() -> None:
             arrays = {**state_to_arrays("actor", actor), **state_to_arrays("critic", critic),
-                      **state_to_arrays("target", target), **_adam_arrays("adam_actor", opt_actor),
-                      **_adam_arrays("adam_critic", opt_critic), "torch_rng": torch_rng.numpy().copy(),
+                      **state_to_arrays("target", target), **adam_to_arrays("adam_actor", opt_actor),
+                      **adam_to_arrays("adam_critic", opt_critic), "torch_rng": torch_rng.numpy().copy(),
                       "scaler/center": scaler.center, "scaler/scale": scaler.scale,
                       **{f"curve/{k}": np.asarray(v, dtype=float).reshape((len(v), G) if k == "action_frac" else (len(v),))
                          for k, v in curve.items()}}

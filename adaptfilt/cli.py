@@ -242,8 +242,15 @@ def gain_spec(args: argparse.Namespace):
 
 
 def _train_gain(args: argparse.Namespace) -> int:
+    from adaptfilt.experiments.sweep import Interrupted
+
     spec = gain_spec(args)
-    spec.run(progress=not args.no_progress)
+    try:
+        spec.run(progress=not args.no_progress)
+    except KeyboardInterrupt as e:
+        kept = (f"the checkpoint {spec.checkpoint} is kept; run the same command again to continue from it"
+                if spec.checkpoint.exists() else "nothing was written")
+        raise Interrupted(kept=kept, signum=getattr(e, "signum", signal.SIGINT)) from None
     print("wrote " + ", ".join(spec.outputs))
     return 0
 
@@ -569,14 +576,15 @@ def _add_train(sub) -> None:
 
 def _add_train_gain(sub) -> None:
     from adaptfilt.experiments.jobs import GAIN_ARCHS, GAIN_FEATURE_NORMS, GAIN_ON_DIVERGED, GainSpec
-    from adaptfilt.kalmannet import MODEL_GRADS
+    from adaptfilt.kalmannet import CHECKPOINT_EVERY_S, MODEL_GRADS
 
     d = GainSpec.__dataclass_fields__
     p = sub.add_parser("train-gain", help="train a filter with a learned gain (KalmanNet) on simulated trajectories",
                        description="Train a filter whose gain is learned (KalmanNet's architecture 2, "
                                    "adaptfilt.kalmannet) on trajectories of an experiment's model; every option "
                                    "is recorded in the command line each file keeps. While it runs the training "
-                                   "keeps a checkpoint beside its last --out (OUT.resume.pt, every minute): the "
+                                   f"keeps a checkpoint beside its last --out (OUT.ckpt.npz, every "
+                                   f"{CHECKPOINT_EVERY_S:g} s): the "
                                    "same command after an interruption resumes from it, bit for bit the training "
                                    "that was never stopped.")
     p.add_argument("name", type=_experiment, help="experiment name (its model), see `adaptfilt experiments`")

@@ -126,17 +126,23 @@ a step count calibrated on the machine (:data:`RECIPE_TUNING` records CPU-s per 
 on the clock itself, which is not reproducible.
 
 **Checkpoints** (``checkpoint=PATH``): a training of hours can be stopped and resumed. At a validation,
-at most every :data:`CHECKPOINT_EVERY_S` seconds, the whole state of the loop goes to ``PATH``
-(atomically; ``torch.save``, read back with ``weights_only=True``): the weights, Adam's state and learning
-rate, torch's random state, the minibatch order's generator, where in the epoch, minibatch and
-back-propagation window the next step starts (with the estimate and GRU states carried into it), the
-history, the best weights, the attempt's and every snapshot kept so far, and the CPU seconds spent. The
-same call that finds the file goes on from there (the simulated minibatches are drawn again from their
-own seeds), bit for bit the training that was never stopped, and removes the file when it returns;
-``knet.resumed_at`` lists the steps it resumed at (not in the saved file, which is byte for byte the
-uninterrupted training's). A file made by another call (other arguments, or other code in this module
-or :mod:`adaptfilt.gainnets`) is ignored with a warning. ``adaptfilt train-gain`` and the pipeline
-keep one beside the training's last file (:attr:`adaptfilt.experiments.jobs.GainSpec.checkpoint`).
+at most every :data:`CHECKPOINT_EVERY_S` seconds of wall time (with validation once per epoch: at the end of
+an epoch), the whole state of the loop goes to ``PATH``, a ``.npz`` without pickles written atomically like
+every file of the library (:func:`adaptfilt.files.write_npz`): the weights, Adam's moments and learning rate,
+torch's random state, the minibatch order's generator, where in the epoch, minibatch and back-propagation
+window the next step starts (with the estimate and GRU states carried into it), the history, the best
+weights, the attempt's and every snapshot kept so far, and the CPU seconds spent. About ``5 +`` (snapshots)
+copies of the weights: 1 MB on the CTM's architecture 2, tens of MB for its architecture 1. A call that finds
+the file goes on from there (the simulated minibatches are drawn again from their own seeds), bit for bit the
+training that was never stopped; ``knet.resumed_at`` lists the steps it resumed at (kept out of the saved
+filter, whose file is byte for byte the uninterrupted training's). The file is left in place when the call
+returns or raises: the caller deletes it once the results are safe (a stale one only replays the last steps
+to the same result). A checkpoint records the call's arguments and the package version, as the journal of a
+long run does (:mod:`adaptfilt.experiments.journal`); one written by another training is a ``ValueError``
+that names what differs. Like the journal it does not see an edit of the training code between two
+sittings: delete the file after one. ``adaptfilt train-gain`` and the pipeline keep it beside the training's
+last file, ``OUT.ckpt.npz``, as ``adaptfilt train`` does
+(:attr:`adaptfilt.experiments.jobs.GainSpec.checkpoint`), and delete it once their files are written.
 
 **Recipes** (:data:`RECIPES`): on UNGM both architectures train at learning rate 3e-3 over windows of
 20 steps, on minibatches of 100 freshly simulated trajectories, validated every 25 steps, the state
@@ -171,6 +177,7 @@ Example
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import sys
@@ -189,7 +196,7 @@ from adaptfilt.files import read_npz, write_npz
 from adaptfilt.filters import FilterRun
 from adaptfilt.gainnets import GainNet, GainNet1, make_gain_net
 from adaptfilt.models import StateSpaceModel, Trajectory
-from adaptfilt.nets import arrays_to_state, one_torch_thread, state_to_arrays
+from adaptfilt.nets import adam_to_arrays, arrays_to_adam, arrays_to_state, one_torch_thread, state_to_arrays
 
 __all__ = ["GainNet", "GainNet1", "KalmanNet", "train_kalmannet", "load_kalmannet", "TrainingDiverged",
            "KALMANNET_FORMAT", "RECIPES", "RECIPE_TUNING", "RECIPE_RESULTS", "restart_seed", "collapse_step"]
@@ -907,10 +914,11 @@ def train_kalmannet(model: StateSpaceModel, *, n_train: int = 100, n_val: int = 
     checkpoint : path, optional
         A file through which the training can be stopped and resumed (module docstring, *Checkpoints*):
         the whole state of the loop is written there at a validation at most every ``checkpoint_every``
-        seconds of wall time (default :data:`CHECKPOINT_EVERY_S`; 0: at every validation); a call with the same arguments that finds it goes on
-        from there, bit for bit the training that was never stopped, and removes it when it returns. A file
-        made by another call (other arguments, other training code) is ignored with a warning. Only for a
-        training that simulates its own data (no ``train``, ``val`` or ``init``).
+        seconds of wall time (default :data:`CHECKPOINT_EVERY_S`; 0: at every validation); a call with the
+        same arguments that finds it goes on from there, bit for bit the training that was never stopped.
+        The file stays when the call returns (delete it once the results are saved); one written by another
+        training is a ``ValueError`` naming what differs. Only for a training that simulates its own data
+        (no ``train``, ``val`` or ``init``).
     **options
         :class:`KalmanNet`'s options (``arch``, ``feature_norm``, ``clamp``, the widths, ``dropout``,
         ``n_samples``, ``model_grad``).
@@ -1019,13 +1027,14 @@ class _Training:
         self.best_trained = False     # whether the best is a trained network (not an initial one)
         self.kept: dict = {}          # ("epoch", e) / ("step", S) -> (weights, history, filter)
         self.hist = {
-            "train_loss": [], "val_loss": [], "best_epoch": 0, "loss": a["loss"], "epochs": a["epochs"],
-            "batch_size": int(a["batch_size"]), "lr": a["lr"], "weight_decay": a["weight_decay"], "tbptt": a["tbptt"],
-            "clip": a["clip"], "n_train": self.n_train, "n_val": self.val.n_runs, "n_steps": T, "data_seed": self.ds,
-            "calibration": a["calibration"], "on_diverged": a["on_diverged"], "restores": [], "max_cpu_s": a["max_cpu_s"],
+            "train_loss": [], "val_loss": [], "best_epoch": 0, "loss": a["loss"], "epochs": _int(a["epochs"]),
+            "batch_size": int(a["batch_size"]), "lr": float(a["lr"]), "weight_decay": float(a["weight_decay"]),
+            "tbptt": _int(a["tbptt"]), "clip": _float(a["clip"]), "n_train": self.n_train, "n_val": self.val.n_runs,
+            "n_steps": int(T), "data_seed": self.ds, "calibration": float(a["calibration"]),
+            "on_diverged": a["on_diverged"], "restores": [], "max_cpu_s": _float(a["max_cpu_s"]),
             "stopped_by_budget": False, "stopped_by_divergence": None, "seed": int(a["seed"]), "fresh": a["fresh"],
-            "val_every": a["val_every"], "max_steps": a["max_steps"], "restarts": int(a["restarts"]),
-            "patience": a["patience"], "val_steps": [], "best_step": 0, "best_attempt": 0, "attempts": [],
+            "val_every": _int(a["val_every"]), "max_steps": _int(a["max_steps"]), "restarts": int(a["restarts"]),
+            "patience": _int(a["patience"]), "val_steps": [], "best_step": 0, "best_attempt": 0, "attempts": [],
             "n_restarts": 0, "failed": None, "trajectories_seen": self.n_train if self.train is not None else 0,
             "trajectory_steps": 0}
         if a["truth"] is not None:  # recorded only when set: files made before the option existed stay reproducible
@@ -1048,11 +1057,11 @@ class _Training:
             from tqdm.auto import tqdm
 
             self.bar = tqdm(total=a["max_steps"], desc=f"train KalmanNet ({self.model.name})", unit="step", leave=False,
-                            initial=0 if self.resume is None else self.resume["step"])
+                            initial=0 if self.resume is None else self.resume[1]["step"])
         try:
             with one_torch_thread(), torch.random.fork_rng(devices=[]), np.errstate(over="ignore", invalid="ignore"):
                 # numpy's overflow warnings of a diverging estimate are replaced by the check of the loss
-                attempt = 0 if self.resume is None else self.resume["n"]
+                attempt = 0 if self.resume is None else self.resume[1]["attempt"]
                 while True:
                     end = self.attempt(attempt, self.resume)
                     self.resume = None
@@ -1071,7 +1080,7 @@ class _Training:
                 or (a["max_cpu_s"] is not None and self.cpu() >= float(a["max_cpu_s"])))
 
     # ------------------------------------------------------------------ one attempt
-    def attempt(self, n: int, resume: dict | None = None) -> str:
+    def attempt(self, n: int, resume: tuple[dict, dict] | None = None) -> str:
         """Train attempt ``n`` until its end: "epochs", "budget", "diverged", "no progress" or "stopped"; from
         where a checkpoint left it with ``resume`` (:meth:`read_checkpoint`)."""
         a = self.a
@@ -1344,89 +1353,111 @@ class _Training:
         knet.history = self.hist
         knet._snapshots = self.kept
         knet.resumed_at = list(self.resumed_at)
-        if self.ckpt is not None:
-            self.ckpt.unlink(missing_ok=True)
         return knet
 
     # ------------------------------------------------------------------ checkpoints
-    def fingerprint(self) -> str:
-        """What a checkpoint must have been made by: this call's arguments and the training code."""
-        import hashlib
-        import json
-
+    def fingerprint(self) -> dict:
+        """What a checkpoint must have been made by: this call's arguments (the models by their name, description,
+        horizon and matrices) and the package version, as the journal identifies a job (JSON's own types)."""
         a = self.a
         skip = {"model", "truth", "train", "val", "init", "progress", "checkpoint", "checkpoint_every", "options",
                 "snaps", "snap_steps"}
-        args = {k: v for k, v in a.items() if k not in skip}
+
         def words(m: StateSpaceModel | None):  # f and h are functions: their name and the description stand for them
-            return None if m is None else [m.name, m.description, m.n_steps, m.circular_z] + [
+            return None if m is None else [m.name, m.description, m.n_steps, list(m.circular_z)] + [
                 None if v is None else np.asarray(v).tolist() for v in (m.Q, m.R, m.m0, m.P0, m.F, m.H)]
 
-        args.update(model=words(self.model), truth=words(a["truth"]),
-                    options=a["options"], snapshots=a["snaps"], snapshot_steps=a["snap_steps"], version=__version__)
-        code = hashlib.sha256()
-        for f in (__file__, sys.modules[GainNet.__module__].__file__):
-            code.update(Path(f).read_bytes())
-        return json.dumps(args, sort_keys=True, default=repr) + " code " + code.hexdigest()
+        args = {k: v for k, v in a.items() if k not in skip}
+        args.update(model=words(self.model), truth=words(a["truth"]), options=a["options"], snapshots=a["snaps"],
+                    snapshot_steps=a["snap_steps"], version=__version__)
+        return json.loads(json.dumps(args, sort_keys=True, default=_plain))
 
     def write_checkpoint(self, epoch: int, b: int, t0: int, carry: "_Carry | None", losses: list) -> None:
         """The loop's whole state after the validation just made, where the next optimiser step is minibatch ``b``
         of ``epoch`` from window start ``t0`` (``carry``: the estimate and GRU states at ``t0``)."""
         if self.ckpt is None or time.monotonic() - self.ckpt_time < float(self.a["checkpoint_every"]):
             return
-        from adaptfilt.files import atomic_path
-
-        state = {"format": CHECKPOINT_FORMAT, "fingerprint": self.fingerprint(), "n": self.n, "step": self.step,
-                 "position": [epoch, b, t0], "losses": list(losses),
-                 "carry": None if carry is None else [carry.x_filt, carry.x_filt_prev, carry.x_pred, list(carry.h),
-                                                      carry.mask],
-                 "net": self.knet.net.state_dict(), "opt": self.opt.state_dict(), "torch_rng": torch.get_rng_state(),
-                 "order_state": self.order_state, "hist": self.hist, "best": self.best, "best_state": self.best_state,
-                 "best_trained": self.best_trained, "att_best": self.att_best, "att_state": self.att_state,
-                 "improved": self.improved, "above": self.above, "cpu_s": self.cpu(), "resumed_at": self.resumed_at,
-                 "kept": [[k[0], k[1], w, h] for k, (w, h, _) in self.kept.items()]}
-        with atomic_path(self.ckpt) as tmp:
-            torch.save(state, tmp)
+        arrays = {**state_to_arrays("net", self.knet.net), **state_to_arrays("best", self.best_state),
+                  **state_to_arrays("attempt", self.att_state), **adam_to_arrays("adam", self.opt),
+                  "torch_rng": torch.get_rng_state().numpy().copy()}
+        kept = []
+        for i, ((kind, at), (weights, hist, _)) in enumerate(self.kept.items()):
+            arrays.update(state_to_arrays(f"kept{i}", weights))
+            kept.append([kind, at, hist])
+        if carry is not None:
+            parts = {"x_filt": carry.x_filt, "x_filt_prev": carry.x_filt_prev, "x_pred": carry.x_pred,
+                     **{f"h{j}": h for j, h in enumerate(carry.h)}, **({} if carry.mask is None else {"mask": carry.mask})}
+            arrays.update({f"carry/{k}": v.detach().numpy().copy() for k, v in parts.items()})
+        meta = {"format": CHECKPOINT_FORMAT, "fingerprint": self.fingerprint(), "attempt": self.n, "step": self.step,
+                "position": [epoch, b, t0], "losses": losses, "hist": self.hist, "best": self.best,
+                "best_trained": self.best_trained, "attempt_best": self.att_best, "improved": self.improved,
+                "above": self.above, "lr": self.opt.param_groups[0]["lr"], "order_state": self.order_state,
+                "cpu_s": self.cpu(), "resumed_at": self.resumed_at, "kept": kept}
+        write_npz(self.ckpt, arrays, meta)
         self.ckpt_time = time.monotonic()
 
-    def read_checkpoint(self) -> dict | None:
-        """The checkpoint this call can resume from, else None (none there, or one another call made: a warning)."""
+    def read_checkpoint(self) -> tuple[dict, dict] | None:
+        """The arrays and record of the checkpoint this call resumes from; None if there is none. ValueError for a
+        file that is not one or that another training wrote, naming what differs."""
         if not self.ckpt.is_file():
             return None
-        try:
-            state = torch.load(self.ckpt, weights_only=True)
-            ok = state.get("format") == CHECKPOINT_FORMAT and state.get("fingerprint") == self.fingerprint()
-        except Exception as e:  # noqa: BLE001 -- any unreadable file is one this call cannot resume from
-            ok, why = False, f"unreadable ({type(e).__name__}: {e})"[:200]
-        else:
-            why = "made by a training with other arguments or other training code"
-        if not ok:
-            _warn(f"KalmanNet training: checkpoint {self.ckpt} ignored, {why}; training from the start")
-            return None
-        print(f"adaptfilt: KalmanNet training resumed at optimiser step {state['step']} from {self.ckpt}",
-              file=sys.stderr)
-        return state
+        arrays, meta = read_npz(self.ckpt, "adaptfilt KalmanNet checkpoint")
+        if meta.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError(f"{self.ckpt}: not an adaptfilt KalmanNet checkpoint (format {meta.get('format')!r})")
+        mine, theirs = self.fingerprint(), meta.get("fingerprint", {})
+        diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        if diff:
+            def short(v) -> str:
+                r = repr(v)
+                return r if len(r) <= 40 else r[:37] + "..."
 
-    def load_state(self, r: dict, order_rng: np.random.Generator):
+            said = "; ".join(f"{k} {short(theirs.get(k))} there, {short(mine.get(k))} here" for k in diff[:3])
+            raise ValueError(f"checkpoint {self.ckpt} was written by a different training ({said}); delete it to "
+                             f"train from the start")
+        print(f"adaptfilt: KalmanNet training resumed at optimiser step {meta['step']} from {self.ckpt}",
+              file=sys.stderr)
+        return arrays, meta
+
+    def load_state(self, resume: tuple[dict, dict], order_rng: np.random.Generator):
         """Put the loop back where :meth:`write_checkpoint` left it; its position ``(epoch, b, t0, carry,
         losses)``."""
-        self.hist, self.step, self.n = r["hist"], int(r["step"]), int(r["n"])
+        arrays, r = resume
+        self.hist, self.step, self.n = r["hist"], int(r["step"]), int(r["attempt"])
         self.att = self.hist["attempts"][-1]  # the attempt's record is the history's last one, not a copy of it
-        self.best, self.best_state, self.best_trained = r["best"], r["best_state"], r["best_trained"]
-        self.att_best, self.att_state, self.improved, self.above = r["att_best"], r["att_state"], r["improved"], r["above"]
+        self.best, self.best_trained = r["best"], r["best_trained"]
+        self.best_state, self.att_state = arrays_to_state("best", arrays), arrays_to_state("attempt", arrays)
+        self.att_best, self.improved, self.above = r["attempt_best"], r["improved"], int(r["above"])
         self.cpu_before, self.cpu0 = float(r["cpu_s"]), time.process_time()
         self.resumed_at = list(r["resumed_at"]) + [self.step]
-        filters = {self.n: self.knet}
-        for k in {self.hist["best_attempt"]} | {int(h["best_attempt"]) for _, _, _, h in r["kept"]}:
+        filters = {self.n: self.knet}  # the filters the best and the kept weights belong to, rebuilt by attempt
+        for k in {int(self.hist["best_attempt"])} | {int(h["best_attempt"]) for _, _, h in r["kept"]}:
             if k not in filters:
                 filters[k] = self.attempt_filter(k)
         self.best_knet = filters[int(self.hist["best_attempt"])]
-        self.kept = {(kind, int(v)): (w, h, filters[int(h["best_attempt"])]) for kind, v, w, h in r["kept"]}
-        self.knet.net.load_state_dict(r["net"])
-        self.opt.load_state_dict(r["opt"])
-        torch.set_rng_state(r["torch_rng"])
+        self.kept = {(kind, int(at)): (arrays_to_state(f"kept{i}", arrays), h, filters[int(h["best_attempt"])])
+                     for i, (kind, at, h) in enumerate(r["kept"])}
+        self.knet.net.load_state_dict(arrays_to_state("net", arrays))
+        arrays_to_adam("adam", self.opt, arrays)
+        self.opt.param_groups[0]["lr"] = r["lr"]  # halved by each restore
+        torch.set_rng_state(torch.from_numpy(arrays["torch_rng"].copy()))
         order_rng.bit_generator.state = r["order_state"]
         epoch, b, t0 = (int(v) for v in r["position"])
-        c = r["carry"]
-        carry = None if c is None else _Carry(c[0], c[1], c[2], tuple(c[3]), c[4])
+        carry = None
+        if "carry/x_filt" in arrays:
+            c = arrays_to_state("carry", arrays)
+            h = tuple(c[f"h{j}"] for j in range(sum(k.startswith("h") for k in c)))
+            carry = _Carry(c["x_filt"], c["x_filt_prev"], c["x_pred"], h, c.get("mask"))
         return epoch, b, t0, carry, list(r["losses"])
+
+
+def _int(x) -> int | None:
+    return None if x is None else int(x)
+
+
+def _float(x) -> float | None:
+    return None if x is None else float(x)
+
+
+def _plain(x):
+    """JSON for what json cannot write itself: numpy numbers as Python's, anything else by its repr."""
+    return x.item() if isinstance(x, np.generic) else repr(x)

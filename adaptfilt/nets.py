@@ -25,15 +25,39 @@ from torch import nn
 __all__ = ["state_to_arrays", "arrays_to_state", "one_torch_thread"]
 
 
-def state_to_arrays(prefix: str, module: nn.Module) -> dict[str, np.ndarray]:
-    """``module.state_dict()`` as ``{prefix/name: array}``."""
-    return {f"{prefix}/{k}": v.detach().cpu().numpy().copy() for k, v in module.state_dict().items()}
+def state_to_arrays(prefix: str, module: nn.Module | Mapping[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    """``module.state_dict()`` (or a state dict itself) as ``{prefix/name: array}``."""
+    state = module.state_dict() if isinstance(module, nn.Module) else module
+    return {f"{prefix}/{k}": v.detach().cpu().numpy().copy() for k, v in state.items()}
 
 
 def arrays_to_state(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
     """The ``prefix/`` entries of ``arrays`` as a ``state_dict`` (tensors that own their memory)."""
     p = prefix + "/"
     return {k[len(p):]: torch.from_numpy(np.array(v)) for k, v in arrays.items() if k.startswith(p)}
+
+
+def adam_to_arrays(prefix: str, opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
+    """An optimiser's per-parameter state (Adam's step and moments) as ``{prefix/i/name: array}``; the learning
+    rate and the other settings live in its param groups, which the caller builds again."""
+    out = {}
+    for i, st in opt.state_dict()["state"].items():
+        for k, v in st.items():
+            out[f"{prefix}/{i}/{k}"] = v.detach().cpu().numpy().copy() if torch.is_tensor(v) else np.asarray(v)
+    return out
+
+
+def arrays_to_adam(prefix: str, opt: torch.optim.Optimizer, arrays: Mapping[str, np.ndarray]) -> None:
+    """Load what :func:`adam_to_arrays` wrote into ``opt`` (built with the same parameters and settings)."""
+    sd = opt.state_dict()
+    state: dict[int, dict] = {}
+    p = prefix + "/"
+    for key, v in arrays.items():
+        if key.startswith(p):
+            i, k = key[len(p):].split("/")
+            state.setdefault(int(i), {})[k] = torch.from_numpy(np.array(v))
+    sd["state"] = state
+    opt.load_state_dict(sd)
 
 
 @contextlib.contextmanager

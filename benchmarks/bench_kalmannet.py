@@ -21,7 +21,9 @@ The ratio KalmanNet / PPO is printed per model and architecture: the cost of a t
 the learned gain's training in units of a PPO transition of the learned kappa's. UNGM's f and h run
 in torch through the model's torch forms (``model_grad="jacobian"``); the row "numpy f, h" takes the
 old path (numpy functions, forward-difference Jacobians) for comparison. The filtering speed of the
-trained networks (no gradients, ``--runs`` runs batched) is printed last.
+trained networks (no gradients, ``--runs`` runs batched) is printed next, and last the cost of a training's
+checkpoints (``train_kalmannet(checkpoint=...)``, one written at every validation of the last model's architecture-2
+training): process CPU per write, the file's size, and its share of a training at the default interval.
 
 Measured (2026-11-29, ``python benchmarks/bench_kalmannet.py``, this 2-core machine beside the learned-gain
 study's two training workers; microseconds of process CPU per trajectory-step or transition, ratio to PPO):
@@ -58,7 +60,7 @@ import torch
 
 import adaptfilt as af
 from adaptfilt.experiments.studies.gain import KAPPA_RECIPES
-from adaptfilt.kalmannet import RECIPES, train_kalmannet
+from adaptfilt.kalmannet import CHECKPOINT_EVERY_S, RECIPES, train_kalmannet
 from adaptfilt.trainers import FAST, SB3Config, train_policy, train_sb3
 
 MODELS = {"ungm": ("ungm-ukf", af.models.ungm), "ctm": ("ctm-ukf", af.models.coordinated_turn)}
@@ -77,6 +79,33 @@ def knet_cost(key: str, model, arch: int, a, **extra) -> tuple[float, dict, obje
                                **recipe)
     cpu = time.process_time() - c0
     return cpu / knet.history["trajectory_steps"], knet.history, knet
+
+
+def checkpoint_cost(key: str, model, arch: int, a) -> tuple[int, float, float, float]:
+    """One KalmanNet training (the recipe, as :func:`knet_cost`) that writes a checkpoint at every validation:
+    the writes, process CPU-s per write, the largest file in bytes, and the training's CPU-s per validation."""
+    import tempfile
+    from pathlib import Path
+
+    from adaptfilt import kalmannet
+
+    write, cpu, size = kalmannet._Training.write_checkpoint, [], [0]
+
+    def timed(self, *args):
+        c0 = time.process_time()
+        write(self, *args)
+        cpu.append(time.process_time() - c0)
+        size[0] = max(size[0], self.ckpt.stat().st_size)
+
+    kalmannet._Training.write_checkpoint = timed
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            c0 = time.process_time()
+            _, h, _ = knet_cost(key, model, arch, a, checkpoint=Path(d) / "t.ckpt.npz", checkpoint_every=0)
+            total = time.process_time() - c0
+    finally:
+        kalmannet._Training.write_checkpoint = write
+    return len(cpu), sum(cpu) / max(1, len(cpu)), size[0], total / len(h["val_steps"])
 
 
 def ppo_cost(experiment: str, a) -> tuple[float, int]:
@@ -139,6 +168,12 @@ def main() -> None:
         if label.endswith("architecture 2") or label.endswith("architecture 1"):
             print(f"{key}: {label}: a trajectory-step of training costs {r:.2f} PPO transitions "
                   f"({'within' if r <= 2 else 'NOT within'} 2x)")
+    key = a.models.split(",")[-1]
+    n, per, size, per_val = checkpoint_cost(key, MODELS[key][1](), 2, a)
+    print(f"{key}: checkpoints (architecture 2, one at each of {n} validations): {per * 1e3:.1f} ms of process CPU "
+          f"per write, {size / 1e3:,.0f} kB; {per / per_val:.1%} of the training's CPU between two validations; at "
+          f"the default interval ({CHECKPOINT_EVERY_S:g} s of wall time) about {per / CHECKPOINT_EVERY_S:.3%} of a "
+          f"training")
 
 
 if __name__ == "__main__":

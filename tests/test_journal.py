@@ -90,6 +90,36 @@ def test_an_interrupt_keeps_the_finished_jobs_and_says_so(tmp_path):
     assert not path.exists()
 
 
+def test_an_interrupt_names_the_checkpoints_that_unfinished_jobs_keep(tmp_path):
+    """A job that keeps its own checkpoint (a learned-gain training) and is stopped leaves something to resume
+    even before any job has finished: the line says so, and names it."""
+    jobs, keys, files = _jobs(tmp_path)
+    ckpts = [tmp_path / f"f{i}.ckpt.npz" for i in range(3)]
+
+    def stop_with_a_checkpoint(p: str, text: str) -> int:
+        i = int(p[-5])
+        if i >= 1:  # jobs 1 and 2 have written a checkpoint each when the stop comes
+            ckpts[1].write_text("state")
+            ckpts[2].write_text("state")
+            raise KeyboardInterrupt
+        return write_job(p, text)
+
+    path = tmp_path / "journal.jsonl"
+    with pytest.raises(Interrupted) as e:
+        Journal(path).run(stop_with_a_checkpoint, jobs, keys, files=files, checkpoints=ckpts, workers=1,
+                          progress=False)
+    assert e.value.kept == (f"1 finished jobs are kept in {path}; 2 unfinished jobs keep their checkpoints "
+                            "(f1.ckpt.npz, f2.ckpt.npz); run the same command again to resume")
+    for c in ckpts[1:]:
+        c.unlink()
+    other = tmp_path / "other.jsonl"
+    with pytest.raises(Interrupted) as e:
+        Journal(other).run(stop_with_a_checkpoint, jobs[1:], keys[1:], files=files[1:], checkpoints=ckpts[1:],
+                           workers=1, progress=False)
+    assert e.value.kept == ("no job had finished; 2 unfinished jobs keep their checkpoints (f1.ckpt.npz, "
+                            "f2.ckpt.npz); run the same command again to resume")
+
+
 def test_an_atomic_write_that_fails_leaves_the_old_file_and_no_temporary(tmp_path):
     target = tmp_path / "out.txt"
     atomic_write(target, "old")

@@ -107,7 +107,8 @@ def _train(r: Run, trainings: list[Training]) -> None:
         r.say(f"[beyond] {len(left) - resumed} {noun}, {resumed} finished by an earlier run ({JOURNAL}), "
               f"{len(mine) - len(left)} listed in the manifest")
     records = r.jobs(run_training, [(t,) for t in todo], keys, files=[list(t.outputs) for t in todo],
-                     progress=r.progress, desc="beyond: train")
+                     checkpoints=[getattr(t, "checkpoint", None) for t in todo], progress=r.progress,
+                     desc="beyond: train")
     r.entries.update({rel(o): rec for made in records for o, rec in made.items()})
 
 

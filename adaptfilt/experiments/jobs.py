@@ -319,8 +319,11 @@ class GainSpec:
     @property
     def checkpoint(self) -> Path:
         """Where the training keeps its checkpoint while it runs (``train_kalmannet(checkpoint=...)``): beside its
-        last file, ``OUT.resume.pt``; an interrupted training resumes from it, bit for bit, and removes it."""
-        return Path(str(self.outs[-1]) + ".resume.pt")
+        last file, ``OUT.ckpt.npz`` (:func:`adaptfilt.actor_critic.checkpoint_path`, as ``adaptfilt train``'s); the
+        same job, run again, resumes from it, bit for bit, and deletes it once its files are written."""
+        from adaptfilt.actor_critic import checkpoint_path
+
+        return checkpoint_path(self.outs[-1])
 
     def train(self, progress: bool = False, checkpoint: str | Path | None = None):
         """The training itself: :func:`adaptfilt.kalmannet.train_kalmannet` with this recipe (the trained
@@ -362,6 +365,7 @@ class GainSpec:
         for f, path in zip(filters, self.outputs):
             f.save(path)
             out[path] = {"command": self.command, "wall_time_s": None, "cpu_time_s": float(f.history["cpu_s"])}
+        self.checkpoint.unlink(missing_ok=True)  # only now: a stop before the files are whole resumes from it
         return out
 
 

@@ -101,12 +101,14 @@ class Journal:
     def run(self, fn: Callable, jobs: Sequence[tuple], keys: Sequence[tuple[str, int]],
             files: Sequence[Sequence[str | Path]] | None = None,
             save: Callable[[Path, Any], tuple[list[Path], Any]] | None = None,
-            load: Callable[[Path, Any], Any] | None = None, **run_kw) -> list:
+            load: Callable[[Path, Any], Any] | None = None,
+            checkpoints: Sequence[str | Path | None] | None = None, **run_kw) -> list:
         """:func:`~adaptfilt.experiments.sweep.run_jobs` over the jobs the journal does not hold.
 
         ``keys[i]``: job i's (command, seed); ``files[i]``: the files job i writes itself (recorded
-        with their sha256); ``save``/``load``: a value kept as files (module docstring). Returns every
-        job's value in job order, taken from the journal or computed now."""
+        with their sha256); ``save``/``load``: a value kept as files (module docstring); ``checkpoints[i]``: where
+        job i keeps its own checkpoint while it runs, if it does (an interrupt then says how many are kept).
+        Returns every job's value in job order, taken from the journal or computed now."""
         values: list = [None] * len(jobs)
         todo = []
         for i, (command, seed) in enumerate(keys):
@@ -125,16 +127,27 @@ class Journal:
         try:
             run_jobs(fn, [jobs[i] for i in todo], on_done=done, **run_kw)
         except KeyboardInterrupt as e:
-            raise self.interrupted(e) from None
+            kept = [Path(checkpoints[i]) for i in todo if checkpoints and checkpoints[i] is not None]
+            raise self.interrupted(e, [p for p in kept if p.exists()]) from None
         return values
 
     def _value(self, rec: dict, load) -> Any:
         return load(self.folder(rec["command"], rec["seed"]), rec["value"]) if load else rec["value"]
 
-    def interrupted(self, e: BaseException) -> Interrupted:
-        """The interrupt ``e`` (Ctrl-C, or SIGTERM turned into it) with one line on what is kept."""
-        kept = (f"{len(self.records)} finished jobs are kept in {self.path}; run the same command again to "
-                "resume" if self.records else "no job had finished: nothing to resume")
+    def interrupted(self, e: BaseException, checkpoints: Sequence[Path] = ()) -> Interrupted:
+        """The interrupt ``e`` (Ctrl-C, or SIGTERM turned into it) with one line on what is kept: the finished
+        jobs, and the ``checkpoints`` unfinished jobs left to go on from."""
+        n = len(checkpoints)
+        partial = (f"{n} unfinished job{'s' * (n != 1)} keep{'s' * (n == 1)} {'its' if n == 1 else 'their'} "
+                   f"checkpoint{'s' * (n != 1)} ({', '.join(p.name for p in checkpoints[:2])}"
+                   f"{', ...' if n > 2 else ''})") if n else ""
+        if self.records:
+            kept = (f"{len(self.records)} finished jobs are kept in {self.path}" + (f"; {partial}" if n else "")
+                    + "; run the same command again to resume")
+        elif n:
+            kept = f"no job had finished; {partial}; run the same command again to resume"
+        else:
+            kept = "no job had finished: nothing to resume"
         return Interrupted(getattr(e, "done", 0), getattr(e, "total", 0), kept, getattr(e, "signum", signal.SIGINT))
 
     def finish(self) -> None:
